@@ -1,0 +1,219 @@
+"""On-disk cache of per-node view encodings.
+
+Rendering four 640x480 views per intersection and running a CNN over them takes seconds to minutes, so the result is
+computed once per (world, renderer settings, encoder, number of nodes) and stored as
+``<cache_dir>/views-<key[:24]>.npz``. The key is a sha256 over :data:`CACHE_FORMAT_VERSION`, the caller's key parts,
+the encoder's name and output shape/dtype and the number of nodes; the file records the full key and a checksum of the
+array, and a file that fails either check (or cannot be read) is reported with a warning and rebuilt. Files are
+written to a temporary file in the same directory and moved into place with :func:`os.replace`, so readers never see a
+partial file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import tempfile
+import warnings
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from campusnav_env.encoders import ViewEncoder
+
+__all__ = ["CACHE_FORMAT_VERSION", "cache_key", "cache_path", "cached_view_features", "default_cache_dir"]
+
+# Bump when the file layout or the meaning of cached arrays changes: old files then simply stop matching.
+CACHE_FORMAT_VERSION = 1
+VIEWS_PER_NODE = 4
+# Views encoded per call: amortises CNN batching (32 views = 8 nodes) while bounding memory (~30 MB at 640x480).
+_VIEWS_PER_BATCH = 32
+
+
+def default_cache_dir() -> Path:
+    """Return ``$CAMPUSNAV_CACHE`` if set, else ``~/.cache/campusnav``."""
+    env = os.environ.get("CAMPUSNAV_CACHE")
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "campusnav"
+
+
+def _check_key_parts(key_parts: Mapping[str, str]) -> dict[str, str]:
+    if not isinstance(key_parts, Mapping):
+        raise TypeError(f"key_parts must be a mapping of str to str, got {type(key_parts).__name__}")
+    for k, v in key_parts.items():
+        if not isinstance(k, str) or not isinstance(v, str):
+            raise TypeError(f"key_parts must map str to str, got {k!r}: {v!r}")
+    return dict(sorted(key_parts.items()))
+
+
+def _check_n_nodes(n_nodes: int) -> int:
+    if isinstance(n_nodes, bool) or not isinstance(n_nodes, (int, np.integer)) or n_nodes < 1:
+        raise ValueError(f"n_nodes must be a positive integer, got {n_nodes!r}")
+    return int(n_nodes)
+
+
+def _key_document(key_parts: Mapping[str, str], n_nodes: int, encoder: ViewEncoder) -> dict[str, object]:
+    return {
+        "format_version": CACHE_FORMAT_VERSION,
+        "key_parts": _check_key_parts(key_parts),
+        "encoder": encoder.name,
+        "output_shape": [int(d) for d in encoder.output_shape],
+        "dtype": np.dtype(encoder.dtype).str,
+        "n_nodes": _check_n_nodes(n_nodes),
+    }
+
+
+def cache_key(key_parts: Mapping[str, str], n_nodes: int, encoder: ViewEncoder) -> str:
+    """Return the sha256 hex key of a cache entry (independent of the order of ``key_parts``)."""
+    document = json.dumps(_key_document(key_parts, n_nodes, encoder), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(document.encode("utf-8")).hexdigest()
+
+
+def cache_path(
+    key_parts: Mapping[str, str], n_nodes: int, encoder: ViewEncoder, *, cache_dir: str | Path | None = None
+) -> Path:
+    """Return the file that :func:`cached_view_features` reads and writes for these arguments."""
+    directory = default_cache_dir() if cache_dir is None else Path(cache_dir)
+    return directory / f"views-{cache_key(key_parts, n_nodes, encoder)[:24]}.npz"
+
+
+def _checksum(array: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(array).data).hexdigest()
+
+
+def _load(path: Path, key: str, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+    """Read and verify a cache file; raise ValueError saying what is wrong."""
+    try:
+        # Open the file ourselves: np.load leaks its handle when the archive is unreadable.
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as data:
+            features = data["features"]
+            meta = json.loads(str(data["meta"]))
+    except Exception as e:  # truncated or foreign files fail in many ways (BadZipFile, EOFError, KeyError, ...)
+        raise ValueError(f"unreadable ({type(e).__name__}: {e})") from e
+    if not isinstance(meta, dict) or meta.get("key") != key:
+        raise ValueError("key mismatch (written for other inputs)")
+    if features.shape != shape or features.dtype != dtype:
+        raise ValueError(f"array is {features.shape} {features.dtype}, expected {shape} {dtype}")
+    if meta.get("checksum") != _checksum(features):
+        raise ValueError("checksum mismatch (array damaged)")
+    return features
+
+
+def _ensure_writable_dir(directory: Path) -> None:
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise type(e)(e.errno, f"cannot create cache directory {directory}: {e.strerror or e}") from e
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise PermissionError(f"cache directory {directory} is not writable; set $CAMPUSNAV_CACHE or pass cache_dir")
+
+
+def _save_atomic(path: Path, features: np.ndarray, meta: Mapping[str, object]) -> None:
+    """Write the npz to a temp file in the same directory, fsync it, then rename it over ``path``."""
+    tmp_name: str | None = None
+    try:
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp", delete=False) as tmp:
+            tmp_name = tmp.name
+            # Saving to the open handle: given a file name, numpy would append ".npz" to it.
+            np.savez(tmp, features=features, meta=np.array(json.dumps(meta, sort_keys=True)))
+            tmp.flush()
+            os.fsync(tmp.fileno())
+        os.replace(tmp_name, path)
+    except BaseException:
+        if tmp_name is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp_name)
+        raise
+    # Make the rename itself durable where the platform allows fsync on a directory.
+    with contextlib.suppress(OSError):
+        fd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _check_views(views: object, node: int, first: tuple[int, ...] | None) -> np.ndarray:
+    if not isinstance(views, np.ndarray):
+        raise ValueError(f"render_node({node}) returned {type(views).__name__}, expected a numpy array (4, H, W, 3)")
+    if views.ndim != 4 or views.shape[0] != VIEWS_PER_NODE or views.shape[3] != 3:
+        raise ValueError(f"render_node({node}) returned shape {views.shape}, expected (4, H, W, 3) in N, E, S, W order")
+    if views.dtype != np.uint8:
+        raise ValueError(f"render_node({node}) returned dtype {views.dtype}, expected uint8 RGB")
+    if first is not None and views.shape != first:
+        raise ValueError(f"render_node({node}) returned shape {views.shape}, but earlier nodes gave {first}")
+    return views
+
+
+def _compute(
+    n_nodes: int, render_node: Callable[[int], np.ndarray], encoder: ViewEncoder, progress: bool
+) -> np.ndarray:
+    expected = (n_nodes, VIEWS_PER_NODE, *encoder.output_shape)
+    features = np.empty(expected, dtype=encoder.dtype)
+    nodes_per_batch = max(1, _VIEWS_PER_BATCH // VIEWS_PER_NODE)
+    first_shape: tuple[int, ...] | None = None
+    with tqdm(total=n_nodes, desc=f"encoding views ({encoder.name})", unit="node", disable=not progress) as bar:
+        for start in range(0, n_nodes, nodes_per_batch):
+            nodes = range(start, min(start + nodes_per_batch, n_nodes))
+            batch = []
+            for node in nodes:
+                views = _check_views(render_node(node), node, first_shape)
+                first_shape = views.shape
+                batch.append(views)
+            encoded = np.asarray(encoder.encode(np.concatenate(batch)))
+            want = (len(nodes) * VIEWS_PER_NODE, *encoder.output_shape)
+            if encoded.shape != want:
+                raise ValueError(f"encoder {encoder.name!r} returned shape {encoded.shape}, expected {want}")
+            features[start : start + len(nodes)] = encoded.reshape(len(nodes), VIEWS_PER_NODE, *encoder.output_shape)
+            bar.update(len(nodes))
+    return features
+
+
+def cached_view_features(
+    key_parts: Mapping[str, str],
+    n_nodes: int,
+    render_node: Callable[[int], np.ndarray],
+    encoder: ViewEncoder,
+    *,
+    cache_dir: str | Path | None = None,
+    progress: bool = True,
+) -> np.ndarray:
+    """Return the encodings of every node's four views, computing and caching them on first use.
+
+    Args:
+        key_parts: Everything besides the encoder that determines the views, as strings (e.g.
+            ``{"world": world.fingerprint(), "render": settings.key()}``); order does not matter.
+        n_nodes: Number of nodes; nodes ``0 .. n_nodes - 1`` are rendered.
+        render_node: ``render_node(node)`` returns the node's views, ``(4, H, W, 3)`` uint8 RGB in N, E, S, W order.
+        encoder: Encoder applied to the views.
+        cache_dir: Cache directory; None uses :func:`default_cache_dir`.
+        progress: Show a tqdm progress bar while computing.
+
+    Returns:
+        ``(n_nodes, 4, *encoder.output_shape)`` array of dtype ``encoder.dtype``.
+
+    Raises:
+        ValueError: ``render_node`` or the encoder returned arrays of the wrong shape or dtype, or ``n_nodes`` < 1.
+        PermissionError: The cache directory is not writable (other ``OSError`` if it cannot be created).
+    """
+    n_nodes = _check_n_nodes(n_nodes)
+    document = _key_document(key_parts, n_nodes, encoder)
+    key = cache_key(key_parts, n_nodes, encoder)
+    path = cache_path(key_parts, n_nodes, encoder, cache_dir=cache_dir)
+    shape = (n_nodes, VIEWS_PER_NODE, *encoder.output_shape)
+    dtype = np.dtype(encoder.dtype)
+
+    if path.exists():
+        try:
+            return _load(path, key, shape, dtype)
+        except ValueError as e:
+            warnings.warn(f"feature cache {path} is invalid: {e}; rebuilding it", RuntimeWarning, stacklevel=2)
+
+    # Fail before spending minutes on rendering if the result could not be stored.
+    _ensure_writable_dir(path.parent)
+    features = _compute(n_nodes, render_node, encoder, progress)
+    _save_atomic(path, features, {**document, "key": key, "checksum": _checksum(features)})
+    return features

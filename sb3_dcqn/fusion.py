@@ -1,0 +1,70 @@
+"""Embedding-fusion features extractor (Zhu et al., "Target-driven visual navigation", 2017).
+
+The current views and the goal views go through one shared (siamese) linear layer into the same embedding space; the
+two embeddings (plus any other observation keys, such as the heading) are concatenated and a fusion layer forms the
+joint state representation that the critics read.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from torch import nn
+
+
+class EmbeddingFusionExtractor(BaseFeaturesExtractor):
+    """
+    Siamese embedding of current and goal views, then a fusion layer.
+
+    :param observation_space: A Dict space holding ``current_key`` and ``goal_key`` (same shape, e.g. ``(4, D)``
+        features of the four views) and optionally other Box entries, which are flattened into the fusion input.
+    :param embed_dim: Size of the shared embedding of each of current and goal views
+    :param features_dim: Size of the fused state (output)
+    :param current_key: Observation key of the current views
+    :param goal_key: Observation key of the goal views
+    :param activation_fn: Activation after the embedding and the fusion layers
+    """
+
+    def __init__(
+        self,
+        observation_space: gym.spaces.Dict,
+        embed_dim: int = 512,
+        features_dim: int = 512,
+        current_key: str = "views",
+        goal_key: str = "goal_views",
+        activation_fn: type[nn.Module] = nn.ReLU,
+    ) -> None:
+        if not isinstance(observation_space, spaces.Dict):
+            raise TypeError(f"EmbeddingFusionExtractor needs a Dict observation space, got {observation_space}")
+        for key in (current_key, goal_key):
+            if key not in observation_space.spaces:
+                raise KeyError(
+                    f"EmbeddingFusionExtractor: observation key {key!r} not in the observation space "
+                    f"(keys: {sorted(observation_space.spaces)})"
+                )
+        current_space, goal_space = observation_space[current_key], observation_space[goal_key]
+        if current_space.shape != goal_space.shape:
+            raise ValueError(
+                f"EmbeddingFusionExtractor: {current_key!r} {current_space.shape} and {goal_key!r} {goal_space.shape} "
+                "must have the same shape to share the siamese embedding"
+            )
+        super().__init__(observation_space, features_dim)
+        self.current_key = current_key
+        self.goal_key = goal_key
+        self.extra_keys = sorted(k for k in observation_space.spaces if k not in (current_key, goal_key))
+        view_dim = int(np.prod(current_space.shape))
+        extra_dim = sum(int(np.prod(observation_space[k].shape)) for k in self.extra_keys)
+        self.embedding = nn.Sequential(nn.Flatten(), nn.Linear(view_dim, embed_dim), activation_fn())
+        self.fusion = nn.Sequential(nn.Linear(2 * embed_dim + extra_dim, features_dim), activation_fn())
+
+    def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
+        batch = observations[self.current_key].shape[0]
+        # One pass of the shared layer over current and goal views stacked along the batch
+        both = th.cat([observations[self.current_key], observations[self.goal_key]]).float()
+        embedded = self.embedding(both)
+        parts = [embedded[:batch], embedded[batch:]]
+        parts += [observations[k].float().reshape(batch, -1) for k in self.extra_keys]
+        return self.fusion(th.cat(parts, dim=1))

@@ -1,0 +1,293 @@
+"""Specification of the on-disk view-feature cache (campusnav_env.feature_cache)."""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import campusnav_env.feature_cache as feature_cache
+from campusnav_env.encoders import PixelProjectionEncoder, ThumbnailEncoder, ViewEncoder
+from campusnav_env.feature_cache import (
+    CACHE_FORMAT_VERSION,
+    cache_key,
+    cache_path,
+    cached_view_features,
+    default_cache_dir,
+)
+
+N_NODES = 10
+KEY = {"world": "world-fingerprint-abc", "render": "640x480-fov90-noon"}
+
+
+class CountingRenderer:
+    """Deterministic fake renderer: node n gives four small views drawn from seed n; counts calls."""
+
+    def __init__(self, fail_at: int | None = None) -> None:
+        self.calls: list[int] = []
+        self.fail_at = fail_at
+
+    def __call__(self, node: int) -> np.ndarray:
+        if node == self.fail_at:
+            raise RuntimeError(f"renderer crashed at node {node}")
+        self.calls.append(node)
+        return np.random.default_rng(node).integers(0, 256, (4, 24, 32, 3), dtype=np.uint8)
+
+
+@pytest.fixture
+def encoder() -> PixelProjectionEncoder:
+    return PixelProjectionEncoder(dim=8)
+
+
+def build(
+    cache_dir: Path,
+    encoder: ViewEncoder,
+    render: Callable[[int], np.ndarray],
+    key: dict[str, str] = KEY,
+    n_nodes: int = N_NODES,
+) -> np.ndarray:
+    return cached_view_features(key, n_nodes, render, encoder, cache_dir=cache_dir, progress=False)
+
+
+def test_first_call_computes_every_node_second_call_loads(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    render = CountingRenderer()
+    features = build(tmp_path, encoder, render)
+    assert sorted(render.calls) == list(range(N_NODES))
+    assert features.shape == (N_NODES, 4, 8) and features.dtype == np.float32
+    for node in (0, 7):
+        np.testing.assert_array_equal(features[node], encoder.encode(render(node)))
+
+    again = CountingRenderer()
+    np.testing.assert_array_equal(build(tmp_path, encoder, again), features)
+    assert again.calls == []
+    assert os.listdir(tmp_path) == [cache_path(KEY, N_NODES, encoder, cache_dir=tmp_path).name]
+
+
+def test_cache_file_records_its_key_and_checksum(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    build(tmp_path, encoder, CountingRenderer())
+    path = cache_path(KEY, N_NODES, encoder, cache_dir=tmp_path)
+    key = cache_key(KEY, N_NODES, encoder)
+    assert path == tmp_path / f"views-{key[:24]}.npz"
+    with np.load(path) as data:
+        meta = json.loads(str(data["meta"]))
+        assert data["features"].shape == (N_NODES, 4, 8)
+    assert meta["key"] == key and len(meta["checksum"]) == 64
+    assert meta["format_version"] == CACHE_FORMAT_VERSION and meta["encoder"] == encoder.name
+
+
+def test_uint8_encoders_are_cached_too(tmp_path: Path) -> None:
+    thumbnails = build(tmp_path, ThumbnailEncoder(height=6, width=8), CountingRenderer())
+    assert thumbnails.shape == (N_NODES, 4, 3, 6, 8) and thumbnails.dtype == np.uint8
+    render = CountingRenderer()
+    np.testing.assert_array_equal(build(tmp_path, ThumbnailEncoder(height=6, width=8), render), thumbnails)
+    assert render.calls == []
+
+
+def test_key_part_order_does_not_matter(encoder: PixelProjectionEncoder) -> None:
+    reordered = dict(reversed(list(KEY.items())))
+    assert cache_key(reordered, N_NODES, encoder) == cache_key(KEY, N_NODES, encoder)
+
+
+@pytest.mark.parametrize(
+    ("key", "encoder_kwargs", "n_nodes"),
+    [
+        ({**KEY, "world": "another-world"}, {"dim": 8}, N_NODES),
+        ({**KEY, "render": "640x480-fov90-dusk"}, {"dim": 8}, N_NODES),
+        ({**KEY, "cars": "on"}, {"dim": 8}, N_NODES),
+        (KEY, {"dim": 8, "seed": 1}, N_NODES),
+        (KEY, {"dim": 16}, N_NODES),
+        (KEY, {"dim": 8}, N_NODES + 1),
+    ],
+    ids=["world", "render-settings", "extra-key-part", "encoder-seed", "encoder-dim", "n-nodes"],
+)
+def test_any_change_of_inputs_invalidates(
+    tmp_path: Path, encoder: PixelProjectionEncoder, key: dict[str, str], encoder_kwargs: dict[str, int], n_nodes: int
+) -> None:
+    build(tmp_path, encoder, CountingRenderer())
+    other = PixelProjectionEncoder(**encoder_kwargs)
+    assert cache_path(key, n_nodes, other, cache_dir=tmp_path) != cache_path(KEY, N_NODES, encoder, cache_dir=tmp_path)
+    render = CountingRenderer()
+    build(tmp_path, other, render, key=key, n_nodes=n_nodes)
+    assert sorted(render.calls) == list(range(n_nodes))
+    assert len(os.listdir(tmp_path)) == 2
+
+
+def corrupt_truncate(path: Path) -> None:
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def corrupt_garbage(path: Path) -> None:
+    path.write_bytes(b"this is not an npz file" * 10)
+
+
+def corrupt_flip_values(path: Path) -> None:
+    """A well-formed file whose array no longer matches the recorded checksum."""
+    with np.load(path) as data:
+        features, meta = data["features"].copy(), data["meta"]
+    features[3, 1, 0] += 1.0
+    np.savez(path, features=features, meta=meta)
+
+
+def corrupt_foreign_key(path: Path) -> None:
+    """A well-formed file written for other inputs (e.g. copied by hand)."""
+    with np.load(path) as data:
+        features, meta = data["features"], json.loads(str(data["meta"]))
+    meta["key"] = "0" * 64
+    np.savez(path, features=features, meta=np.array(json.dumps(meta)))
+
+
+@pytest.mark.parametrize(
+    ("corrupt", "problem"),
+    [
+        (corrupt_truncate, "unreadable"),
+        (corrupt_garbage, "unreadable"),
+        (corrupt_flip_values, "checksum"),
+        (corrupt_foreign_key, "key mismatch"),
+    ],
+    ids=["truncated", "garbage", "checksum", "foreign-key"],
+)
+def test_damaged_cache_file_is_reported_and_rebuilt(
+    tmp_path: Path, encoder: PixelProjectionEncoder, corrupt: Callable[[Path], None], problem: str
+) -> None:
+    good = build(tmp_path, encoder, CountingRenderer())
+    path = cache_path(KEY, N_NODES, encoder, cache_dir=tmp_path)
+    corrupt(path)
+    render = CountingRenderer()
+    with pytest.warns(RuntimeWarning, match=rf"{path.name}.*{problem}"):
+        rebuilt = build(tmp_path, encoder, render)
+    assert sorted(render.calls) == list(range(N_NODES))
+    np.testing.assert_array_equal(rebuilt, good)
+    # The rebuilt file is valid again.
+    again = CountingRenderer()
+    build(tmp_path, encoder, again)
+    assert again.calls == []
+    assert os.listdir(tmp_path) == [path.name]
+
+
+def test_failed_render_leaves_the_old_file_and_no_partial_file(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    path = cache_path(KEY, N_NODES, encoder, cache_dir=tmp_path)
+    build(tmp_path, encoder, CountingRenderer())
+    corrupt_garbage(path)  # an existing (invalid) file that a rebuild would replace
+    before = path.read_bytes()
+    with pytest.warns(RuntimeWarning), pytest.raises(RuntimeError, match="crashed at node 6"):
+        build(tmp_path, encoder, CountingRenderer(fail_at=6))
+    assert path.read_bytes() == before
+    assert os.listdir(tmp_path) == [path.name]
+
+
+def test_failure_while_writing_leaves_the_old_file_and_no_temp_file(
+    tmp_path: Path, encoder: PixelProjectionEncoder, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = cache_path(KEY, N_NODES, encoder, cache_dir=tmp_path)
+    build(tmp_path, encoder, CountingRenderer())
+    corrupt_truncate(path)
+    before = path.read_bytes()
+
+    def savez_then_fail(file: object, **arrays: np.ndarray) -> None:
+        file.write(b"PK\x03\x04 half an archive")  # type: ignore[attr-defined]
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(feature_cache.np, "savez", savez_then_fail)
+    with pytest.warns(RuntimeWarning), pytest.raises(OSError, match="No space left"):
+        build(tmp_path, encoder, CountingRenderer())
+    assert path.read_bytes() == before
+    assert os.listdir(tmp_path) == [path.name]
+
+
+@pytest.mark.parametrize(
+    ("views", "message"),
+    [
+        (np.zeros((3, 24, 32, 3), np.uint8), r"render_node\(0\) returned shape \(3, 24, 32, 3\)"),
+        (np.zeros((4, 24, 32), np.uint8), r"render_node\(0\) returned shape \(4, 24, 32\)"),
+        (np.zeros((4, 24, 32, 3), np.float32), r"render_node\(0\) returned dtype float32"),
+        ([[0]], r"render_node\(0\) returned list"),
+    ],
+    ids=["three-views", "grey", "float", "not-an-array"],
+)
+def test_bad_render_output_is_a_clear_error(
+    tmp_path: Path, encoder: PixelProjectionEncoder, views: object, message: str
+) -> None:
+    with pytest.raises(ValueError, match=message):
+        build(tmp_path, encoder, lambda node: views)  # type: ignore[arg-type,return-value]
+    assert os.listdir(tmp_path) == []
+
+
+def test_views_must_keep_one_size_across_nodes(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    def render(node: int) -> np.ndarray:
+        return np.zeros((4, 24, 32 if node < 4 else 30, 3), np.uint8)
+
+    with pytest.raises(ValueError, match=r"render_node\(4\).*earlier nodes"):
+        build(tmp_path, encoder, render)
+
+
+def test_encoder_returning_the_wrong_shape_is_a_clear_error(tmp_path: Path) -> None:
+    class BrokenEncoder(PixelProjectionEncoder):
+        def encode(self, images: np.ndarray) -> np.ndarray:
+            return super().encode(images)[:, :4]
+
+    with pytest.raises(ValueError, match=r"encoder 'pixels.*' returned shape"):
+        build(tmp_path, BrokenEncoder(dim=8), CountingRenderer())
+
+
+def test_bad_arguments_are_rejected(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    with pytest.raises(ValueError, match="n_nodes"):
+        build(tmp_path, encoder, CountingRenderer(), n_nodes=0)
+    with pytest.raises(TypeError, match="key_parts"):
+        build(tmp_path, encoder, CountingRenderer(), key={"seed": 3})  # type: ignore[dict-item]
+
+
+def test_unusable_cache_dir_is_a_clear_error(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    render = CountingRenderer()
+    with pytest.raises(OSError, match=r"cannot create cache directory .*a-file"):
+        build(blocker / "cache", encoder, render)
+    assert render.calls == []  # failed before spending time on rendering
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="needs POSIX permissions and a non-root user")
+def test_read_only_cache_dir_is_a_permission_error(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    read_only = tmp_path / "ro"
+    read_only.mkdir()
+    read_only.chmod(0o500)
+    try:
+        with pytest.raises(PermissionError, match=r"ro is not writable"):
+            build(read_only, encoder, CountingRenderer())
+    finally:
+        read_only.chmod(0o700)
+
+
+def test_default_cache_dir_honours_the_environment(
+    tmp_path: Path, encoder: PixelProjectionEncoder, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("CAMPUSNAV_CACHE", str(tmp_path / "features"))
+    assert default_cache_dir() == tmp_path / "features"
+    cached_view_features(KEY, N_NODES, CountingRenderer(), encoder, progress=False)
+    assert cache_path(KEY, N_NODES, encoder).is_file()
+    assert cache_path(KEY, N_NODES, encoder).parent == tmp_path / "features"
+
+    monkeypatch.delenv("CAMPUSNAV_CACHE")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert default_cache_dir() == tmp_path / "home" / ".cache" / "campusnav"
+
+
+def test_progress_bar_reports_nodes(
+    tmp_path: Path, encoder: PixelProjectionEncoder, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cached_view_features(KEY, N_NODES, CountingRenderer(), encoder, cache_dir=tmp_path, progress=True)
+    assert f"{N_NODES}/{N_NODES}" in capsys.readouterr().err
+
+
+def test_unwritable_cache_dir_fails_before_rendering(
+    tmp_path: Path, encoder: PixelProjectionEncoder, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Same as above where the tests run as root: simulate the missing write permission."""
+    monkeypatch.setattr(feature_cache.os, "access", lambda path, mode: False)
+    render = CountingRenderer()
+    with pytest.raises(PermissionError, match=rf"{tmp_path.name} is not writable"):
+        build(tmp_path, encoder, render)
+    assert render.calls == []
