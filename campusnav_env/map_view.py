@@ -1,0 +1,266 @@
+"""Top-down RGB map of a road graph: roads, closures, landmarks, agent, goals, the route so far and extra routes.
+
+Used by ``CampusNavEnv.render()`` and for route pictures (original vs re-routed). Drawn with OpenCV onto a light
+background, anti-aliased, north up; the longer side of the image is ``size`` pixels and the other follows the map.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from campusnav_env.world import landmark_colour
+
+if TYPE_CHECKING:
+    from campusnav_env.road_graph import RoadGraph
+
+__all__ = ["ROUTE_COLOURS", "draw_map"]
+
+BACKGROUND_RGB = (246, 245, 240)
+ROAD_RGB = (168, 168, 172)
+NODE_RGB = (96, 96, 100)
+CLOSED_RGB = (220, 30, 36)
+PATH_RGB = (30, 100, 220)
+AGENT_RGB = (0, 150, 80)
+GOAL_RGB = (250, 196, 20)
+TEXT_RGB = (30, 30, 34)
+# Distinct colours of extra routes (matplotlib's tab10 without the path blue and the closure red).
+ROUTE_COLOURS = (
+    (255, 127, 14),
+    (148, 103, 189),
+    (44, 160, 44),
+    (140, 86, 75),
+    (227, 119, 194),
+    (23, 190, 207),
+    (188, 189, 34),
+    (127, 127, 127),
+)
+_SHIFT = 4  # fractional bits of the drawing coordinates (sub-pixel accuracy)
+
+
+class _Canvas:
+    """World-to-pixel transform plus the image it draws on."""
+
+    def __init__(self, graph: RoadGraph, size: int) -> None:
+        points = np.concatenate(
+            [np.asarray(graph.positions, dtype=np.float64).reshape(-1, 2)]
+            + [np.asarray(g, dtype=np.float64) for g in graph.geometries]
+        )
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        span = np.maximum(hi - lo, 1.0)
+        self.margin = max(12, round(size * 0.04))
+        self.scale = (size - 2 * self.margin) / float(span.max())
+        self.width = round(span[0] * self.scale) + 2 * self.margin
+        self.height = round(span[1] * self.scale) + 2 * self.margin
+        self.lo, self.hi = lo, hi
+        self.unit = max(1.0, size / 400.0)  # line width unit in pixels
+        self.image = np.empty((self.height, self.width, 3), dtype=np.uint8)
+        self.image[...] = BACKGROUND_RGB
+
+    def px(self, points: np.ndarray) -> np.ndarray:
+        """Float pixel coordinates of world points (north up)."""
+        p = np.asarray(points, dtype=np.float64)
+        out = np.empty(p.shape)
+        out[..., 0] = self.margin + (p[..., 0] - self.lo[0]) * self.scale
+        out[..., 1] = self.margin + (self.hi[1] - p[..., 1]) * self.scale
+        return out
+
+    def fixed(self, pixels: np.ndarray) -> np.ndarray:
+        return np.round(np.asarray(pixels) * (1 << _SHIFT)).astype(np.int32)
+
+    def point(self, pixel: np.ndarray) -> tuple[int, int]:
+        x, y = self.fixed(pixel)
+        return int(x), int(y)
+
+    def lines(self, polylines: Sequence[np.ndarray], rgb: tuple[int, int, int], width: float) -> None:
+        if polylines:
+            pts = [self.fixed(self.px(line)) for line in polylines]
+            cv2.polylines(self.image, pts, False, rgb, max(1, round(width)), cv2.LINE_AA, _SHIFT)
+
+    def disc(self, pixel: np.ndarray, radius: float, rgb: tuple[int, int, int], outline: tuple[int, int, int]) -> None:
+        r = max(1, round(radius * (1 << _SHIFT)))
+        cv2.circle(self.image, self.point(pixel), r, rgb, -1, cv2.LINE_AA, _SHIFT)
+        cv2.circle(self.image, self.point(pixel), r, outline, 1, cv2.LINE_AA, _SHIFT)
+
+    def text(
+        self, pixel: np.ndarray, text: str, scale: float, rgb: tuple[int, int, int] = TEXT_RGB, *, gap: float = 0.0
+    ) -> None:
+        """Text with a light halo, right of ``pixel`` (left of ``pixel - 2 * gap`` if it would leave the image)."""
+        thick = max(1, round(scale * 1.6))
+        (w, _), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick + 2)
+        x = float(pixel[0])
+        if x + w > self.width - 2:
+            x = max(2.0, x - 2 * gap - w)
+        origin = (round(x), round(float(pixel[1])))
+        cv2.putText(self.image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, BACKGROUND_RGB, thick + 2, cv2.LINE_AA)
+        cv2.putText(self.image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, rgb, thick, cv2.LINE_AA)
+
+
+def _check_node(graph: RoadGraph, node: int, what: str) -> int:
+    if isinstance(node, bool) or not isinstance(node, (int, np.integer)):
+        raise TypeError(f"{what} must be an int node id, got {node!r}")
+    if not 0 <= int(node) < graph.n_nodes:
+        raise ValueError(f"{what} {node} out of range for a graph of {graph.n_nodes} nodes")
+    return int(node)
+
+
+def _route_polyline(graph: RoadGraph, nodes: Sequence[int], what: str) -> np.ndarray | None:
+    """World polyline of a node sequence, following each road's geometry (straight where nodes are not adjacent)."""
+    nodes = [_check_node(graph, n, what) for n in nodes]
+    # Staying put (a blocked move) adds nothing to the drawn route.
+    nodes = [n for i, n in enumerate(nodes) if i == 0 or n != nodes[i - 1]]
+    if len(nodes) < 2:
+        return None
+    parts = [np.asarray(graph.positions[nodes[0]], dtype=np.float64)[None]]
+    for u, v in itertools.pairwise(nodes):
+        try:
+            geometry = np.asarray(graph.geometries[graph.road_id(u, v)], dtype=np.float64)
+        except KeyError:
+            geometry = np.asarray(graph.positions[[u, v]], dtype=np.float64)
+        if not np.allclose(geometry[0], graph.positions[u]):
+            geometry = geometry[::-1]
+        parts.append(geometry[1:])
+    return np.concatenate(parts)
+
+
+def _midpoint(polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Point halfway along a polyline and the unit direction there."""
+    seg = np.diff(polyline, axis=0)
+    lengths = np.linalg.norm(seg, axis=1)
+    half = lengths.sum() / 2
+    cum = np.cumsum(lengths)
+    k = min(int(np.searchsorted(cum, half)), len(seg) - 1)
+    before = cum[k] - lengths[k]
+    t = (half - before) / max(lengths[k], 1e-9)
+    return polyline[k] + t * seg[k], seg[k] / max(lengths[k], 1e-9)
+
+
+def _star(center: np.ndarray, radius: float) -> np.ndarray:
+    angles = -np.pi / 2 + np.arange(10) * np.pi / 5
+    r = np.where(np.arange(10) % 2 == 0, radius, radius * 0.45)
+    return center + np.stack([np.cos(angles) * r, np.sin(angles) * r], axis=1)
+
+
+def draw_map(
+    graph: RoadGraph,
+    *,
+    size: int = 800,
+    agent: int | None = None,
+    heading: int | None = None,
+    goal: int | Sequence[int] | None = None,
+    path: Sequence[int] = (),
+    labels: bool = True,
+    routes: Mapping[str, Sequence[int]] | None = None,
+) -> np.ndarray:
+    """Draw a road graph from above.
+
+    Args:
+        graph: the road network; its closed roads are drawn in red with an X at their midpoint.
+        size: length of the longer image side (pixels).
+        agent: node of the agent (a triangle pointing along ``heading``, a disc if the heading is ``None``).
+        heading: compass heading of the agent (0 N, 1 E, 2 S, 3 W).
+        goal: goal node or nodes (stars).
+        path: nodes visited so far, drawn as a blue route along the roads.
+        labels: write the landmark names.
+        routes: extra named routes (name -> node sequence) in distinct colours, with a legend.
+
+    Returns:
+        ``(H, W, 3)`` uint8 RGB image.
+    """
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 64:
+        raise ValueError(f"size must be an int >= 64 pixels, got {size!r}")
+    if heading is not None and (isinstance(heading, bool) or heading not in (0, 1, 2, 3)):
+        raise ValueError(f"heading must be 0 (N), 1 (E), 2 (S), 3 (W) or None, got {heading!r}")
+    canvas = _Canvas(graph, int(size))
+    unit = canvas.unit
+
+    closed = {graph.road_id(u, v) for u, v in graph.closed_roads}
+    canvas.lines([g for i, g in enumerate(graph.geometries) if i not in closed], ROAD_RGB, 2.0 * unit)
+
+    legend: list[tuple[str, tuple[int, int, int]]] = []
+    for i, (name, nodes) in enumerate((routes or {}).items()):
+        line = _route_polyline(graph, list(nodes), f"route {name!r} node")
+        colour = ROUTE_COLOURS[i % len(ROUTE_COLOURS)]
+        legend.append((str(name), colour))
+        if line is not None:
+            canvas.lines([line], colour, 3.0 * unit)
+
+    line = _route_polyline(graph, list(path), "path node")
+    if line is not None:
+        canvas.lines([line], PATH_RGB, 2.5 * unit)
+
+    for road in sorted(closed):
+        geometry = np.asarray(graph.geometries[road], dtype=np.float64)
+        canvas.lines([geometry], CLOSED_RGB, 2.5 * unit)
+        mid, direction = _midpoint(canvas.px(geometry))
+        arm = 4.0 * unit
+        for angle in (math.pi / 4, -math.pi / 4):
+            c, s = math.cos(angle), math.sin(angle)
+            d = np.array([direction[0] * c - direction[1] * s, direction[0] * s + direction[1] * c]) * arm
+            cv2.line(
+                canvas.image,
+                canvas.point(mid - d),
+                canvas.point(mid + d),
+                CLOSED_RGB,
+                max(1, round(1.5 * unit)),
+                cv2.LINE_AA,
+                _SHIFT,
+            )
+
+    for p in canvas.px(graph.positions):
+        cv2.circle(canvas.image, canvas.point(p), round(1.2 * unit * (1 << _SHIFT)), NODE_RGB, -1, cv2.LINE_AA, _SHIFT)
+
+    text_scale = 0.32 * unit
+    for name, node in graph.landmarks.items():
+        p = canvas.px(graph.positions[node])
+        canvas.disc(p, 3.0 * unit, landmark_colour(name), TEXT_RGB)
+        if labels:
+            canvas.text(p + np.array([4.5 * unit, -3.0 * unit]), name, text_scale, gap=4.5 * unit)
+
+    goals = [] if goal is None else [goal] if isinstance(goal, (int, np.integer)) else list(goal)
+    for g in goals:
+        p = canvas.px(graph.positions[_check_node(graph, g, "goal")])
+        star = canvas.fixed(_star(p, 7.0 * unit))
+        cv2.fillPoly(canvas.image, [star], GOAL_RGB, cv2.LINE_AA, _SHIFT)
+        cv2.polylines(canvas.image, [star], True, TEXT_RGB, 1, cv2.LINE_AA, _SHIFT)
+
+    if agent is not None:
+        p = canvas.px(graph.positions[_check_node(graph, agent, "agent")])
+        if heading is None:
+            canvas.disc(p, 4.5 * unit, AGENT_RGB, TEXT_RGB)
+        else:
+            bearing = math.radians(90.0 * heading)
+            ahead = np.array([math.sin(bearing), -math.cos(bearing)])  # image y points south
+            side = np.array([-ahead[1], ahead[0]])
+            r = 7.0 * unit
+            tri = canvas.fixed(
+                np.array([p + ahead * r, p - ahead * r * 0.6 + side * r * 0.6, p - ahead * r * 0.6 - side * r * 0.6])
+            )
+            cv2.fillPoly(canvas.image, [tri], AGENT_RGB, cv2.LINE_AA, _SHIFT)
+            cv2.polylines(canvas.image, [tri], True, TEXT_RGB, 1, cv2.LINE_AA, _SHIFT)
+
+    if legend:
+        x, y = canvas.margin + 4 * unit, canvas.margin + 6 * unit
+        row = 11.0 * unit
+        box_w = 24 * unit + max(cv2.getTextSize(n, cv2.FONT_HERSHEY_SIMPLEX, text_scale, 1)[0][0] for n, _ in legend)
+        top_left = (round(x - 3 * unit), round(y - 6 * unit))
+        bottom_right = (round(x + box_w + 3 * unit), round(y + row * (len(legend) - 0.4)))
+        cv2.rectangle(canvas.image, top_left, bottom_right, (255, 255, 255), -1)
+        cv2.rectangle(canvas.image, top_left, bottom_right, NODE_RGB, 1)
+        for i, (name, colour) in enumerate(legend):
+            yy = y + i * row
+            cv2.line(
+                canvas.image,
+                (round(x), round(yy)),
+                (round(x + 16 * unit), round(yy)),
+                colour,
+                max(1, round(3 * unit)),
+                cv2.LINE_AA,
+            )
+            canvas.text(np.array([x + 20 * unit, yy + 3 * unit]), name, text_scale)
+    return canvas.image

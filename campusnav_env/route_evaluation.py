@@ -1,0 +1,158 @@
+"""Route evaluation: run a greedy policy from every start to every goal and score the routes.
+
+Scores (Anderson et al. 2018 for SPL): success rate over (start node, heading) pairs, SPL = mean of
+``S * l / max(p, l)`` with ``l`` the shortest path in hops over open roads and ``p`` the steps taken, mean steps,
+coverage (share of start nodes from which every heading reaches the goal) and optimality gap (mean extra steps over the
+shortest path, successful routes only). All starts run as one batch, so a policy is queried once per step for all of
+them; a route that revisits a (node, heading) has entered a loop under a deterministic policy and is stopped as failed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from campusnav_env.env import CampusNavEnv
+
+Policy = Callable[[Any], np.ndarray]  # batched observations -> actions
+
+
+@dataclass(frozen=True)
+class Route:
+    """One evaluated route."""
+
+    goal: str
+    start: int
+    heading: int
+    success: bool
+    steps: int
+    shortest: int
+    nodes: tuple[int, ...]
+
+    @property
+    def spl(self) -> float:
+        return float(self.success) * self.shortest / max(self.steps, self.shortest)
+
+
+@dataclass
+class RouteReport:
+    """Scores of a set of routes (see the module docstring)."""
+
+    routes: list[Route] = field(default_factory=list)
+
+    @property
+    def success_rate(self) -> float:
+        return float(np.mean([r.success for r in self.routes])) if self.routes else 0.0
+
+    @property
+    def spl(self) -> float:
+        return float(np.mean([r.spl for r in self.routes])) if self.routes else 0.0
+
+    @property
+    def mean_steps(self) -> float:
+        return float(np.mean([r.steps for r in self.routes])) if self.routes else 0.0
+
+    @property
+    def mean_shortest(self) -> float:
+        return float(np.mean([r.shortest for r in self.routes])) if self.routes else 0.0
+
+    @property
+    def coverage(self) -> float:
+        by_start: dict[tuple[str, int], bool] = {}
+        for r in self.routes:
+            by_start[(r.goal, r.start)] = by_start.get((r.goal, r.start), True) and r.success
+        return float(np.mean(list(by_start.values()))) if by_start else 0.0
+
+    @property
+    def optimality_gap(self) -> float:
+        gaps = [r.steps - r.shortest for r in self.routes if r.success]
+        return float(np.mean(gaps)) if gaps else float("nan")
+
+    def for_goal(self, goal: str) -> RouteReport:
+        return RouteReport([r for r in self.routes if r.goal == goal])
+
+    def summary(self) -> dict[str, float]:
+        return {
+            "success_rate": self.success_rate,
+            "spl": self.spl,
+            "coverage": self.coverage,
+            "mean_steps": self.mean_steps,
+            "mean_shortest": self.mean_shortest,
+            "optimality_gap": self.optimality_gap,
+            "n_routes": float(len(self.routes)),
+        }
+
+
+def _stack(observations: list[Any]) -> Any:
+    if isinstance(observations[0], dict):
+        return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
+    return np.stack(observations)
+
+
+def evaluate_routes(
+    env: CampusNavEnv,
+    policy: Policy,
+    *,
+    goals: Sequence[str] | None = None,
+    max_steps: int | None = None,
+) -> RouteReport:
+    """
+    Run ``policy`` greedily from every (node, heading) that can reach each goal and collect the routes.
+
+    :param env: The environment (its current closures apply); its episode state is not touched
+    :param policy: Maps a batch of observations to a batch of actions, e.g.
+        ``lambda obs: model.predict(obs, deterministic=True)[0]``
+    :param goals: Goal names (default: all of the env's goals)
+    :param max_steps: Step limit per route (default: the env's ``max_steps``)
+    :return: the routes and their scores
+    """
+    max_steps = env.max_steps if max_steps is None else max_steps
+    table = env.graph.transition_table
+    state_nodes, state_headings = np.asarray(env.graph.state_nodes), np.asarray(env.graph.state_headings)
+    report = RouteReport()
+    for goal in goals or env.goal_names:
+        goal_node = env.goal_nodes[env.goal_names.index(goal)]
+        distances = env.node_distances(goal_node)
+        starts = np.flatnonzero((distances > 0)[state_nodes])  # state indices
+        current = starts.copy()
+        steps = np.zeros(starts.size, dtype=np.int64)
+        active = np.ones(starts.size, dtype=bool)
+        success = np.zeros(starts.size, dtype=bool)
+        visited: list[set[int]] = [{int(s)} for s in starts]
+        paths: list[list[int]] = [[int(state_nodes[s])] for s in starts]
+        for _ in range(max_steps):
+            if not active.any():
+                break
+            index = np.flatnonzero(active)
+            observations = [env.observation_at(state_nodes[s], state_headings[s], goal) for s in current[index]]
+            actions = np.asarray(policy(_stack(observations))).reshape(-1)
+            for i, action in zip(index, actions, strict=True):
+                steps[i] += 1
+                nxt = int(table[current[i], int(action)])
+                if nxt >= 0:
+                    current[i] = nxt
+                    paths[i].append(int(state_nodes[nxt]))
+                if state_nodes[current[i]] == goal_node:
+                    success[i], active[i] = True, False
+                elif int(current[i]) in visited[i]:
+                    active[i] = False  # a deterministic policy that repeats a state loops forever
+                    steps[i] = max_steps
+                else:
+                    visited[i].add(int(current[i]))
+        steps[active] = max_steps
+        for i, start in enumerate(starts):
+            report.routes.append(
+                Route(
+                    goal=goal,
+                    start=int(state_nodes[start]),
+                    heading=int(state_headings[start]),
+                    success=bool(success[i]),
+                    steps=int(steps[i]) if success[i] else max_steps,
+                    shortest=int(distances[state_nodes[start]]),
+                    nodes=tuple(paths[i]),
+                )
+            )
+    return report

@@ -1,0 +1,216 @@
+"""CampusNavEnv: spaces, rewards, starts, episode ends, info, closures, rendering, registration and bad input."""
+
+from __future__ import annotations
+
+import subprocess
+import warnings
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+from campusnav_env import GOALS, CampusNavEnv, RoadClosureError
+from campusnav_env.campus import generate_campus
+from campusnav_env.road_graph import BACK, FORWARD
+from campusnav_env.street_view import RenderSettings
+
+SMALL_VIEWS = RenderSettings(width=64, height=48)
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("campusnav-cache")
+
+
+def make_env(cache_dir: Path, **kwargs) -> CampusNavEnv:
+    defaults = dict(encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False)
+    return CampusNavEnv(**{**defaults, **kwargs})
+
+
+def test_registered_ids_make_the_single_and_multi_goal_campus(cache_dir: Path) -> None:
+    single = gym.make("CampusNav-v0", encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False)
+    multi = gym.make(
+        "CampusNavMulti-v0", encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False
+    )
+    assert single.unwrapped.goal_names == ["Dreese Lab"]
+    assert multi.unwrapped.goal_names == list(GOALS)
+    assert single.unwrapped.graph.n_nodes == 101
+
+
+def test_passes_gymnasium_and_sb3_env_checkers(cache_dir: Path) -> None:
+    for mode in ("features", "image"):
+        env = gym.make(
+            "CampusNav-v0",
+            observation_mode=mode,
+            render_mode="rgb_array",
+            encoder="pixels",
+            render_settings=SMALL_VIEWS,
+            cache_dir=cache_dir,
+            progress=False,
+        ).unwrapped
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # not even a warning
+            gym_check_env(env)
+            sb3_check_env(env, warn=True)
+
+
+def test_features_observation_holds_compass_views_goal_views_and_heading(cache_dir: Path) -> None:
+    env = make_env(cache_dir)
+    obs, info = env.reset(seed=0)
+    assert set(obs) == {"views", "goal_views", "heading"}
+    assert obs["views"].shape == obs["goal_views"].shape == (4 * 64,)
+    assert obs["views"].dtype == np.float32
+    assert obs["heading"][info["heading"]] == 1.0 and obs["heading"].sum() == 1.0
+    goal_obs = env.observation_at(info["goal_node"], 0, "Dreese Lab")
+    np.testing.assert_array_equal(goal_obs["views"], goal_obs["goal_views"])
+    assert env.observation_space.contains(obs)
+
+
+def test_image_observation_tiles_current_views_front_first_over_goal_views(cache_dir: Path) -> None:
+    env = make_env(cache_dir, observation_mode="image")
+    obs, info = env.reset(seed=1)
+    assert obs.shape == (3, 96, 256) and obs.dtype == np.uint8
+    east_facing = env.observation_at(info["node"], 1, "Dreese Lab")
+    north_facing = env.observation_at(info["node"], 0, "Dreese Lab")
+    # Facing east, the first tile (front) is the east view, which is the second tile when facing north
+    np.testing.assert_array_equal(east_facing[:, :48, :64], north_facing[:, :48, 64:128])
+    np.testing.assert_array_equal(east_facing[:, 48:], north_facing[:, 48:])
+
+
+def test_rewards_for_goal_step_and_collision(cache_dir: Path) -> None:
+    env = make_env(cache_dir)
+    graph = env.graph
+    goal = env.goal_nodes[0]
+    # Start next to the goal, facing the road towards it
+    neighbour_slot = int(np.flatnonzero(graph.slots[goal] >= 0)[0])
+    neighbour = int(graph.slots[goal, neighbour_slot])
+    slot_to_goal = int(np.flatnonzero(graph.slots[neighbour] == goal)[0])
+    env.reset(seed=0, options={"start": neighbour, "heading": slot_to_goal})
+    _, reward, terminated, truncated, info = env.step(FORWARD)
+    assert (reward, terminated, truncated) == (1.0, True, False)
+    assert info["is_success"] and info["node"] == goal and info["shortest_distance"] == 0
+
+    # A node with an empty slot: facing it and going forward is a collision, the agent stays
+    node = int(np.flatnonzero((graph.slots < 0).any(axis=1) & (np.arange(graph.n_nodes) != goal))[0])
+    empty_slot = int(np.flatnonzero(graph.slots[node] < 0)[0])
+    env.reset(seed=0, options={"start": node, "heading": empty_slot})
+    _, reward, terminated, _, info = env.step(FORWARD)
+    assert reward == -0.01 and info["collision"] and info["node"] == node and not terminated
+    assert info["action_mask"][FORWARD] == 0
+
+    # Any other move costs the step penalty; back returns along the same road
+    open_slot = int(np.flatnonzero(graph.slots[node] >= 0)[0])
+    env.reset(seed=0, options={"start": node, "heading": open_slot})
+    _, reward, _, _, info = env.step(FORWARD)
+    if info["node"] != goal:
+        assert reward == -0.005 and not info["collision"]
+        _, _, _, _, info = env.step(BACK)
+        assert info["node"] == node
+
+
+def test_starts_are_uniform_over_nodes_that_reach_the_goal(cache_dir: Path) -> None:
+    env = make_env(cache_dir)
+    starts = [env.reset(seed=seed)[1]["node"] for seed in range(600)]
+    assert env.goal_nodes[0] not in starts
+    counts = np.bincount(starts, minlength=env.graph.n_nodes)
+    assert (counts > 0).sum() > 0.9 * (env.graph.n_nodes - 1)
+    assert counts.max() < 20  # 600 draws over 100 nodes: about 6 each
+
+
+def test_truncates_at_the_step_limit(cache_dir: Path) -> None:
+    env = make_env(cache_dir, max_steps=5)
+    _, info = env.reset(seed=0)
+    node = info["node"]
+    empty = np.flatnonzero(env.graph.slots[node] < 0)
+    action = int((empty[0] - info["heading"]) % 4) if empty.size else BACK
+    for step in range(5):
+        _, _, terminated, truncated, info = env.step(action)
+        assert not terminated
+        assert truncated == (step == 4)
+    assert info["is_success"] is False
+
+
+def test_multi_goal_draws_every_goal_and_reset_option_fixes_one(cache_dir: Path) -> None:
+    env = make_env(cache_dir, goals=list(GOALS))
+    goals = {env.reset(seed=seed)[1]["goal"] for seed in range(40)}
+    assert goals == set(GOALS)
+    assert env.reset(seed=0, options={"goal": "Cinema"})[1]["goal"] == "Cinema"
+
+
+def test_closing_a_road_blocks_it_updates_distances_and_reopens(cache_dir: Path) -> None:
+    env = make_env(cache_dir)
+    goal = env.goal_nodes[0]
+    before = env.node_distances(goal).copy()
+    neighbour = int(env.graph.slots[goal][env.graph.slots[goal] >= 0][0])
+    try:
+        env.close_road(goal, neighbour)
+    except RoadClosureError:
+        pytest.skip("the goal's first road is a bridge")
+    assert (goal, neighbour) in env.closed_roads or (neighbour, goal) in env.closed_roads
+    assert env.node_distances(goal)[neighbour] > 1
+    slot = int(np.flatnonzero(env.graph.slots[neighbour] == goal)[0])
+    env.reset(seed=0, options={"start": neighbour, "heading": slot})
+    _, reward, _, _, info = env.step(FORWARD)
+    assert info["collision"] and reward == -0.01
+    env.reopen_road(goal, neighbour)
+    np.testing.assert_array_equal(env.node_distances(goal), before)
+
+
+def test_closures_are_per_env_and_refuse_cutting_the_goal_off(cache_dir: Path) -> None:
+    graph = generate_campus()
+    env = make_env(cache_dir, world=graph)
+    other = make_env(cache_dir, world=graph)
+    goal = env.goal_nodes[0]
+    roads = [r for r in env.graph.roads if goal in r]
+    for road in roads[:-1]:
+        env.close_road(*road, force=True)
+    with pytest.raises(RoadClosureError, match="cut"):
+        env.close_road(*roads[-1])
+    assert other.closed_roads == frozenset() and graph.closed_roads == frozenset()
+    with pytest.raises(KeyError, match="0"):
+        env.close_road(0, 0)
+
+
+def test_render_returns_an_rgb_map_that_shows_the_route(cache_dir: Path) -> None:
+    env = make_env(cache_dir, render_mode="rgb_array")
+    env.reset(seed=0)
+    first = env.render()
+    assert first.ndim == 3 and first.shape[2] == 3 and first.dtype == np.uint8
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    assert not np.array_equal(first, env.render())
+
+
+def test_bad_input_gives_clear_errors(cache_dir: Path) -> None:
+    with pytest.raises(KeyError, match="Nowhere"):
+        make_env(cache_dir, goals="Nowhere")
+    with pytest.raises(ValueError, match="out of range"):
+        make_env(cache_dir, goals=10_000)
+    with pytest.raises(ValueError, match="observation_mode"):
+        make_env(cache_dir, observation_mode="lidar")
+    with pytest.raises(ValueError, match="encoder"):
+        make_env(cache_dir, encoder="vgg")
+    env = make_env(cache_dir)
+    with pytest.raises(ValueError, match="start node"):
+        env.reset(options={"start": 999})
+    with pytest.raises(KeyError, match="goal"):
+        env.reset(options={"goal": "Cinema"})
+    with pytest.raises(KeyError, match="teleport"):
+        env.reset(options={"teleport": True})
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="invalid action"):
+        env.step(7)
+
+
+def test_package_imports_without_sb3_or_sb3_dcqn_and_registers_the_ids() -> None:
+    code = (
+        "import sys, gymnasium, campusnav_env; "
+        "loaded = [m for m in sys.modules if m.split('.')[0] in ('sb3_dcqn', 'stable_baselines3')]; "
+        "assert not loaded, loaded; "
+        "assert 'CampusNav-v0' in gymnasium.registry and 'CampusNavMulti-v0' in gymnasium.registry"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
