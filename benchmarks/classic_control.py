@@ -18,6 +18,7 @@ import argparse
 import json
 import os
 import platform
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -85,7 +86,8 @@ def read_results(path: Path) -> list[dict[str, Any]]:
 
 def summarise(results: list[dict[str, Any]], envs: list[str]) -> list[str]:
     lines = [
-        "| env | algo | seeds | final eval reward (mean +- std over seeds) | train time per run (s) | zoo DQN reference |",
+        "| env | algo | seeds | final eval reward (mean +- std over seeds) | train time per run (s) "
+        "| zoo DQN reference |",
         "|---|---|---|---|---|---|",
     ]
     for env_id in envs:
@@ -144,7 +146,7 @@ def main(argv: list[str] | None = None) -> None:
         "",
         *summarise(read_results(args.runs_file), args.envs),
         "",
-        "Command: `python benchmarks/classic_control.py " + " ".join(argv if argv is not None else os.sys.argv[1:]) + "`",
+        f"Command: `python benchmarks/classic_control.py {' '.join(sys.argv[1:] if argv is None else argv)}`",
     ]
     print("\n".join(lines))
     tmp = args.out.with_suffix(".tmp")

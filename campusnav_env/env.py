@@ -15,6 +15,8 @@ from campusnav_env.encoders import ViewEncoder, make_encoder
 from campusnav_env.feature_cache import cached_view_features
 from campusnav_env.map_view import draw_map
 from campusnav_env.road_graph import ACTION_NAMES, COMPASS, RoadGraph
+from campusnav_env.street_view import RenderSettings, StreetViewRenderer
+from campusnav_env.world import WORLD_VERSION, build_world
 
 OBSERVATION_MODES = ("features", "image")
 # Cheap settings for image mode: thumbnails are all the policy sees, so render small views directly
@@ -125,7 +127,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         observation_mode: str = "features",
         encoder: str | ViewEncoder = "efficientnet-lite0",
         encoder_kwargs: Mapping[str, Any] | None = None,
-        render_settings: Any | None = None,
+        render_settings: RenderSettings | None = None,
         world_seed: int = 0,
         max_steps: int = 200,
         goal_reward: float = 1.0,
@@ -434,15 +436,12 @@ def _node_views(
     observation_mode: str,
     encoder: str | ViewEncoder,
     encoder_kwargs: Mapping[str, Any] | None,
-    render_settings: Any | None,
+    render_settings: RenderSettings | None,
     world_seed: int,
     cache_dir: str | Path | None,
     progress: bool,
 ) -> np.ndarray:
     """Per-node encodings of the four compass views, from the on-disk cache or rendered and encoded now."""
-    from campusnav_env.street_view import RenderSettings, StreetViewRenderer
-    from campusnav_env.world import build_world
-
     if observation_mode == "image":
         height, width = _IMAGE_MODE_VIEW
         encoder = make_encoder("thumbnail", height=height, width=width)
@@ -460,5 +459,10 @@ def _node_views(
             renderer = StreetViewRenderer(build_world(graph, seed=world_seed), settings)
         return renderer.render_node(node)
 
-    key_parts = {"graph": graph.fingerprint(), "world_seed": str(world_seed), "render": settings.key()}
+    # Keyed without building the world: its inputs (graph, seed, generator version) determine it
+    key_parts = {
+        "graph": graph.fingerprint(),
+        "world": f"v{WORLD_VERSION}-seed{world_seed}",
+        "render": settings.key(),
+    }
     return cached_view_features(key_parts, graph.n_nodes, render_node, encoder, cache_dir=cache_dir, progress=progress)

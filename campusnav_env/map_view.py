@@ -87,18 +87,31 @@ class _Canvas:
         cv2.circle(self.image, self.point(pixel), r, rgb, -1, cv2.LINE_AA, _SHIFT)
         cv2.circle(self.image, self.point(pixel), r, outline, 1, cv2.LINE_AA, _SHIFT)
 
-    def text(
-        self, pixel: np.ndarray, text: str, scale: float, rgb: tuple[int, int, int] = TEXT_RGB, *, gap: float = 0.0
-    ) -> None:
-        """Text with a light halo, right of ``pixel`` (left of ``pixel - 2 * gap`` if it would leave the image)."""
+    def text(self, origin: np.ndarray, text: str, scale: float, rgb: tuple[int, int, int] = TEXT_RGB) -> None:
+        """Text with a light halo (``origin`` = bottom-left of the text) so that it stays legible over roads."""
         thick = max(1, round(scale * 1.6))
-        (w, _), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick + 2)
-        x = float(pixel[0])
-        if x + w > self.width - 2:
-            x = max(2.0, x - 2 * gap - w)
-        origin = (round(x), round(float(pixel[1])))
-        cv2.putText(self.image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, BACKGROUND_RGB, thick + 2, cv2.LINE_AA)
-        cv2.putText(self.image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, rgb, thick, cv2.LINE_AA)
+        at = (round(float(origin[0])), round(float(origin[1])))
+        cv2.putText(self.image, text, at, cv2.FONT_HERSHEY_SIMPLEX, scale, BACKGROUND_RGB, thick + 2, cv2.LINE_AA)
+        cv2.putText(self.image, text, at, cv2.FONT_HERSHEY_SIMPLEX, scale, rgb, thick, cv2.LINE_AA)
+
+    def label(self, anchor: np.ndarray, text: str, scale: float, gap: float, taken: list[np.ndarray]) -> None:
+        """Write ``text`` next to a dot at ``anchor``, in the first of eight places around it that lies inside the
+        image and overlaps no earlier label or marker (``taken`` boxes, updated)."""
+        thick = max(1, round(scale * 1.6))
+        (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick + 2)
+        x, y = float(anchor[0]), float(anchor[1])
+        options = [(x + gap, y + h / 2), (x - gap - w, y + h / 2), (x + gap, y - gap), (x + gap, y + gap + h)]
+        options += [(x - w / 2, y - gap), (x - w / 2, y + gap + h), (x - gap - w, y - gap), (x - gap - w, y + gap + h)]
+        boxes = [np.array([ox, oy - h, ox + w, oy + base]) for ox, oy in options]
+        inside = [b for b in boxes if b[0] >= 1 and b[1] >= 1 and b[2] <= self.width - 1 and b[3] <= self.height - 1]
+        free = [b for b in inside if all(_disjoint(b, t) for t in taken)]
+        box = (free or inside or boxes)[0]
+        taken.append(box)
+        self.text(np.array([box[0], box[3] - base]), text, scale)
+
+
+def _disjoint(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(a[2] < b[0] or b[2] < a[0] or a[3] < b[1] or b[3] < a[1])
 
 
 def _check_node(graph: RoadGraph, node: int, what: str) -> int:
@@ -216,21 +229,41 @@ def draw_map(
         cv2.circle(canvas.image, canvas.point(p), round(1.2 * unit * (1 << _SHIFT)), NODE_RGB, -1, cv2.LINE_AA, _SHIFT)
 
     text_scale = 0.32 * unit
-    for name, node in graph.landmarks.items():
+    taken: list[np.ndarray] = []
+    legend_box = None
+    if legend:
+        # Top-left corner; labels keep out of it.
+        x, y = canvas.margin + 4 * unit, canvas.margin + 6 * unit
+        row = 11.0 * unit
+        box_w = 24 * unit + max(cv2.getTextSize(n, cv2.FONT_HERSHEY_SIMPLEX, text_scale, 1)[0][0] for n, _ in legend)
+        legend_box = np.array([x - 3 * unit, y - 6 * unit, x + box_w + 3 * unit, y + row * (len(legend) - 0.4)])
+        taken.append(legend_box)
+    goals = [] if goal is None else [goal] if isinstance(goal, (int, np.integer)) else list(goal)
+    goal_nodes = [_check_node(graph, g, "goal") for g in goals]
+    if agent is not None:
+        agent = _check_node(graph, agent, "agent")
+    for node in [*goal_nodes, *([] if agent is None else [agent])]:
+        # Labels keep clear of the goal stars, the agent marker and the landmark dots too.
+        p = canvas.px(graph.positions[node])
+        taken.append(np.concatenate([p - 7.0 * unit, p + 7.0 * unit]))
+    for node in graph.landmarks.values():
+        p = canvas.px(graph.positions[node])
+        taken.append(np.concatenate([p - 3.5 * unit, p + 3.5 * unit]))
+    for name, node in sorted(graph.landmarks.items(), key=lambda item: (item[1], item[0])):
         p = canvas.px(graph.positions[node])
         canvas.disc(p, 3.0 * unit, landmark_colour(name), TEXT_RGB)
         if labels:
-            canvas.text(p + np.array([4.5 * unit, -3.0 * unit]), name, text_scale, gap=4.5 * unit)
+            marked = node in goal_nodes or node == agent  # the star or arrow is bigger than the dot
+            canvas.label(p, name, text_scale, (7.5 if marked else 4.5) * unit, taken)
 
-    goals = [] if goal is None else [goal] if isinstance(goal, (int, np.integer)) else list(goal)
-    for g in goals:
-        p = canvas.px(graph.positions[_check_node(graph, g, "goal")])
+    for node in goal_nodes:
+        p = canvas.px(graph.positions[node])
         star = canvas.fixed(_star(p, 7.0 * unit))
         cv2.fillPoly(canvas.image, [star], GOAL_RGB, cv2.LINE_AA, _SHIFT)
         cv2.polylines(canvas.image, [star], True, TEXT_RGB, 1, cv2.LINE_AA, _SHIFT)
 
     if agent is not None:
-        p = canvas.px(graph.positions[_check_node(graph, agent, "agent")])
+        p = canvas.px(graph.positions[agent])
         if heading is None:
             canvas.disc(p, 4.5 * unit, AGENT_RGB, TEXT_RGB)
         else:
@@ -244,12 +277,9 @@ def draw_map(
             cv2.fillPoly(canvas.image, [tri], AGENT_RGB, cv2.LINE_AA, _SHIFT)
             cv2.polylines(canvas.image, [tri], True, TEXT_RGB, 1, cv2.LINE_AA, _SHIFT)
 
-    if legend:
-        x, y = canvas.margin + 4 * unit, canvas.margin + 6 * unit
-        row = 11.0 * unit
-        box_w = 24 * unit + max(cv2.getTextSize(n, cv2.FONT_HERSHEY_SIMPLEX, text_scale, 1)[0][0] for n, _ in legend)
-        top_left = (round(x - 3 * unit), round(y - 6 * unit))
-        bottom_right = (round(x + box_w + 3 * unit), round(y + row * (len(legend) - 0.4)))
+    if legend_box is not None:
+        top_left = (round(legend_box[0]), round(legend_box[1]))
+        bottom_right = (round(legend_box[2]), round(legend_box[3]))
         cv2.rectangle(canvas.image, top_left, bottom_right, (255, 255, 255), -1)
         cv2.rectangle(canvas.image, top_left, bottom_right, NODE_RGB, 1)
         for i, (name, colour) in enumerate(legend):

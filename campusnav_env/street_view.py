@@ -202,6 +202,7 @@ class StreetViewRenderer:
         self._prepare_ground()
         self._prepare_sprites()
         self._ground_cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._sky_cache: tuple[tuple[bytes, bytes], np.ndarray] | None = None
 
     # ----------------------------------------------------------------------------------------------------------------
     # Public API
@@ -416,7 +417,7 @@ class StreetViewRenderer:
         self._draw_sky(image[:horizon], lighting)
         self._draw_ground(image, node, cam, fwd, right, horizon, lighting)
         depth = np.full((h, w), np.inf, dtype=np.float32)
-        wall_of_pixel = np.full((h, w), -1, dtype=np.int64)
+        wall_of_pixel = np.full((h, w), -1, dtype=np.int32)
         visible_walls = self._draw_walls(image, depth, wall_of_pixel, cam, fwd, right, lighting)
         self._draw_facade_signs(image, wall_of_pixel, visible_walls, cam, fwd, right, lighting)
         self._draw_sprites(image, depth, cam, fwd, right, lighting, cars)
@@ -430,10 +431,14 @@ class StreetViewRenderer:
         n = sky.shape[0]
         if n == 0:
             return
-        # Angle above the horizon of each row, normalised: the gradient is steepest near the horizon, as in real skies.
-        elevation = (self.cy - np.arange(n, dtype=np.float32)) / self.fy
-        t = np.clip(np.arctan(elevation) / (math.pi / 3), 0.0, 1.0) ** 0.6
-        sky[:] = (lighting.sky_horizon[None, :] * (1 - t)[:, None] + lighting.sky_top[None, :] * t[:, None])[:, None, :]
+        key = (lighting.sky_top.tobytes(), lighting.sky_horizon.tobytes())
+        if self._sky_cache is None or self._sky_cache[0] != key:
+            # Angle above the horizon of each row: the gradient is steepest near the horizon, as in real skies.
+            elevation = (self.cy - np.arange(n, dtype=np.float32)) / self.fy
+            t = (np.clip(np.arctan(elevation) / (math.pi / 3), 0.0, 1.0) ** 0.6)[:, None]
+            rows = lighting.sky_horizon[None, :] * (1 - t) + lighting.sky_top[None, :] * t
+            self._sky_cache = (key, np.ascontiguousarray(np.broadcast_to(rows[:, None, :], sky.shape)))
+        sky[:] = self._sky_cache[1]
 
     def _ground_texture(self, node: int) -> tuple[np.ndarray, np.ndarray]:
         """Top-down texture of the ground around ``node`` (and its 4x smaller copy for distant rows), cached."""

@@ -45,7 +45,7 @@ __all__ = [
 RGB = tuple[int, int, int]
 
 # Bump when placement rules change: the world fingerprint (and so every feature cache key) depends on it.
-WORLD_VERSION = 1
+WORLD_VERSION = 2
 
 ROAD_WIDTH = 12.0  # asphalt, both lanes (m)
 VERGE_WIDTH = 2.0  # grass strip with street trees between asphalt and sidewalk (m)
@@ -82,6 +82,23 @@ CROWN_PALETTE: tuple[RGB, ...] = ((52, 96, 40), (64, 110, 46), (44, 84, 44), (78
 SPORTS_GREEN: RGB = (76, 150, 60)
 PARK_GREEN: RGB = (92, 136, 70)
 _FIELD_WORDS = ("field", "park", "green", "quad", "garden")
+
+
+@dataclass(frozen=True)
+class _Style:
+    """Building style of a district: facade colours (indices into FACADE_PALETTE), height range, ribbon windows."""
+
+    facades: tuple[int, ...]
+    heights: tuple[float, float]
+    ribbon_share: float
+
+
+DISTRICT_STYLES = (
+    _Style(facades=(0, 1, 7), heights=(8.0, 22.0), ribbon_share=0.05),  # old brick halls
+    _Style(facades=(3, 4, 5), heights=(12.0, 40.0), ribbon_share=0.6),  # modern concrete and glass
+    _Style(facades=(2, 6, 8), heights=(6.0, 16.0), ribbon_share=0.1),  # low sandstone
+    _Style(facades=tuple(range(9)), heights=(6.0, 30.0), ribbon_share=0.25),  # mixed
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -341,9 +358,9 @@ class SpatialIndex:
         return np.unique(idx)
 
     def pairs(self, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-        """All (point, item) pairs whose point lies within ``radius`` of the item's box cell neighbourhood.
+        """Candidate (point id, item id) pairs: every point within ``radius`` (at most one cell) of an item's box.
 
-        The pairs are a superset of the points within ``radius`` of the item's box, for ``radius <= cell``.
+        Candidates come from the 3x3 cells around each point, so some pairs are farther apart; callers measure.
         """
         points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         if self.n == 0 or len(points) == 0:
@@ -446,9 +463,6 @@ class _Occupancy:
         self.lo = lo
         shape = np.ceil((hi - lo) / self.res).astype(int) + 1
         self.grid = np.zeros((shape[1], shape[0]), dtype=np.uint8)
-
-    def _pixels(self, polygon: np.ndarray) -> np.ndarray:
-        return np.round((polygon - self.lo) / self.res * 4).astype(np.int32)  # 2 fractional bits for fillPoly
 
     def try_place(self, polygon: np.ndarray, margin: float) -> bool:
         """Mark ``polygon`` grown by ``margin`` if that area is still free; return whether it was."""
@@ -689,7 +703,12 @@ def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
                 )
             break
 
-    # 3. Ordinary buildings: rows along both sides of every road segment.
+    # 3. Ordinary buildings: rows along both sides of every road segment. Their style follows the district they
+    # stand in (nearest of a few random district centres), so that nearby streets look alike, as on a real campus.
+    n_districts = max(len(DISTRICT_STYLES), round(area_km2 * 1.6))
+    districts = rng.uniform(lo, hi, size=(n_districts, 2))
+    district_style = np.arange(n_districts) % len(DISTRICT_STYLES)
+    rng.shuffle(district_style)
     cand_polys: list[np.ndarray] = []
     cand_tier: list[int] = []
     for geometry in graph.geometries:
@@ -727,7 +746,9 @@ def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
                                 r = p3 + (p0 - p3) * fd
                                 poly = np.array([p0, p1, p2, q, q + (r - p3), r])
                         else:
-                            poly = np.concatenate([poly, poly[:2] * 0 + np.nan])  # pad to 6 vertices
+                            poly = np.concatenate(
+                                [poly, np.full((2, 2), np.nan)]
+                            )  # pad to 6 vertices to stack with L-shapes
                         if rng.random() > 0.18:  # leave some lots empty: lawns and gaps
                             cand_polys.append(poly)
                             cand_tier.append(tier)
@@ -745,19 +766,16 @@ def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
             poly = polys[i][~np.isnan(polys[i, :, 0])]
             if not occupancy.try_place(poly, 3.0):
                 continue
-            height = float(
-                np.clip(
-                    rng.choice([rng.uniform(6, 14), rng.uniform(10, 22), rng.uniform(18, 40)], p=[0.45, 0.4, 0.15]),
-                    6,
-                    40,
-                )
-            )
-            ribbon = rng.random() < 0.25
+            style = DISTRICT_STYLES[district_style[_nearest(districts, poly.mean(axis=0))]]
+            if rng.random() < 0.2:  # a fifth of the buildings ignore their district: campuses are never uniform
+                style = DISTRICT_STYLES[int(rng.integers(len(DISTRICT_STYLES)))]
+            low, high = style.heights
+            ribbon = rng.random() < style.ribbon_share
             buildings.append(
                 Building(
                     footprint=_ccw(poly),
-                    height=height,
-                    facade_rgb=FACADE_PALETTE[int(rng.integers(len(FACADE_PALETTE)))],
+                    height=float(np.clip(low + (high - low) * rng.beta(1.3, 2.2), 6.0, 40.0)),
+                    facade_rgb=FACADE_PALETTE[style.facades[int(rng.integers(len(style.facades)))]],
                     window_rgb=WINDOW_PALETTE[int(rng.integers(len(WINDOW_PALETTE)))],
                     roof_rgb=ROOF_PALETTE[int(rng.integers(len(ROOF_PALETTE)))],
                     floor_height=float(rng.uniform(3.2, 4.0)),
@@ -816,6 +834,10 @@ def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
         sidewalk_width=SIDEWALK_WIDTH,
         seed=int(seed),
     )
+
+
+def _nearest(centres: np.ndarray, point: np.ndarray) -> int:
+    return int(np.argmin(((centres - point) ** 2).sum(axis=1)))
 
 
 def _ccw(polygon: np.ndarray) -> np.ndarray:

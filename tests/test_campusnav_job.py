@@ -24,8 +24,10 @@ def test_job_trains_closes_a_road_and_writes_logs_pictures_and_model(
 ) -> None:
     monkeypatch.setenv("CAMPUSNAV_CACHE", str(tmp_path / "cache"))
     args = build_parser().parse_args(
-        ["--encoder", "pixels", "--render-size", "64", "48", "--timesteps", "1200", "--retrain-timesteps", "200"]
-        + ["--out", str(tmp_path / "run")]
+        [
+            *("--encoder", "pixels", "--render-size", "64", "48"),
+            *("--timesteps", "1200", "--retrain-timesteps", "200", "--out", str(tmp_path / "run")),
+        ]
     )
     summary = run(args)
     out = tmp_path / "run"
@@ -42,7 +44,7 @@ def test_job_trains_closes_a_road_and_writes_logs_pictures_and_model(
 
 
 def test_job_reports_bad_hyperparameter_files_clearly(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError, match="nope.yml"):
+    with pytest.raises(FileNotFoundError, match=r"nope\.yml"):
         load_zoo_entry(tmp_path / "nope.yml", "CampusNav-v0")
     conf = tmp_path / "conf.yml"
     conf.write_text("CartPole-v1:\n  policy: MlpPolicy\n")

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import subprocess
-import warnings
 import sys
+import warnings
 from pathlib import Path
 
 import gymnasium as gym
@@ -32,10 +32,9 @@ def make_env(cache_dir: Path, **kwargs) -> CampusNavEnv:
 
 
 def test_registered_ids_make_the_single_and_multi_goal_campus(cache_dir: Path) -> None:
-    single = gym.make("CampusNav-v0", encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False)
-    multi = gym.make(
-        "CampusNavMulti-v0", encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False
-    )
+    kwargs = dict(encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False)
+    single = gym.make("CampusNav-v0", **kwargs)
+    multi = gym.make("CampusNavMulti-v0", **kwargs)
     assert single.unwrapped.goal_names == ["Dreese Lab"]
     assert multi.unwrapped.goal_names == list(GOALS)
     assert single.unwrapped.graph.n_nodes == 101

@@ -45,9 +45,7 @@ def test_rejects_spaces_it_cannot_fuse() -> None:
     with pytest.raises(KeyError, match="goal_views"):
         EmbeddingFusionExtractor(spaces.Dict({"views": spaces.Box(-1, 1, (3,))}))
     with pytest.raises(ValueError, match="same shape"):
-        EmbeddingFusionExtractor(
-            spaces.Dict({"views": spaces.Box(-1, 1, (3,)), "goal_views": spaces.Box(-1, 1, (4,))})
-        )
+        EmbeddingFusionExtractor(spaces.Dict({"views": spaces.Box(-1, 1, (3,)), "goal_views": spaces.Box(-1, 1, (4,))}))
     with pytest.raises(TypeError, match="Dict"):
         EmbeddingFusionExtractor(spaces.Box(-1, 1, (3,)))
 

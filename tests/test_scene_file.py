@@ -104,11 +104,11 @@ def test_runs_as_an_environment_with_goals_by_name_and_closures(tmp_path: Path) 
 
 
 def test_bad_scene_files_give_clear_errors(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError, match="missing.h5"):
+    with pytest.raises(FileNotFoundError, match=r"missing\.h5"):
         load_scene_file(tmp_path / "missing.h5")
     garbage = tmp_path / "garbage.h5"
     garbage.write_bytes(b"not an hdf5 file")
-    with pytest.raises(ValueError, match="garbage.h5"):
+    with pytest.raises(ValueError, match=r"garbage\.h5"):
         load_scene_file(garbage)
     partial = tmp_path / "partial.h5"
     with h5py.File(partial, "w") as file:

@@ -187,23 +187,25 @@ def test_rendering_is_deterministic_across_renderers(graph, renderer):
 
 def test_neighbours_along_a_straight_road_see_more_alike_than_far_apart_nodes(graph, renderer):
     positions = graph.positions
-    pairs = []
-    for (u, v), g in zip(graph.roads, graph.geometries, strict=True):
-        if len(g) != 2 or graph.lengths[graph.road_id(u, v)] > 260:
-            continue
+    views: dict[tuple[int, int], np.ndarray] = {}
+
+    def view(node: int, d: int) -> np.ndarray:
+        if (node, d) not in views:
+            views[node, d] = renderer.render_view(node, d)
+        return views[node, d]
+
+    closer = total = 0
+    for u, v in graph.roads:
         bearing = _bearing(positions[v] - positions[u])
         d = round(bearing / 90) % 4
-        if abs((bearing - 90 * d + 180) % 360 - 180) < 8:  # the road runs along a compass direction
-            pairs.append((u, v, d))
-    assert len(pairs) >= 10
-    rng = np.random.default_rng(0)
-    closer = 0
-    chosen = [pairs[i] for i in rng.choice(len(pairs), size=12, replace=False)]
-    for u, v, d in chosen:
+        if abs((bearing - 90 * d + 180) % 360 - 180) >= 15:  # only roads that run along a compass direction
+            continue
         far = int(np.argmax(np.linalg.norm(positions - positions[u], axis=1)))
-        here, ahead, there = (renderer.render_view(n, d) for n in (u, v, far))
-        closer += _difference(here, ahead) < _difference(here, there)
-    assert closer >= 9, f"only {closer} of 12 neighbouring pairs were more alike than far-apart nodes"
+        closer += _difference(view(u, d), view(v, d)) < _difference(view(u, d), view(far, d))
+        total += 1
+    assert total >= 50
+    # The same buildings and districts seen from one street: most neighbouring pairs look more alike (75% now).
+    assert closer / total > 0.65, f"only {closer} of {total} neighbouring pairs were more alike than far-apart nodes"
 
 
 def _colour_share(view: np.ndarray, rgb: tuple[int, int, int], tol: float = 0.04) -> float:

@@ -11,8 +11,8 @@ import yaml
 
 pytest.importorskip("rl_zoo3")
 
-from sb3_dcqn import DCQN  # noqa: E402
-from sb3_dcqn.zoo import default_hyperparams_path, register_dcqn  # noqa: E402
+from sb3_dcqn import DCQN
+from sb3_dcqn.zoo import default_hyperparams_path, register_dcqn
 
 TINY = {
     "CartPole-v1": {
