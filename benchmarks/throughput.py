@@ -17,8 +17,9 @@ import argparse
 import platform
 import statistics
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -28,56 +29,94 @@ from stable_baselines3 import DQN
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_dcqn import DCQN
+from sb3_dcqn.fusion import EmbeddingFusionExtractor
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 
-class WideObservationEnv(gym.Env[np.ndarray, np.int64]):
-    """A cheap env with a wide float observation, like CampusNav's 2 x 4 views of CNN features."""
+class RandomObservationEnv(gym.Env):
+    """A cheap env with random observations from any space, 50-step episodes (the update is what is timed)."""
 
-    def __init__(self, obs_dim: int = 2560, n_actions: int = 4, episode_length: int = 50) -> None:
-        self.observation_space = spaces.Box(-1.0, 1.0, shape=(obs_dim,), dtype=np.float32)
+    def __init__(self, observation_space: spaces.Space, n_actions: int = 4, episode_length: int = 50) -> None:
+        self.observation_space = observation_space
         self.action_space = spaces.Discrete(n_actions)
         self.episode_length = episode_length
         self._t = 0
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
         super().reset(seed=seed)
+        self.observation_space.seed(seed)
         self._t = 0
         return self.observation_space.sample(), {}
 
-    def step(self, action: np.int64) -> tuple[np.ndarray, float, bool, bool, dict]:
+    def step(self, action: np.int64) -> tuple[Any, float, bool, bool, dict]:
         self._t += 1
         reward = 1.0 if action == 0 else 0.0
         return self.observation_space.sample(), reward, False, self._t >= self.episode_length, {}
 
 
+# CampusNav's observation with EfficientNet-Lite0 features: 4 views x 1280 for the intersection and the goal
+CAMPUSNAV_SPACE = spaces.Dict(
+    {
+        "views": spaces.Box(-5.0, 5.0, shape=(4 * 1280,), dtype=np.float32),
+        "goal_views": spaces.Box(-5.0, 5.0, shape=(4 * 1280,), dtype=np.float32),
+        "heading": spaces.Box(0.0, 1.0, shape=(4,), dtype=np.float32),
+    }
+)
+FUSION = dict(
+    features_extractor_class=EmbeddingFusionExtractor,
+    features_extractor_kwargs=dict(embed_dim=256, features_dim=256),
+)
+
+
 @dataclass(frozen=True)
 class Config:
     name: str
-    env_id: str
+    env_id: str  # a registered id, or "campusnav-features" for CAMPUSNAV_SPACE
     net_arch: tuple[int, ...]
     batch_size: int
+    policy: str = "MlpPolicy"
+    extractor: dict[str, Any] = field(default_factory=dict)  # features extractor policy_kwargs, same for both
+    dcqn_only: dict[str, Any] = field(default_factory=dict)  # DCQN-only policy_kwargs
 
 
 CONFIGS = (
     Config("CartPole-v1, net [64, 64], batch 64", "CartPole-v1", (64, 64), 64),
     Config("CartPole-v1, net [256, 256], batch 128", "CartPole-v1", (256, 256), 128),
-    Config("2560-d obs, net [256, 256], batch 64", "wide", (256, 256), 64),
+    Config(
+        "CampusNav features, fusion 256 (separate per critic), net [256], batch 64",
+        "campusnav-features",
+        (256,),
+        64,
+        "MultiInputPolicy",
+        FUSION,
+    ),
+    Config(
+        "CampusNav features, fusion 256 (shared by the critics), net [256], batch 64",
+        "campusnav-features",
+        (256,),
+        64,
+        "MultiInputPolicy",
+        FUSION,
+        dict(share_features_extractor=True),
+    ),
 )
 
 
 def make_model(algo: type[OffPolicyAlgorithm], config: Config, seed: int) -> OffPolicyAlgorithm:
-    env = WideObservationEnv() if config.env_id == "wide" else gym.make(config.env_id)
+    env = RandomObservationEnv(CAMPUSNAV_SPACE) if config.env_id == "campusnav-features" else gym.make(config.env_id)
+    policy_kwargs = dict(net_arch=list(config.net_arch), **config.extractor)
+    if algo is DCQN:
+        policy_kwargs.update(config.dcqn_only)
     return algo(
-        "MlpPolicy",
+        config.policy,
         env,
         learning_starts=0,
         batch_size=config.batch_size,
-        buffer_size=50_000,
+        buffer_size=20_000,
         train_freq=4,
         target_update_interval=1000,
-        policy_kwargs=dict(net_arch=list(config.net_arch)),
+        policy_kwargs=policy_kwargs,
         seed=seed,
         device="cpu",
     )

@@ -76,5 +76,11 @@ def test_dcqn_zoo_optimize_writes_the_study_to_a_journal_file(tmp_path: Path) ->
     args += ["-n", "300", "--sampler", "random", "--pruner", "none", "--n-evaluations", "1", "--eval-episodes", "2"]
     result = run_zoo(args, tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
-    assert storage.is_file() and storage.stat().st_size > 0
-    assert "Number of finished trials: 2" in result.stdout
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    study = optuna.load_study(study_name="dcqn-test", storage=JournalStorage(JournalFileBackend(str(storage))))
+    finished = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    assert len(finished) == 2
+    assert "Writing report to" in result.stdout
