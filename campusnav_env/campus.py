@@ -38,6 +38,7 @@ import math
 
 import numpy as np
 
+from campusnav_env.disjoint_set import DisjointSet
 from campusnav_env.road_graph import RoadGraph
 
 GOALS = ("Dreese Lab", "Town house", "Cinema", "Intramural fields")
@@ -196,20 +197,10 @@ def _grid_streets(node_of: np.ndarray, rng: np.random.Generator) -> tuple[np.nda
     candidates = np.concatenate(pairs)
     n_nodes = int(node_of.max()) + 1
     # Random spanning tree: Kruskal over the candidate streets in random order
-    parent = list(range(n_nodes))
-
-    def find(x: int) -> int:
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
+    components = DisjointSet(n_nodes)
     in_tree = np.zeros(len(candidates), dtype=bool)
     for i in rng.permutation(len(candidates)).tolist():
-        ru, rv = find(int(candidates[i, 0])), find(int(candidates[i, 1]))
-        if ru != rv:
-            parent[ru] = rv
-            in_tree[i] = True
+        in_tree[i] = components.union(int(candidates[i, 0]), int(candidates[i, 1]))
     tree_degree = np.bincount(candidates[in_tree].ravel(), minlength=n_nodes)
     leaves = np.flatnonzero(tree_degree == 1)
     dead_end = np.zeros(n_nodes, dtype=bool)

@@ -49,7 +49,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from campusnav_env.road_graph import RoadGraph, compass_slots, initial_bearing
+from campusnav_env.disjoint_set import DisjointSet
+from campusnav_env.road_graph import RoadGraph, compass_slots, initial_bearing, require_networkx
 
 EARTH_RADIUS_M = 6_371_008.8
 _WKT_LINESTRING = re.compile(r"^\s*LINESTRING\s*(?:ZM|Z|M)?\s*\((?P<body>.*)\)\s*$", re.IGNORECASE | re.DOTALL)
@@ -123,7 +124,7 @@ def load_graphml(path: str | PathLike[str], **kwargs: Any) -> RoadGraph | tuple[
     :param kwargs: Passed to :func:`graph_from_networkx`; ``name`` defaults to the file's stem
     :raises FileNotFoundError: if the file does not exist
     """
-    nx = _require_networkx()
+    nx = require_networkx()
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"GraphML file not found: {path}")
@@ -257,16 +258,6 @@ def import_networkx(
         dropped_roads=dropped,
         dropped_nodes=dropped_nodes,
     )
-
-
-def _require_networkx() -> Any:
-    try:
-        import networkx
-    except ImportError as error:  # pragma: no cover - networkx is installed in the test environment
-        raise ImportError(
-            "networkx is needed to read GraphML road networks; install it with `pip install sb3-dcqn[osm]`"
-        ) from error
-    return networkx
 
 
 def _node_coordinates(graph: Any, nodes: list[Hashable]) -> np.ndarray:
@@ -520,24 +511,15 @@ def _prune_crowded(roads: list[_Road], n_nodes: int, dropped: dict[str, int]) ->
 
 def _largest_component(roads: list[_Road], n_nodes: int) -> list[int]:
     """Nodes of the largest connected component (ties: the one with the lowest node), in ascending order."""
-    parent = list(range(n_nodes))
-
-    def find(x: int) -> int:
-        while parent[x] != x:
-            parent[x] = parent[parent[x]]
-            x = parent[x]
-        return x
-
+    components = DisjointSet(n_nodes)
     for road in roads:
-        a, b = find(road.u), find(road.v)
-        if a != b:
-            parent[max(a, b)] = min(a, b)
+        components.union(road.u, road.v)
     members: dict[int, list[int]] = {}
     for road in roads:
         for node in (road.u, road.v):
-            members.setdefault(find(node), [])
+            members.setdefault(components.find(node), [])
     for node in range(n_nodes):
-        root = find(node)
+        root = components.find(node)
         if root in members:
             members[root].append(node)
     largest = max(members.values(), key=lambda nodes: (len(nodes), -nodes[0]))

@@ -102,12 +102,13 @@ def compass_slots(bearings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return slots, best[:, 0]
 
 
-def _require_networkx() -> Any:
+def require_networkx() -> Any:
+    """The networkx module, or an ImportError that says how to install it."""
     try:
         import networkx
     except ImportError as error:  # pragma: no cover - networkx is installed in the test environment
         raise ImportError(
-            "networkx is needed for road-graph import/export; install it with `pip install sb3-dcqn[osm]`"
+            "networkx is needed to import or export road graphs; install it with `pip install sb3-dcqn[osm]`"
         ) from error
     return networkx
 
@@ -638,7 +639,7 @@ class RoadGraph:
         Nodes carry ``x``, ``y`` and, for landmarks, ``name``; edges carry ``road_id``, ``length``, ``closed`` and the
         polyline as a WKT ``geometry`` string, so that :func:`campusnav_env.osm.graph_from_networkx` reads it back.
         """
-        nx = _require_networkx()
+        nx = require_networkx()
         graph = nx.Graph(name=self.name, crs="local metres")
         names: dict[int, str] = {}
         for label, node in self.landmarks.items():

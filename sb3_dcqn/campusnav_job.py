@@ -174,7 +174,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         goal=nav.goal_nodes[0],
         agent=example.start,
         heading=example.heading,
-        routes={"learned route": list(example.nodes), "re-routed after closure": list(rerouted.nodes)},
+        routes={
+            "learned route": list(example.nodes),
+            "re-routed after closure": list(rerouted.nodes),
+            "shortest path after closure": nav.graph.shortest_path(example.start, nav.goal_nodes[0]),
+        },
     )
     _write_png(out / "routes.png", picture)
     model.save(out / "dcqn_campusnav")
