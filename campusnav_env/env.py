@@ -139,8 +139,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         render_mode: str | None = None,
     ) -> None:
         graph = _resolve_world(world)
-        if observation_mode not in OBSERVATION_MODES:
-            raise ValueError(f"observation_mode must be one of {OBSERVATION_MODES}, got {observation_mode!r}")
+        _check_observation_mode(observation_mode)
         node_views = _node_views(
             graph, observation_mode, encoder, encoder_kwargs, render_settings, world_seed, cache_dir, progress
         )
@@ -190,8 +189,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         normalize_features: bool,
         render_mode: str | None,
     ) -> None:
-        if observation_mode not in OBSERVATION_MODES:
-            raise ValueError(f"observation_mode must be one of {OBSERVATION_MODES}, got {observation_mode!r}")
+        _check_observation_mode(observation_mode)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.graph = graph
@@ -399,6 +397,11 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             "collision": collision,
             "action_mask": (self.graph.transition_table[state] >= 0).astype(np.int8),
         }
+
+
+def _check_observation_mode(observation_mode: str) -> None:
+    if observation_mode not in OBSERVATION_MODES:
+        raise ValueError(f"observation_mode must be one of {OBSERVATION_MODES}, got {observation_mode!r}")
 
 
 def _resolve_world(world: str | RoadGraph) -> RoadGraph:

@@ -13,6 +13,7 @@ from gymnasium.wrappers import FlattenObservation
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.envs import FakeImageEnv, IdentityEnv
 from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_dcqn import DCQN, MlpPolicy, dcqn_td_target
@@ -335,5 +336,5 @@ def test_solves_identity_env_to_full_reward() -> None:
         seed=0,
     )
     model.learn(3_000)
-    mean_reward, _ = evaluate_policy(model, DummyVecEnv([lambda: IdentityEnv(dim=4, ep_length=10)]), 10)
+    mean_reward, _ = evaluate_policy(model, DummyVecEnv([lambda: Monitor(IdentityEnv(dim=4, ep_length=10))]), 10)
     assert mean_reward == pytest.approx(10.0)
