@@ -27,6 +27,7 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 import yaml
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.monitor import Monitor
 from torch import nn
 
@@ -71,6 +72,27 @@ def load_zoo_entry(path: str | Path, env_id: str) -> tuple[int, dict[str, Any]]:
         except Exception as error:
             raise ValueError(f"{path}: {env_id!r}: cannot evaluate policy_kwargs {entry['policy_kwargs']!r}") from error
     return n_timesteps, entry
+
+
+class ProgressPrinter(BaseCallback):
+    """Prints steps, episodes, recent success rate and elapsed time every ``every`` steps."""
+
+    def __init__(self, phase: str, every: int = 5_000) -> None:
+        super().__init__()
+        self.phase = phase
+        self.every = every
+        self._start = time.perf_counter()
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.every == 0:
+            successes = [float(success) for success in self.model.ep_success_buffer]
+            rate = f"{np.mean(successes):.2f}" if successes else "-"
+            print(
+                f"[{self.phase}] {self.num_timesteps} steps, {self.model._episode_num} episodes, "
+                f"success (last {len(successes)} episodes) {rate}, {time.perf_counter() - self._start:.0f} s",
+                flush=True,
+            )
+        return True
 
 
 def most_used_closable_road(env: Any, report: RouteReport) -> tuple[int, int]:
@@ -145,7 +167,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     model = DCQN(env=env, tensorboard_log=str(out / "tb"), seed=args.seed, verbose=args.verbose, **kwargs)
     start = time.perf_counter()
-    model.learn(n_timesteps, tb_log_name="DCQN", progress_bar=args.progress)
+    print(f"training DCQN on {args.env} for {n_timesteps} steps", flush=True)
+    model.learn(
+        n_timesteps,
+        callback=ProgressPrinter("train", args.report_every),
+        tb_log_name="DCQN",
+        progress_bar=args.progress,
+    )
     train_seconds = time.perf_counter() - start
     trained = evaluate_routes(nav, policy)
     _log_routes(model, "trained", trained)
@@ -155,7 +183,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     closed = evaluate_routes(nav, policy)
     _log_routes(model, "after_closure", closed)
     start = time.perf_counter()
-    model.learn(retrain_timesteps, tb_log_name="DCQN", reset_num_timesteps=False, progress_bar=args.progress)
+    print(f"road {road[0]}-{road[1]} closed; training {retrain_timesteps} more steps", flush=True)
+    model.learn(
+        retrain_timesteps,
+        callback=ProgressPrinter("re-train", args.report_every),
+        tb_log_name="DCQN",
+        reset_num_timesteps=False,
+        progress_bar=args.progress,
+    )
     retrain_seconds = time.perf_counter() - start
     readapted = evaluate_routes(nav, policy)
     _log_routes(model, "readapted", readapted)
@@ -222,7 +257,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", default="runs/campusnav", help="output directory (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default: %(default)s)")
-    parser.add_argument("--verbose", type=int, default=0)
+    parser.add_argument("--report-every", type=int, default=5_000, help="print progress every N steps")
+    parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (1 prints its training tables)")
     parser.add_argument("--progress", action="store_true", help="show a training progress bar")
     return parser
 

@@ -20,16 +20,19 @@ def test_campusnav_entry_uses_the_fusion_extractor() -> None:
 
 
 def test_job_trains_closes_a_road_and_writes_logs_pictures_and_model(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     monkeypatch.setenv("CAMPUSNAV_CACHE", str(tmp_path / "cache"))
     args = build_parser().parse_args(
         [
             *("--encoder", "pixels", "--render-size", "64", "48"),
-            *("--timesteps", "1200", "--retrain-timesteps", "200", "--out", str(tmp_path / "run")),
+            *("--timesteps", "1200", "--retrain-timesteps", "200", "--report-every", "600"),
+            *("--out", str(tmp_path / "run")),
         ]
     )
     summary = run(args)
+    printed = capsys.readouterr().out
+    assert "[train] 1200 steps" in printed and "| re-trained |" in printed
     out = tmp_path / "run"
     for name in ("routes.png", "summary.json", "summary.md", "dcqn_campusnav.zip"):
         assert (out / name).is_file(), name
