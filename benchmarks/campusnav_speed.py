@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
         "|---|---|",
         *[f"| {name} | {seconds:.2f} |" for name, seconds in timings.items()],
         "",
-        f"Command: `python benchmarks/campusnav_speed.py {' '.join(sys.argv[1:] if argv is None else argv)}`",
+        f"Command: `python benchmarks/campusnav_speed.py {' '.join(sys.argv[1:] if argv is None else argv)}".rstrip() + "`",
     ]
     text = "\n".join(lines)
     print(text)

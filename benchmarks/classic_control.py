@@ -146,7 +146,7 @@ def main(argv: list[str] | None = None) -> None:
         "",
         *summarise(read_results(args.runs_file), args.envs),
         "",
-        f"Command: `python benchmarks/classic_control.py {' '.join(sys.argv[1:] if argv is None else argv)}`",
+        f"Command: `python benchmarks/classic_control.py {' '.join(sys.argv[1:] if argv is None else argv)}".rstrip() + "`",
     ]
     print("\n".join(lines))
     tmp = args.out.with_suffix(".tmp")

@@ -209,10 +209,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         goal=nav.goal_nodes[0],
         agent=example.start,
         heading=example.heading,
+        # Drawn in this order: the agent's route after re-training ends on top
         routes={
+            "shortest path after closure": nav.graph.shortest_path(example.start, nav.goal_nodes[0]),
             "learned route": list(example.nodes),
             "re-routed after closure": list(rerouted.nodes),
-            "shortest path after closure": nav.graph.shortest_path(example.start, nav.goal_nodes[0]),
         },
     )
     _write_png(out / "routes.png", picture)
