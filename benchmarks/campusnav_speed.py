@@ -18,13 +18,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import torch as th
+from report import command_line, write_results  # benchmarks/report.py, beside this script
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import campusnav_env  # noqa: F401  (registers the ids)
@@ -120,14 +120,11 @@ def main(argv: list[str] | None = None) -> None:
         "|---|---|",
         *[f"| {name} | {seconds:.2f} |" for name, seconds in timings.items()],
         "",
-        f"Command: `python benchmarks/campusnav_speed.py {' '.join(sys.argv[1:] if argv is None else argv)}".rstrip() + "`",
+        command_line("campusnav_speed.py", argv),
     ]
     text = "\n".join(lines)
     print(text)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text(text + "\n")
-    tmp.replace(args.out)
+    write_results(args.out, text)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,6 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -26,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from report import command_line, write_results  # benchmarks/report.py, beside this script
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 HYPERPARAMS = Path(__file__).resolve().parents[1] / "sb3_dcqn" / "hyperparams" / "dcqn.yml"
@@ -146,12 +146,10 @@ def main(argv: list[str] | None = None) -> None:
         "",
         *summarise(read_results(args.runs_file), args.envs),
         "",
-        f"Command: `python benchmarks/classic_control.py {' '.join(sys.argv[1:] if argv is None else argv)}".rstrip() + "`",
+        command_line("classic_control.py", argv),
     ]
     print("\n".join(lines))
-    tmp = args.out.with_suffix(".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(args.out)
+    write_results(args.out, "\n".join(lines))
     print(f"wrote {args.out}")
 
 

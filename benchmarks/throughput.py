@@ -25,6 +25,7 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from report import command_line, write_results  # benchmarks/report.py, beside this script
 from stable_baselines3 import DQN
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
@@ -194,12 +195,9 @@ def write_markdown(rows: list[dict[str, float | str]], path: Path, args: argpars
         "|" + "---|" * len(COLUMNS),
         *[format_row(row) for row in rows],
         "",
-        "Command: `python benchmarks/throughput.py " + " ".join(args.argv) + "`",
+        command_line("throughput.py", args.argv),
     ]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(path)
+    write_results(path, "\n".join(lines))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -211,7 +209,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--quick", action="store_true", help="one small configuration, few repeats (smoke run)")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "throughput.md")
     args = parser.parse_args(argv)
-    args.argv = argv if argv is not None else __import__("sys").argv[1:]
+    args.argv = argv
     th.set_num_threads(args.threads)
     configs = CONFIGS[:1] if args.quick else CONFIGS
     if args.quick:
