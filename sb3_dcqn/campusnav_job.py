@@ -166,15 +166,21 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         return model.predict(observations, deterministic=True)[0]
 
     model = DCQN(env=env, tensorboard_log=str(out / "tb"), seed=args.seed, verbose=args.verbose, **kwargs)
-    start = time.perf_counter()
+
+    def train(steps: int, phase: str) -> float:
+        """Train (continuing the same TensorBoard run after the first phase); returns the seconds it took."""
+        start = time.perf_counter()
+        model.learn(
+            steps,
+            callback=ProgressPrinter(phase, args.report_every),
+            tb_log_name="DCQN",
+            reset_num_timesteps=phase == "train",
+            progress_bar=args.progress,
+        )
+        return time.perf_counter() - start
+
     print(f"training DCQN on {args.env} for {n_timesteps} steps", flush=True)
-    model.learn(
-        n_timesteps,
-        callback=ProgressPrinter("train", args.report_every),
-        tb_log_name="DCQN",
-        progress_bar=args.progress,
-    )
-    train_seconds = time.perf_counter() - start
+    train_seconds = train(n_timesteps, "train")
     trained = evaluate_routes(nav, policy)
     _log_routes(model, "trained", trained)
 
@@ -182,16 +188,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     nav.close_road(*road)
     closed = evaluate_routes(nav, policy)
     _log_routes(model, "after_closure", closed)
-    start = time.perf_counter()
     print(f"road {road[0]}-{road[1]} closed; training {retrain_timesteps} more steps", flush=True)
-    model.learn(
-        retrain_timesteps,
-        callback=ProgressPrinter("re-train", args.report_every),
-        tb_log_name="DCQN",
-        reset_num_timesteps=False,
-        progress_bar=args.progress,
-    )
-    retrain_seconds = time.perf_counter() - start
+    retrain_seconds = train(retrain_timesteps, "re-train")
     readapted = evaluate_routes(nav, policy)
     _log_routes(model, "readapted", readapted)
 
