@@ -45,31 +45,32 @@ class RouteReport:
 
     @property
     def success_rate(self) -> float:
-        return float(np.mean([r.success for r in self.routes])) if self.routes else 0.0
+        return _mean([r.success for r in self.routes])
 
     @property
     def spl(self) -> float:
-        return float(np.mean([r.spl for r in self.routes])) if self.routes else 0.0
+        return _mean([r.spl for r in self.routes])
 
     @property
     def mean_steps(self) -> float:
-        return float(np.mean([r.steps for r in self.routes])) if self.routes else 0.0
+        return _mean([r.steps for r in self.routes])
 
     @property
     def mean_shortest(self) -> float:
-        return float(np.mean([r.shortest for r in self.routes])) if self.routes else 0.0
+        return _mean([r.shortest for r in self.routes])
 
     @property
     def coverage(self) -> float:
+        """Share of (goal, start node) pairs from which the route succeeds at every heading."""
         by_start: dict[tuple[str, int], bool] = {}
         for r in self.routes:
             by_start[(r.goal, r.start)] = by_start.get((r.goal, r.start), True) and r.success
-        return float(np.mean(list(by_start.values()))) if by_start else 0.0
+        return _mean(list(by_start.values()))
 
     @property
     def optimality_gap(self) -> float:
-        gaps = [r.steps - r.shortest for r in self.routes if r.success]
-        return float(np.mean(gaps)) if gaps else float("nan")
+        """Mean extra steps over the shortest path, successful routes only (NaN if none succeeded)."""
+        return _mean([r.steps - r.shortest for r in self.routes if r.success], empty=float("nan"))
 
     def for_goal(self, goal: str) -> RouteReport:
         return RouteReport([r for r in self.routes if r.goal == goal])
@@ -84,6 +85,10 @@ class RouteReport:
             "optimality_gap": self.optimality_gap,
             "n_routes": float(len(self.routes)),
         }
+
+
+def _mean(values: Sequence[float], empty: float = 0.0) -> float:
+    return float(np.mean(values)) if len(values) else empty
 
 
 def _stack(observations: list[Any]) -> Any:
@@ -139,10 +144,8 @@ def evaluate_routes(
                     success[i], active[i] = True, False
                 elif int(current[i]) in visited[i]:
                     active[i] = False  # a deterministic policy that repeats a state loops forever
-                    steps[i] = max_steps
                 else:
                     visited[i].add(int(current[i]))
-        steps[active] = max_steps
         for i, start in enumerate(starts):
             report.routes.append(
                 Route(
@@ -150,7 +153,7 @@ def evaluate_routes(
                     start=int(state_nodes[start]),
                     heading=int(state_headings[start]),
                     success=bool(success[i]),
-                    steps=int(steps[i]) if success[i] else max_steps,
+                    steps=int(steps[i]) if success[i] else max_steps,  # a failed route counts the full budget
                     shortest=int(distances[state_nodes[start]]),
                     nodes=tuple(paths[i]),
                 )
