@@ -259,6 +259,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             start = int(options["start"])
             if not 0 <= start < self.graph.n_nodes:
                 raise ValueError(f"CampusNavEnv.reset: start node {start} out of range [0, {self.graph.n_nodes})")
+            if start == goal:
+                raise ValueError(f"CampusNavEnv.reset: start node {start} is the goal {self.goal!r}")
         else:
             candidates = np.flatnonzero(distances > 0)
             if candidates.size == 0:

@@ -196,6 +196,8 @@ def test_bad_input_gives_clear_errors(cache_dir: Path) -> None:
     env = make_env(cache_dir)
     with pytest.raises(ValueError, match="start node"):
         env.reset(options={"start": 999})
+    with pytest.raises(ValueError, match="is the goal"):
+        env.reset(options={"start": env.goal_nodes[0]})
     with pytest.raises(KeyError, match="goal"):
         env.reset(options={"goal": "Cinema"})
     with pytest.raises(KeyError, match="teleport"):

@@ -99,8 +99,10 @@ def test_runs_as_an_environment_with_goals_by_name_and_closures(tmp_path: Path) 
     assert env.node_distances(8)[7] > distances[7]
     env.reopen_road(7, 8)
     np.testing.assert_array_equal(env.node_distances(8), distances)
-    image_env = CampusNavEnv.from_scene_file(path, goals=[8], observation_mode="image")
+    image_env = CampusNavEnv.from_scene_file(path, goals=[8], observation_mode="image", render_mode="rgb_array")
     assert image_env.reset(seed=0)[0].shape == (3, 96, 256)
+    picture = image_env.render()
+    assert picture.ndim == 3 and picture.dtype == np.uint8
 
 
 def test_bad_scene_files_give_clear_errors(tmp_path: Path) -> None:
