@@ -53,8 +53,9 @@ class DCQN(OffPolicyAlgorithm):
     Paper: Han & Yilmaz, "Dynamic Routing for Navigation in Changing Unknown Maps Using Deep Reinforcement Learning".
     DQN with two online critics and two target critics. Both critics regress (Huber loss, summed) to the same target
     ``r + gamma * (1 - done) * max_a' min(Q1'(s', a'), Q2'(s', a'))``. The greedy action maximises the mean of the
-    two online critics, in ``predict``, in evaluation and in epsilon-greedy exploration alike. Both critics (and both
-    targets) are evaluated in one batched forward pass.
+    two online critics, in ``predict``, in evaluation and in epsilon-greedy exploration alike. The critics' MLPs (and
+    the targets') are evaluated in one batched forward pass; a features extractor with parameters is shared by the
+    critics (``policy_kwargs=dict(share_features_extractor=True)``) or run once per critic (the default).
 
     The paper's settings are ``learning_rate=1e-4, gamma=0.95, buffer_size=412`` with Adam; the defaults below are
     SB3 DQN's, so that DCQN is a drop-in replacement.
