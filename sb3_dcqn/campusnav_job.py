@@ -155,6 +155,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         n_timesteps = args.timesteps
     retrain_timesteps = args.retrain_timesteps if args.retrain_timesteps is not None else n_timesteps // 3
     env_kwargs: dict[str, Any] = {"encoder": args.encoder}
+    if args.encoder_weights is not None:
+        env_kwargs["encoder_kwargs"] = {"weights_path": args.encoder_weights}
     if args.render_size is not None:
         from campusnav_env.street_view import RenderSettings
 
@@ -252,13 +254,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--retrain-timesteps", type=int, default=None, help="steps after the closure (default: 1/3)")
     parser.add_argument("--close-road", type=int, nargs=2, metavar=("U", "V"), help="road to close (default: busiest)")
     parser.add_argument("--encoder", default="efficientnet-lite0", help="view encoder (default: %(default)s)")
+    parser.add_argument("--encoder-weights", help="weights file for the encoder (e.g. torchvision's ResNet-50)")
     parser.add_argument("--render-size", type=int, nargs=2, metavar=("W", "H"), help="street-view size (640 480)")
     parser.add_argument("--out", default="runs/campusnav", help="output directory (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default: %(default)s)")
     parser.add_argument("--report-every", type=int, default=5_000, help="print progress every N steps")
     parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (1 prints its training tables)")
-    parser.add_argument("--progress", action="store_true", help="show a training progress bar")
+    parser.add_argument("--progress", action="store_true", help="show SB3's training progress bar (needs the rich package)")
     return parser
 
 
