@@ -174,6 +174,20 @@ class _Car:
     rgb: tuple[int, int, int]
 
 
+@dataclass(frozen=True)
+class _View:
+    """What the drawing steps of one rendered view share: the camera, the light and the buffers they fill in place."""
+
+    node: int
+    cam: np.ndarray  # camera position (east, north)
+    fwd: np.ndarray  # horizontal unit vector the camera looks along
+    right: np.ndarray  # horizontal unit vector to the camera's right
+    lighting: _Lighting
+    image: np.ndarray  # (height, width, 3) float32 colours
+    depth: np.ndarray  # (height, width) float32 distance along ``fwd`` of what each pixel shows (inf: nothing yet)
+    wall_of_pixel: np.ndarray  # (height, width) int32 id of the wall each pixel shows (-1: none)
+
+
 class StreetViewRenderer:
     """Draws the four compass views at every intersection of a :class:`~campusnav_env.world.World`.
 
@@ -407,21 +421,25 @@ class StreetViewRenderer:
     # ----------------------------------------------------------------------------------------------------------------
 
     def _render(self, node: int, direction: int, lighting: _Lighting, cars: list[_Car]) -> np.ndarray:
-        cam = self.positions[node]
         yaw = math.radians(90.0 * direction)
-        fwd = np.array([math.sin(yaw), math.cos(yaw)])
-        right = np.array([math.cos(yaw), -math.sin(yaw)])
         h, w = self.height, self.width
-        image = np.empty((h, w, 3), dtype=np.float32)
+        view = _View(
+            node=node,
+            cam=self.positions[node],
+            fwd=np.array([math.sin(yaw), math.cos(yaw)]),
+            right=np.array([math.cos(yaw), -math.sin(yaw)]),
+            lighting=lighting,
+            image=np.empty((h, w, 3), dtype=np.float32),
+            depth=np.full((h, w), np.inf, dtype=np.float32),
+            wall_of_pixel=np.full((h, w), -1, dtype=np.int32),
+        )
         horizon = math.floor(self.cy) + 1  # first ground row
-        self._draw_sky(image[:horizon], lighting)
-        self._draw_ground(image, node, cam, fwd, right, horizon, lighting)
-        depth = np.full((h, w), np.inf, dtype=np.float32)
-        wall_of_pixel = np.full((h, w), -1, dtype=np.int32)
-        visible_walls = self._draw_walls(image, depth, wall_of_pixel, cam, fwd, right, lighting)
-        self._draw_facade_signs(image, wall_of_pixel, visible_walls, cam, fwd, right, lighting)
-        self._draw_sprites(image, depth, cam, fwd, right, lighting, cars)
-        return cv2.convertScaleAbs(image)  # rounds and saturates to uint8 (all colours are >= 0)
+        self._draw_sky(view.image[:horizon], lighting)
+        self._draw_ground(view, horizon)
+        visible_walls = self._draw_walls(view)
+        self._draw_facade_signs(view, visible_walls)
+        self._draw_sprites(view, cars)
+        return cv2.convertScaleAbs(view.image)  # rounds and saturates to uint8 (all colours are >= 0)
 
     def _fog(self, z: np.ndarray) -> np.ndarray:
         beyond = np.maximum(np.asarray(z, dtype=np.float32) - np.float32(FOG_START), np.float32(0.0))
@@ -490,19 +508,11 @@ class StreetViewRenderer:
             self._ground_cache.popitem(last=False)
         return tex, small
 
-    def _draw_ground(
-        self,
-        image: np.ndarray,
-        node: int,
-        cam: np.ndarray,
-        fwd: np.ndarray,
-        right: np.ndarray,
-        horizon: int,
-        lighting: _Lighting,
-    ) -> None:
-        tex, small = self._ground_texture(node)
+    def _draw_ground(self, view: _View, horizon: int) -> None:
+        tex, small = self._ground_texture(view.node)
         h, w = self.height, self.width
         eye, fx, fy, cx, cy = self.eye, self.fx, self.fy, self.cx, self.cy
+        cam, fwd, right = view.cam, view.fwd, view.right
         # Ground point of output pixel (u, v' = v - horizon), homogeneous: (X*W, Y*W, W) with W = (v - cy) / fy.
         g = np.array(
             [
@@ -531,27 +541,18 @@ class StreetViewRenderer:
             )
         z = fy * eye / (np.arange(horizon, h, dtype=np.float32) - np.float32(cy))
         fog = self._fog(z)[:, None, None]
-        ground = image[horizon:]
-        np.multiply(out, (lighting.ground * (1 - fog)).astype(np.float32), out=ground)
-        ground += (lighting.haze * fog).astype(np.float32)
+        ground = view.image[horizon:]
+        np.multiply(out, (view.lighting.ground * (1 - fog)).astype(np.float32), out=ground)
+        ground += (view.lighting.haze * fog).astype(np.float32)
 
-    def _draw_walls(
-        self,
-        image: np.ndarray,
-        depth: np.ndarray,
-        wall_of_pixel: np.ndarray,
-        cam: np.ndarray,
-        fwd: np.ndarray,
-        right: np.ndarray,
-        lighting: _Lighting,
-    ) -> np.ndarray:
+    def _draw_walls(self, view: _View) -> np.ndarray:
         """Cast one ray per column through the walls; fill facade pixels, depth and wall ids. Returns visible walls."""
-        ids = self._wall_index.query(cam, MAX_DISTANCE)
+        ids = self._wall_index.query(view.cam, MAX_DISTANCE)
         if len(ids) == 0:
             return ids
-        a, b = self._wall_a[ids] - cam, self._wall_b[ids] - cam
-        xa, za = a @ right, a @ fwd
-        xb, zb = b @ right, b @ fwd
+        a, b = self._wall_a[ids] - view.cam, self._wall_b[ids] - view.cam
+        xa, za = a @ view.right, a @ view.fwd
+        xb, zb = b @ view.right, b @ view.fwd
         tan_half = self.cx / self.fx + 1e-6
         keep = (
             ((-a * self._wall_normal[ids]).sum(axis=1) > 1e-9)  # front-facing: the camera is on the outer side
@@ -607,9 +608,9 @@ class StreetViewRenderer:
         hit_of_px = np.repeat(np.arange(len(col)), n_rows)
         rows = np.repeat(r0, n_rows) + (np.arange(n_rows.sum()) - np.repeat(np.cumsum(n_rows) - n_rows, n_rows))
         flat = rows * self.width + col[hit_of_px]
-        depth.reshape(-1)[flat] = z[hit_of_px]
-        wall_of_pixel.reshape(-1)[flat] = wall[hit_of_px]
-        image.reshape(-1, 3)[flat] = self._facade_colours(rows, hit_of_px, z, t, wall, lighting)
+        view.depth.reshape(-1)[flat] = z[hit_of_px]
+        view.wall_of_pixel.reshape(-1)[flat] = wall[hit_of_px]
+        view.image.reshape(-1, 3)[flat] = self._facade_colours(rows, hit_of_px, z, t, wall, view.lighting)
         return np.unique(wall)
 
     def _facade_colours(
@@ -691,10 +692,10 @@ class StreetViewRenderer:
         self._sign_images[key] = img
         return img
 
-    def _project(self, pts: np.ndarray, heights: np.ndarray, cam: np.ndarray, fwd: np.ndarray, right: np.ndarray):
+    def _project(self, pts: np.ndarray, heights: np.ndarray, view: _View) -> tuple[np.ndarray, np.ndarray]:
         """Image coordinates ``(n, 2)`` and depths ``(n,)`` of 3D points (ground position + height)."""
-        rel = pts - cam
-        x, z = rel @ right, rel @ fwd
+        rel = pts - view.cam
+        x, z = rel @ view.right, rel @ view.fwd
         zs = np.maximum(z, 1e-6)
         uv = np.stack([self.cx + self.fx * x / zs, self.cy + self.fy * (self.eye - heights) / zs], axis=1)
         return uv, z
@@ -724,16 +725,7 @@ class StreetViewRenderer:
         warped = cv2.warpPerspective(board, m, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR, borderValue=(0, 0, 0, 0))
         return (x0, y0, x1, y1), warped[..., :3].astype(np.float32), warped[..., 3].astype(np.float32) / 255.0
 
-    def _draw_facade_signs(
-        self,
-        image: np.ndarray,
-        wall_of_pixel: np.ndarray,
-        visible_walls: np.ndarray,
-        cam: np.ndarray,
-        fwd: np.ndarray,
-        right: np.ndarray,
-        lighting: _Lighting,
-    ) -> None:
+    def _draw_facade_signs(self, view: _View, visible_walls: np.ndarray) -> None:
         if not self._signs:
             return
         visible = set(visible_walls.tolist())
@@ -753,66 +745,49 @@ class StreetViewRenderer:
             right_end = left + unit * sign_w
             pts = np.array([left, right_end, right_end, left])
             heights = np.array([bottom + sign_h, bottom + sign_h, bottom, bottom])
-            quad, z = self._project(pts, heights, cam, fwd, right)
+            quad, z = self._project(pts, heights, view)
             if (z < NEAR).any():
                 continue
             warped = self._warp_board(self._fit_board(board, quad), quad)
             if warped is None:
                 continue
             (x0, y0, x1, y1), rgb, alpha = warped
-            alpha = alpha * (wall_of_pixel[y0:y1, x0:x1] == wall)
+            alpha = alpha * (view.wall_of_pixel[y0:y1, x0:x1] == wall)
             normal = self._wall_normal[wall]
-            shade = lighting.ambient + max(0.0, float(normal @ lighting.sun_dir)) * lighting.sun + 0.1
+            shade = view.lighting.ambient + max(0.0, float(normal @ view.lighting.sun_dir)) * view.lighting.sun + 0.1
             fog = float(self._fog(np.array(z.mean())))
-            rgb = rgb * shade * (1 - fog) + lighting.haze * fog
-            region = image[y0:y1, x0:x1]
+            rgb = rgb * shade * (1 - fog) + view.lighting.haze * fog
+            region = view.image[y0:y1, x0:x1]
             region[:] = region * (1 - alpha[..., None]) + rgb * alpha[..., None]
 
-    def _draw_sprites(
-        self,
-        image: np.ndarray,
-        depth: np.ndarray,
-        cam: np.ndarray,
-        fwd: np.ndarray,
-        right: np.ndarray,
-        lighting: _Lighting,
-        cars: list[_Car],
-    ) -> None:
+    def _draw_sprites(self, view: _View, cars: list[_Car]) -> None:
         """Trees (all at once), then cars and monument signs far to near, each depth-tested against what is drawn."""
-        self._draw_trees(image, depth, cam, fwd, right, lighting)
+        self._draw_trees(view)
         tan_half = self.cx / self.fx
         items: list[tuple[float, int]] = []
         for i, car in enumerate(cars):
-            rel = car.center - cam
-            z = float(rel @ fwd)
-            if z > 2.0 and abs(float(rel @ right)) - 3.0 < z * tan_half:
+            rel = car.center - view.cam
+            z = float(rel @ view.fwd)
+            if z > 2.0 and abs(float(rel @ view.right)) - 3.0 < z * tan_half:
                 items.append((z, i))
         for i, sign in enumerate(self.world.signs):
-            rel = sign.position - cam
-            z = float(rel @ fwd)
-            if 1.0 < z < MAX_DISTANCE and abs(float(rel @ right)) - sign.width < z * tan_half:
+            rel = sign.position - view.cam
+            z = float(rel @ view.fwd)
+            if 1.0 < z < MAX_DISTANCE and abs(float(rel @ view.right)) - sign.width < z * tan_half:
                 items.append((z, -1 - i))
         for _, i in sorted(items, reverse=True):
             if i >= 0:
-                self._draw_car(image, depth, cam, fwd, right, lighting, cars[i])
+                self._draw_car(view, cars[i])
             else:
-                self._draw_sign_post(image, depth, cam, fwd, right, lighting, -1 - i)
+                self._draw_sign_post(view, -1 - i)
 
-    def _draw_trees(
-        self,
-        image: np.ndarray,
-        depth: np.ndarray,
-        cam: np.ndarray,
-        fwd: np.ndarray,
-        right: np.ndarray,
-        lighting: _Lighting,
-    ) -> None:
+    def _draw_trees(self, view: _View) -> None:
         """Every visible tree in one vectorised pass: a trunk and a two-tone crown, per-pixel nearest tree wins."""
-        ids = self._tree_index.query(cam, MAX_DISTANCE)
+        ids = self._tree_index.query(view.cam, MAX_DISTANCE)
         if len(ids) == 0:
             return
-        rel = self._tree_pos[ids] - cam
-        x, z = rel @ right, rel @ fwd
+        rel = self._tree_pos[ids] - view.cam
+        x, z = rel @ view.right, rel @ view.fwd
         radius = self._tree_radius[ids]
         ok = (z > 1.5) & (z < MAX_DISTANCE) & (np.abs(x) - radius < z * (self.cx / self.fx))
         ok &= self.fx * radius / np.maximum(z, 1.0) > 0.5
@@ -848,7 +823,7 @@ class StreetViewRenderer:
         flat = rows * self.width + cols
         # The trunk sits a hair behind its own crown, so that the crown wins where both cover a pixel.
         zt = (z[tree] + 0.01 * is_trunk).astype(np.float32)
-        in_front = zt < depth.reshape(-1)[flat]
+        in_front = zt < view.depth.reshape(-1)[flat]
         tree, cols, rows, flat, zt, is_trunk = (a[in_front] for a in (tree, cols, rows, flat, zt, is_trunk))
         colsf, rowsf = cols.astype(np.float32), rows.astype(np.float32)
         du = (colsf - uc[tree]) / rx[tree]
@@ -867,33 +842,33 @@ class StreetViewRenderer:
         win = zt == nearest[flat]
         tree, flat, zt, du, dv, alpha, is_trunk = (a[win] for a in (tree, flat, zt, du, dv, alpha, is_trunk))
         # Two-tone crown lit from the sun's side, blotchy leaves from a hash of the crown coordinates.
-        side = float(lighting.sun_dir @ right)
+        side = float(view.lighting.sun_dir @ view.right)
         hx = 0.28 * (np.sign(side) if abs(side) > 0.2 else -1.0)
         highlight = ((du - hx) / 0.72) ** 2 + ((dv + 0.22) / 0.7) ** 2 < 1.0
         phase = (ids[tree] % 97).astype(np.float32)
         blotch = 0.5 + 0.25 * np.sin(du * 11.0 + phase) * np.sin(dv * 9.0 + 1.7 * phase)
         blotch += 0.25 * np.sin((du + dv) * 17.0 + 0.3 * phase) * np.sin((du - dv) * 13.0)
         base = self._tree_rgb[ids[tree]]
-        tone = np.where(highlight[:, None], lighting.ambient + lighting.sun * 1.1, lighting.ambient * 0.8)
+        tone = np.where(
+            highlight[:, None], view.lighting.ambient + view.lighting.sun * 1.1, view.lighting.ambient * 0.8
+        )
         leaf = base * tone * (0.8 + 0.4 * blotch).astype(np.float32)[:, None]
-        bark = np.float32(TRUNK_RGB) * lighting.ambient
+        bark = np.float32(TRUNK_RGB) * view.lighting.ambient
         colour = np.where(is_trunk[:, None], bark, leaf).astype(np.float32)
         fog = self._fog(zt)[:, None]
-        colour = colour * (1 - fog) + lighting.haze * fog
-        flat_image = image.reshape(-1, 3)
+        colour = colour * (1 - fog) + view.lighting.haze * fog
+        flat_image = view.image.reshape(-1, 3)
         a = alpha[:, None]
         flat_image[flat] = flat_image[flat] * (1 - a) + colour * a
         solid = alpha > 0.5
-        depth.reshape(-1)[flat[solid]] = zt[solid]
+        view.depth.reshape(-1)[flat[solid]] = zt[solid]
 
-    def _composite(
-        self, image: np.ndarray, depth: np.ndarray, box: tuple[int, int, int, int], rgba: np.ndarray, z: float
-    ) -> None:
+    def _composite(self, view: _View, box: tuple[int, int, int, int], rgba: np.ndarray, z: float) -> None:
         """Blend an RGBA patch (float colours, alpha 0..1) into the image where it is nearer than what is there."""
         x0, y0, x1, y1 = box
-        zone = depth[y0:y1, x0:x1]
+        zone = view.depth[y0:y1, x0:x1]
         alpha = rgba[..., 3] * (zone > z)
-        region = image[y0:y1, x0:x1]
+        region = view.image[y0:y1, x0:x1]
         region[:] = region * (1 - alpha[..., None]) + rgba[..., :3] * alpha[..., None]
         zone[alpha > 0.5] = z
 
@@ -904,16 +879,7 @@ class StreetViewRenderer:
             return None
         return (ix0, iy0, ix1, iy1), ix0, iy0
 
-    def _draw_car(
-        self,
-        image: np.ndarray,
-        depth: np.ndarray,
-        cam: np.ndarray,
-        fwd: np.ndarray,
-        right: np.ndarray,
-        lighting: _Lighting,
-        car: _Car,
-    ) -> None:
+    def _draw_car(self, view: _View, car: _Car) -> None:
         along = car.along
         across = np.array([-along[1], along[0]])
         body = (car.center, 2.25, 0.9, 0.0, 0.95)  # centre, half length, half width, bottom, top
@@ -931,8 +897,8 @@ class StreetViewRenderer:
                     centre - along * hl + across * hw,
                 ]
             )
-            lo_uv, lo_z = self._project(corners, np.full(4, bottom), cam, fwd, right)
-            hi_uv, _ = self._project(corners, np.full(4, top), cam, fwd, right)
+            lo_uv, lo_z = self._project(corners, np.full(4, bottom), view)
+            hi_uv, _ = self._project(corners, np.full(4, top), view)
             if (lo_z < NEAR).any():
                 return
             z_all.append(lo_z)
@@ -940,12 +906,12 @@ class StreetViewRenderer:
                 a, b = corners[k], corners[(k + 1) % 4]
                 edge = b - a
                 normal = np.array([edge[1], -edge[0]]) / max(float(np.linalg.norm(edge)), 1e-9)
-                if float(normal @ (cam - (a + b) / 2)) <= 0:
+                if float(normal @ (view.cam - (a + b) / 2)) <= 0:
                     continue
-                light = lighting.ambient + max(0.0, float(normal @ lighting.sun_dir)) * lighting.sun
+                light = view.lighting.ambient + max(0.0, float(normal @ view.lighting.sun_dir)) * view.lighting.sun
                 poly = np.array([lo_uv[k], lo_uv[(k + 1) % 4], hi_uv[(k + 1) % 4], hi_uv[k]])
                 faces.append((poly, rgb * light))
-            faces.append((hi_uv, rgb * (lighting.ambient + lighting.sun * 0.9 + 0.1)))
+            faces.append((hi_uv, rgb * (view.lighting.ambient + view.lighting.sun * 0.9 + 0.1)))
         shadow_uv, _ = self._project(
             np.array(
                 [
@@ -956,9 +922,7 @@ class StreetViewRenderer:
                 ]
             ),
             np.zeros(4),
-            cam,
-            fwd,
-            right,
+            view,
         )
         everything = np.concatenate([f[0] for f in faces] + [shadow_uv])
         placed = self._patch(*everything.min(axis=0), *everything.max(axis=0))
@@ -974,26 +938,17 @@ class StreetViewRenderer:
         z = float(np.concatenate(z_all).mean())
         out = patch.astype(np.float32)
         fog = float(self._fog(np.array(z)))
-        out[..., :3] = out[..., :3] * (1 - fog) + lighting.haze * fog
+        out[..., :3] = out[..., :3] * (1 - fog) + view.lighting.haze * fog
         out[..., 3] /= 255.0
-        self._composite(image, depth, box, out, z)
+        self._composite(view, box, out, z)
 
-    def _draw_sign_post(
-        self,
-        image: np.ndarray,
-        depth: np.ndarray,
-        cam: np.ndarray,
-        fwd: np.ndarray,
-        right: np.ndarray,
-        lighting: _Lighting,
-        i: int,
-    ) -> None:
+    def _draw_sign_post(self, view: _View, i: int) -> None:
         sign = self.world.signs[i]
         rad = math.radians(sign.bearing)
         facing = np.array([math.sin(rad), math.cos(rad)])
         across = np.array([facing[1], -facing[0]])
         ends = np.array([sign.position - across * sign.width / 2, sign.position + across * sign.width / 2])
-        uv_end, z_end = self._project(ends, np.full(2, sign.elevation), cam, fwd, right)
+        uv_end, z_end = self._project(ends, np.full(2, sign.elevation), view)
         if (z_end < NEAR).any():
             return
         if uv_end[0, 0] > uv_end[1, 0]:  # read left to right from whichever side the camera is on
@@ -1001,12 +956,12 @@ class StreetViewRenderer:
         board = self._sign_image(sign.text, sign.board_rgb, sign.text_rgb)
         top, bottom = sign.elevation + sign.height, sign.elevation
         pts = np.array([ends[0], ends[1], ends[1], ends[0]])
-        quad, z = self._project(pts, np.array([top, top, bottom, bottom]), cam, fwd, right)
+        quad, z = self._project(pts, np.array([top, top, bottom, bottom]), view)
         board = self._fit_board(board, quad)
         # Two posts from the ground to the board, at a fifth of its width from each end.
         feet = ends[0] + np.outer([0.2, 0.8], ends[1] - ends[0])
-        post_top, _ = self._project(feet, np.full(2, bottom), cam, fwd, right)
-        post_foot, _ = self._project(feet, np.zeros(2), cam, fwd, right)
+        post_top, _ = self._project(feet, np.full(2, bottom), view)
+        post_foot, _ = self._project(feet, np.zeros(2), view)
         everything = np.concatenate([quad, post_foot])
         placed = self._patch(*everything.min(axis=0), *everything.max(axis=0))
         warped = self._warp_board(board, quad)
@@ -1024,7 +979,7 @@ class StreetViewRenderer:
         sub = patch[by0 - oy : by1 - oy, bx0 - ox : bx1 - ox]
         sub[..., :3] = sub[..., :3] * (1 - alpha[..., None]) + rgb * alpha[..., None]
         sub[..., 3] = np.maximum(sub[..., 3], alpha)
-        light = lighting.ambient + lighting.sun * 0.5 + 0.15
+        light = view.lighting.ambient + view.lighting.sun * 0.5 + 0.15
         fog = float(self._fog(np.array(z.mean())))
-        patch[..., :3] = patch[..., :3] * light * (1 - fog) + lighting.haze * fog
-        self._composite(image, depth, box, patch, float(z.mean()))
+        patch[..., :3] = patch[..., :3] * light * (1 - fog) + view.lighting.haze * fog
+        self._composite(view, box, patch, float(z.mean()))

@@ -261,7 +261,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default: %(default)s)")
     parser.add_argument("--report-every", type=int, default=5_000, help="print progress every N steps")
     parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (1 prints its training tables)")
-    parser.add_argument("--progress", action="store_true", help="show SB3's training progress bar (needs the rich package)")
+    parser.add_argument(
+        "--progress", action="store_true", help="show SB3's training progress bar (needs the rich package)"
+    )
     return parser
 
 
