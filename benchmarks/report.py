@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
+
+from campusnav_env.atomic_files import write_text_atomic
 
 
 def command_line(script: str, argv: list[str] | None) -> str:
@@ -14,8 +15,6 @@ def command_line(script: str, argv: list[str] | None) -> str:
 
 
 def write_results(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file, so an interrupted run never leaves half a file."""
+    """Write ``text`` to ``path`` atomically, so an interrupted run never leaves half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text if text.endswith("\n") else text + "\n")
-    os.replace(tmp, path)
+    write_text_atomic(path, text if text.endswith("\n") else text + "\n")

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -18,6 +17,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from campusnav_env.atomic_files import write_png
 from campusnav_env.map_view import draw_map
 from campusnav_env.street_view import RenderSettings, StreetViewRenderer
 from campusnav_env.world import build_world
@@ -49,21 +49,6 @@ def _label(image: np.ndarray, text: str, origin: tuple[int, int], scale: float =
     """White text with a dark outline, legible on any view."""
     for colour, thickness in (((0, 0, 0), 4), ((255, 255, 255), 1)):
         cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thickness, cv2.LINE_AA)
-
-
-def _write_png(path: Path, rgb: np.ndarray) -> None:
-    """Encode and write atomically (temp file in the same folder, then ``os.replace``)."""
-    ok, encoded = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise ValueError(f"could not encode the contact sheet for {path}")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(encoded.tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def write_contact_sheet(
@@ -130,7 +115,7 @@ def write_contact_sheet(
     map_row[...] = _BACKGROUND
     map_row[gap : gap + board.shape[0], gap : gap + board.shape[1]] = board
     sheet = np.concatenate([*rows, map_row], axis=0)
-    _write_png(path, sheet)
+    write_png(path, sheet)
     return path
 
 

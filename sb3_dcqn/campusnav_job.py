@@ -16,13 +16,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
-import cv2
 import gymnasium as gym
 import numpy as np
 import torch as th
@@ -32,6 +30,7 @@ from stable_baselines3.common.monitor import Monitor
 from torch import nn
 
 import campusnav_env  # noqa: F401  (registers the CampusNav ids)
+from campusnav_env.atomic_files import write_png, write_text_atomic
 from campusnav_env.map_view import draw_map
 from campusnav_env.road_graph import RoadClosureError
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
@@ -109,21 +108,6 @@ def most_used_closable_road(env: Any, report: RouteReport) -> tuple[int, int]:
         env.reopen_road(*road)
         return road
     raise RuntimeError("no road on the learned routes can be closed without cutting a goal off")
-
-
-def _write_png(path: Path, rgb: np.ndarray) -> None:
-    ok, encoded = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise OSError(f"could not encode {path}")
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(encoded.tobytes())
-    os.replace(tmp, path)
-
-
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _log_routes(model: DCQN, tag: str, report: RouteReport) -> None:
@@ -216,7 +200,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "re-routed after closure": list(rerouted.nodes),
         },
     )
-    _write_png(out / "routes.png", picture)
+    write_png(out / "routes.png", picture)
     model.save(out / "dcqn_campusnav")
 
     phases = {"trained": trained, "road closed": closed, "re-trained": readapted}
@@ -239,8 +223,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         f"({len(affected)} learned routes used it) and {retrain_timesteps} more steps ({retrain_seconds:.0f} s).\n\n"
         f"{table}\n"
     )
-    _write_text(out / "summary.md", text)
-    _write_text(out / "summary.json", json.dumps(summary, indent=2))
+    write_text_atomic(out / "summary.md", text)
+    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2))
     print(text)
     print(f"TensorBoard: tensorboard --logdir {out / 'tb'}   route picture: {out / 'routes.png'}")
     return summary

@@ -69,6 +69,7 @@ def test_spl_and_coverage_follow_their_definitions() -> None:
     assert report.success_rate == pytest.approx(2 / 3)
     assert report.coverage == pytest.approx(0.5)  # start 1 fails from one heading
     assert report.optimality_gap == pytest.approx(1.0)
+    assert report.for_goal("g").routes == routes and report.for_goal("other").routes == []
 
 
 def test_closures_change_the_shortest_paths_it_scores_against(env: CampusNavEnv) -> None:
