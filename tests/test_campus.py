@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from campusnav_env.campus import GOALS, PLACES, default_campus, generate_campus
-from campusnav_env.road_graph import RoadGraph, bearing_degrees
+from campusnav_env.maps.campus import GOALS, PLACES, default_campus, generate_campus
+from campusnav_env.maps.road_graph import RoadGraph, bearing_degrees
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Specification of the view encoders (campusnav_env.encoders)."""
+"""Specification of the view encoders (campusnav_env.features.encoders)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from campusnav_env.encoders import (
+from campusnav_env.features.encoders import (
     ENCODER_NAMES,
     EfficientNetLite0Encoder,
     PixelProjectionEncoder,

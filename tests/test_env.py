@@ -14,9 +14,9 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from campusnav_env import GOALS, CampusNavEnv, RoadClosureError
-from campusnav_env.campus import generate_campus
-from campusnav_env.road_graph import BACK, FORWARD
-from campusnav_env.street_view import RenderSettings
+from campusnav_env.maps.campus import generate_campus
+from campusnav_env.maps.road_graph import BACK, FORWARD
+from campusnav_env.rendering.street_view import RenderSettings
 
 SMALL_VIEWS = RenderSettings(width=64, height=48)
 

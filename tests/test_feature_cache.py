@@ -1,4 +1,4 @@
-"""Specification of the on-disk view-feature cache (campusnav_env.feature_cache)."""
+"""Specification of the on-disk view-feature cache (campusnav_env.features.feature_cache)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import campusnav_env.feature_cache as feature_cache
-from campusnav_env.encoders import PixelProjectionEncoder, ThumbnailEncoder, ViewEncoder
-from campusnav_env.feature_cache import (
+import campusnav_env.features.feature_cache as feature_cache
+from campusnav_env.features.encoders import PixelProjectionEncoder, ThumbnailEncoder, ViewEncoder
+from campusnav_env.features.feature_cache import (
     CACHE_FORMAT_VERSION,
     cache_key,
     cache_path,

@@ -6,10 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
-from campusnav_env.campus import default_campus
-from campusnav_env.contact_sheet import default_nodes, main, write_contact_sheet
-from campusnav_env.map_view import CLOSED_RGB, GOAL_RGB, PATH_RGB, ROUTE_COLOURS, draw_map
-from campusnav_env.street_view import RenderSettings
+from campusnav_env.maps.campus import default_campus
+from campusnav_env.rendering.contact_sheet import default_nodes, main, write_contact_sheet
+from campusnav_env.rendering.map_view import CLOSED_RGB, GOAL_RGB, PATH_RGB, ROUTE_COLOURS, draw_map
+from campusnav_env.rendering.street_view import RenderSettings
 
 
 @pytest.fixture()

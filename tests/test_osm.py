@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from campusnav_env.campus import generate_campus
-from campusnav_env.osm import (
+from campusnav_env.maps.campus import generate_campus
+from campusnav_env.maps.osm import (
     OsmImportWarning,
     graph_from_networkx,
     import_networkx,

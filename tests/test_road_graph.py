@@ -10,8 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from campusnav_env.campus import default_campus, generate_campus
-from campusnav_env.road_graph import (
+from campusnav_env.maps.campus import default_campus, generate_campus
+from campusnav_env.maps.road_graph import (
     ACTION_NAMES,
     BACK,
     COMPASS,
@@ -363,7 +363,7 @@ def test_fingerprint_ignores_closures_and_name_but_not_landmarks() -> None:
 
 
 def test_fingerprint_is_stable_across_processes(campus: RoadGraph) -> None:
-    code = "from campusnav_env.campus import default_campus; print(default_campus().fingerprint())"
+    code = "from campusnav_env.maps.campus import default_campus; print(default_campus().fingerprint())"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == campus.fingerprint()
 

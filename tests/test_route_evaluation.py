@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from campusnav_env import CampusNavEnv
+from campusnav_env.rendering.street_view import RenderSettings
 from campusnav_env.route_evaluation import Route, RouteReport, evaluate_routes
-from campusnav_env.street_view import RenderSettings
 
 
 @pytest.fixture(scope="module")

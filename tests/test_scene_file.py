@@ -12,7 +12,7 @@ import pytest
 h5py = pytest.importorskip("h5py")
 
 from campusnav_env.env import CampusNavEnv  # noqa: E402
-from campusnav_env.scene_file import load_scene_file  # noqa: E402
+from campusnav_env.maps.scene_file import load_scene_file  # noqa: E402
 
 # AI2-THOR-style actions: 0 forward, 1 backward, 2 turn left, 3 turn right; rotations 0/90/180/270 degrees
 STEP = {0: (0, 1), 90: (1, 0), 180: (0, -1), 270: (-1, 0)}

@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from campusnav_env.campus import default_campus, generate_campus
-from campusnav_env.street_view import RenderSettings, StreetViewRenderer
-from campusnav_env.world import World, build_world
+from campusnav_env.maps.campus import default_campus, generate_campus
+from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
+from campusnav_env.rendering.world import World, build_world
 
 # Most behaviour does not depend on the image size: small views keep the tests fast.
 SMALL = RenderSettings(width=160, height=120)

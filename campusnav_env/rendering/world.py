@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 if TYPE_CHECKING:
-    from campusnav_env.road_graph import RoadGraph
+    from campusnav_env.maps.road_graph import RoadGraph
 
 __all__ = [
     "Building",
@@ -611,7 +611,7 @@ def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
     """Place buildings, landmarks, fields, parks and trees around ``graph``, deterministically from ``seed``.
 
     Args:
-        graph: the road network (any :class:`~campusnav_env.road_graph.RoadGraph`).
+        graph: the road network (any :class:`~campusnav_env.maps.road_graph.RoadGraph`).
         seed: placement seed; the same graph and seed always give the same world.
 
     Returns:

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from campusnav_env.encoders import ThumbnailEncoder
-from campusnav_env.road_graph import RoadClosureError
+from campusnav_env.features.encoders import ThumbnailEncoder
+from campusnav_env.maps.road_graph import RoadClosureError
 
 REQUIRED_DATASETS = ("graph", "location", "rotation", "resnet_feature")
 _THUMBNAIL = (48, 64)

@@ -18,12 +18,12 @@ import cv2
 import numpy as np
 
 from campusnav_env.atomic_files import write_png
-from campusnav_env.map_view import draw_map
-from campusnav_env.street_view import RenderSettings, StreetViewRenderer
-from campusnav_env.world import build_world
+from campusnav_env.rendering.map_view import draw_map
+from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
+from campusnav_env.rendering.world import build_world
 
 if TYPE_CHECKING:
-    from campusnav_env.road_graph import RoadGraph
+    from campusnav_env.maps.road_graph import RoadGraph
 
 __all__ = ["default_nodes", "main", "write_contact_sheet"]
 
@@ -34,7 +34,7 @@ _INK = (30, 30, 34)
 
 def default_nodes(graph: RoadGraph, n_nodes: int = 3) -> list[int]:
     """The first ``n_nodes`` distinct landmark nodes: campus goals first, then other landmarks, then 0, 1, ..."""
-    from campusnav_env.campus import GOALS
+    from campusnav_env.maps.campus import GOALS
 
     names = [n for n in GOALS if n in graph.landmarks] + [n for n in graph.landmarks if n not in GOALS]
     nodes: list[int] = []
@@ -79,7 +79,7 @@ def write_contact_sheet(
     if not path.parent.is_dir():
         raise FileNotFoundError(f"folder of the contact sheet {path} does not exist")
     if graph is None:
-        from campusnav_env.campus import default_campus
+        from campusnav_env.maps.campus import default_campus
 
         graph = default_campus()
     nodes = default_nodes(graph, n_nodes) if nodes is None else [int(n) for n in nodes]
@@ -131,7 +131,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--cars", action="store_true", help="draw passing cars")
     parser.add_argument("--rng-seed", type=int, default=0, help="seed of the time-of-day and car variation")
     args = parser.parse_args(argv)
-    from campusnav_env.campus import default_campus, generate_campus
+    from campusnav_env.maps.campus import default_campus, generate_campus
 
     graph = default_campus() if args.seed is None else generate_campus(seed=args.seed)
     try:

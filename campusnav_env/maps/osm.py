@@ -23,7 +23,7 @@ The import, step by step:
   keeping the shortest.
 * **Crowded intersections.** A :class:`RoadGraph` intersection has at most four roads (one per compass slot). Where
   an intersection has more, the four roads kept are those whose initial bearings best cover the compass: the
-  4-subset whose compass-slot assignment (the rule in :mod:`campusnav_env.road_graph`) has the smallest summed
+  4-subset whose compass-slot assignment (the rule in :mod:`campusnav_env.maps.road_graph`) has the smallest summed
   angular deviation, ties to the first subset in road order. The others are dropped with an
   :class:`OsmImportWarning` counting them.
 * **Connectivity.** Only the largest connected component is kept (with a warning counting what was dropped), so
@@ -49,8 +49,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from campusnav_env.disjoint_set import DisjointSet
-from campusnav_env.road_graph import RoadGraph, compass_slots, initial_bearing, require_networkx
+from campusnav_env.maps.disjoint_set import DisjointSet
+from campusnav_env.maps.road_graph import RoadGraph, compass_slots, initial_bearing, require_networkx
 
 EARTH_RADIUS_M = 6_371_008.8
 _WKT_LINESTRING = re.compile(r"^\s*LINESTRING\s*(?:ZM|Z|M)?\s*\((?P<body>.*)\)\s*$", re.IGNORECASE | re.DOTALL)

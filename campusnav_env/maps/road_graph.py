@@ -637,7 +637,7 @@ class RoadGraph:
         Export to an undirected ``networkx.Graph``.
 
         Nodes carry ``x``, ``y`` and, for landmarks, ``name``; edges carry ``road_id``, ``length``, ``closed`` and the
-        polyline as a WKT ``geometry`` string, so that :func:`campusnav_env.osm.graph_from_networkx` reads it back.
+        polyline as a WKT ``geometry`` string, so that :func:`campusnav_env.maps.osm.graph_from_networkx` reads it back.
         """
         nx = require_networkx()
         graph = nx.Graph(name=self.name, crs="local metres")

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from campusnav_env.encoders import ViewEncoder
+from campusnav_env.features.encoders import ViewEncoder
 
 __all__ = ["CACHE_FORMAT_VERSION", "cache_key", "cache_path", "cached_view_features", "default_cache_dir"]
 

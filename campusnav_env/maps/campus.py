@@ -38,8 +38,8 @@ import math
 
 import numpy as np
 
-from campusnav_env.disjoint_set import DisjointSet
-from campusnav_env.road_graph import RoadGraph
+from campusnav_env.maps.disjoint_set import DisjointSet
+from campusnav_env.maps.road_graph import RoadGraph
 
 GOALS = ("Dreese Lab", "Town house", "Cinema", "Intramural fields")
 PLACES = ("Library", "Stadium", "Student union", "Hospital", "Museum", "Train station", "Chapel", "Bookstore")

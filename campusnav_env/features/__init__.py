@@ -1,0 +1,1 @@
+"""Features: ImageNet encoders of the street views and their on-disk cache."""
