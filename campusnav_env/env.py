@@ -12,6 +12,7 @@ from gymnasium import spaces
 
 from campusnav_env.features.encoders import ViewEncoder, make_encoder
 from campusnav_env.features.feature_cache import cached_view_features
+from campusnav_env.features.projection import pca_project
 from campusnav_env.maps.campus import default_campus
 from campusnav_env.maps.road_graph import ACTION_NAMES, COMPASS, RoadGraph
 from campusnav_env.rendering.map_view import draw_map
@@ -75,8 +76,10 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     - ``"heading"``: ``Box(0, 1, (4,))`` float32, one-hot compass heading (N, E, S, W); the actions are relative to
       it, so without it the state would not be Markov.
 
-    D is the encoder's size (1280 for EfficientNet-Lite0, 2048 for ResNet-50). With ``normalize_features`` each
-    feature is standardised over all views of the map.
+    D is the encoder's size (1280 for EfficientNet-Lite0, 2048 for ResNet-50), or ``view_dim`` when set. With
+    ``normalize_features`` each feature is standardised over all views of the map; with ``view_dim`` the views are
+    then projected onto their ``view_dim`` leading principal axes (PCA fit on the map's own views, whitened; see
+    :mod:`campusnav_env.features.projection`), which makes the critics' first layer that much cheaper.
 
     ``observation_mode="image"``, a ``Box(0, 255, (3, 2h, 4w))`` uint8 image for ``CnnPolicy``: top row the current
     views ordered front, right, back, left (this order carries the heading), bottom row the goal views N, E, S, W;
@@ -115,6 +118,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
       cars).
     - ``world_seed``: seed of the buildings, trees and fields placed around the roads.
     - ``max_steps``, ``goal_reward``, ``step_penalty``, ``collision_penalty``: episode limit and rewards.
+    - ``normalize_features``, ``view_dim``: standardise the features; project each view to ``view_dim`` dimensions.
     - ``cache_dir``: where view features are cached (default ``$CAMPUSNAV_CACHE`` or ``~/.cache/campusnav``).
     - ``render_mode``: ``"rgb_array"`` for :meth:`render`, a map of roads, closures, agent, goal and route so far.
     """
@@ -135,6 +139,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         step_penalty: float = -0.005,
         collision_penalty: float = -0.01,
         normalize_features: bool = True,
+        view_dim: int | None = None,
         cache_dir: str | Path | None = None,
         progress: bool = True,
         render_mode: str | None = None,
@@ -144,7 +149,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         node_views = _node_views(
             graph, observation_mode, encoder, encoder_kwargs, render_settings, world_seed, cache_dir, progress
         )
-        self._init_core(graph, goals, observation_mode, node_views, normalize_features, render_mode)
+        self._init_core(graph, goals, observation_mode, node_views, normalize_features, view_dim, render_mode)
         self._set_rewards(max_steps, goal_reward, step_penalty, collision_penalty)
 
     @classmethod
@@ -159,6 +164,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         step_penalty: float = -0.005,
         collision_penalty: float = -0.01,
         normalize_features: bool = True,
+        view_dim: int | None = None,
         render_mode: str | None = None,
     ) -> CampusNavEnv:
         """
@@ -175,7 +181,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             raise ValueError(f"{path}: image mode needs the 'observation' dataset, which this file lacks")
         node_views = scene.node_images if observation_mode == "image" else scene.node_features
         env = cls.__new__(cls)
-        env._init_core(scene.graph, goals, observation_mode, node_views, normalize_features, render_mode)
+        env._init_core(scene.graph, goals, observation_mode, node_views, normalize_features, view_dim, render_mode)
         env._set_rewards(max_steps, goal_reward, step_penalty, collision_penalty)
         return env
 
@@ -188,9 +194,12 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         observation_mode: str,
         node_views: np.ndarray,
         normalize_features: bool,
+        view_dim: int | None,
         render_mode: str | None,
     ) -> None:
         _check_observation_mode(observation_mode)
+        if view_dim is not None and observation_mode != "features":
+            raise ValueError(f"view_dim projects features; it does not apply to observation mode {observation_mode!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.graph = graph
@@ -209,6 +218,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             if normalize_features:
                 flat = views.reshape(-1, views.shape[-1])
                 views = (views - flat.mean(axis=0)) / (flat.std(axis=0) + 1e-6)
+            if view_dim is not None:
+                views = pca_project(views, view_dim)
             # Flat (4 * D,) vectors, N, E, S, W blocks of D: SB3's extractors expect 1-D vectors
             self._node_views = views.reshape(views.shape[0], -1).astype(np.float32)
             low, high = float(self._node_views.min()), float(self._node_views.max())

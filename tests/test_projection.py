@@ -1,0 +1,45 @@
+"""PCA projection of view features (the env's ``view_dim`` option)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from campusnav_env.features.projection import pca_project
+
+
+def _views(seed: int = 0, n: int = 30, d: int = 50) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    # Low-rank structure plus noise, like CNN features of a small map
+    return (rng.normal(size=(n * 4, 6)) @ rng.normal(size=(6, d)) + 0.1 * rng.normal(size=(n * 4, d))).reshape(n, 4, d)
+
+
+def test_projection_is_whitened_and_keeps_the_leading_subspace() -> None:
+    views = _views()
+    projected = pca_project(views, 6)
+    assert projected.shape == (30, 4, 6) and projected.dtype == np.float32
+    flat = projected.reshape(-1, 6).astype(np.float64)
+    np.testing.assert_allclose(flat.mean(axis=0), 0.0, atol=1e-5)
+    # Whitened: unit variance, uncorrelated axes
+    np.testing.assert_allclose(np.cov(flat, rowvar=False), np.eye(6), atol=1e-4)
+    # Six axes hold the rank-6 signal: the views' pairwise distances are kept up to the noise and the whitening
+    original = views.reshape(-1, 50)
+    residual = (original - original.mean(axis=0)) - (
+        flat @ np.linalg.lstsq(flat, original - original.mean(axis=0), rcond=None)[0]
+    )
+    assert np.linalg.norm(residual) / np.linalg.norm(original - original.mean(axis=0)) < 0.1
+
+
+def test_projection_is_deterministic_up_to_the_axis_sign_rule() -> None:
+    views = _views(1)
+    first = pca_project(views, 4)
+    # The same views in another row order give the same projection of each view (signs fixed by the loadings)
+    order = np.random.default_rng(2).permutation(views.shape[0])
+    again = pca_project(views[order], 4)
+    np.testing.assert_allclose(again, first[order], atol=1e-4)
+
+
+@pytest.mark.parametrize("dim", [0, 51, 2.5, True])
+def test_projection_rejects_a_bad_dimension(dim: object) -> None:
+    with pytest.raises(ValueError, match="view_dim must be an int"):
+        pca_project(_views(), dim)  # type: ignore[arg-type]
