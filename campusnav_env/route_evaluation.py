@@ -91,12 +91,6 @@ def _mean(values: Sequence[float], empty: float = 0.0) -> float:
     return float(np.mean(values)) if len(values) else empty
 
 
-def _stack(observations: list[Any]) -> Any:
-    if isinstance(observations[0], dict):
-        return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
-    return np.stack(observations)
-
-
 def evaluate_routes(
     env: CampusNavEnv,
     policy: Policy,
@@ -115,8 +109,8 @@ def evaluate_routes(
     :return: the routes and their scores
     """
     max_steps = env.max_steps if max_steps is None else max_steps
-    table = env.graph.transition_table
-    state_nodes, state_headings = np.asarray(env.graph.state_nodes), np.asarray(env.graph.state_headings)
+    graph = env.graph
+    state_nodes, state_headings = graph.map.state_nodes, graph.map.state_headings
     report = RouteReport()
     for goal in goals or env.goal_names:
         goal_node = env.goal_nodes[env.goal_names.index(goal)]
@@ -129,23 +123,23 @@ def evaluate_routes(
         visited: list[set[int]] = [{int(s)} for s in starts]
         paths: list[list[int]] = [[int(state_nodes[s])] for s in starts]
         for _ in range(max_steps):
-            if not active.any():
-                break
             index = np.flatnonzero(active)
-            observations = [env.observation_at(state_nodes[s], state_headings[s], goal) for s in current[index]]
-            actions = np.asarray(policy(_stack(observations))).reshape(-1)
-            for i, action in zip(index, actions, strict=True):
-                steps[i] += 1
-                nxt = int(table[current[i], int(action)])
-                if nxt >= 0:
-                    current[i] = nxt
-                    paths[i].append(int(state_nodes[nxt]))
-                if state_nodes[current[i]] == goal_node:
+            if index.size == 0:
+                break
+            states = current[index]
+            observations = env.observations_at(state_nodes[states], state_headings[states], goal)
+            actions = np.asarray(policy(observations)).reshape(-1)
+            current[index], blocked = graph.move(states, actions)
+            steps[index] += 1
+            for i, state, was_blocked in zip(index.tolist(), current[index].tolist(), blocked.tolist(), strict=True):
+                if not was_blocked:
+                    paths[i].append(int(state_nodes[state]))
+                if state_nodes[state] == goal_node:
                     success[i], active[i] = True, False
-                elif int(current[i]) in visited[i]:
+                elif state in visited[i]:
                     active[i] = False  # a deterministic policy that repeats a state loops forever
                 else:
-                    visited[i].add(int(current[i]))
+                    visited[i].add(state)
         for i, start in enumerate(starts):
             report.routes.append(
                 Route(

@@ -30,8 +30,8 @@ from stable_baselines3.common.monitor import Monitor
 from torch import nn
 
 import campusnav_env  # noqa: F401  (registers the CampusNav ids)
+from campusnav_env import RoadClosureError, road_key
 from campusnav_env.atomic_files import write_png, write_text_atomic
-from campusnav_env.maps.road_graph import RoadClosureError
 from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 from sb3_dcqn.dcqn import DCQN
@@ -99,7 +99,7 @@ def most_used_closable_road(env: Any, report: RouteReport) -> tuple[int, int]:
     usage: Counter[tuple[int, int]] = Counter()
     for route in report.routes:
         for u, v in zip(route.nodes[:-1], route.nodes[1:], strict=True):
-            usage[(min(u, v), max(u, v))] += 1
+            usage[road_key(u, v)] += 1
     for road, _ in usage.most_common():
         try:
             env.close_road(*road)
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     affected = [
         r
         for r in trained.routes
-        if any((min(u, v), max(u, v)) in road_set for u, v in zip(r.nodes[:-1], r.nodes[1:], strict=True))
+        if any(road_key(u, v) in road_set for u, v in zip(r.nodes[:-1], r.nodes[1:], strict=True))
     ]
     example = max(affected, key=lambda r: len(r.nodes)) if affected else trained.routes[0]
     rerouted = next(r for r in readapted.routes if (r.start, r.heading) == (example.start, example.heading))

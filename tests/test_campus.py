@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from campusnav_env.maps.campus import GOALS, PLACES, default_campus, generate_campus
-from campusnav_env.maps.road_graph import RoadGraph, bearing_degrees
+from campusnav_env.maps.compass import bearing_degrees
+from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.maps.road_graph import RoadGraph
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +54,7 @@ def crossing_roads(graph: RoadGraph) -> list[tuple[int, int]]:
 def test_exact_node_count_connected_and_at_most_four_roads(n_nodes: int) -> None:
     graph = generate_campus(n_nodes, seed=n_nodes)
     assert graph.n_nodes == n_nodes
-    assert np.all(graph.hops_to(0) >= 0)
+    assert np.all(NavigationGraph(graph).hops_to(0) >= 0)
     assert graph.degrees.max() <= 4 and graph.degrees.min() >= 1
 
 
@@ -88,13 +90,18 @@ def test_same_seed_same_campus_other_seed_other_campus() -> None:
     assert generate_campus(101, seed=8).fingerprint() != first.fingerprint()
 
 
-def test_default_campus_is_the_seed_zero_campus_and_returns_independent_copies() -> None:
-    one, two = default_campus(), default_campus()
-    assert one.fingerprint() == generate_campus().fingerprint()
-    assert one.n_nodes == 101
+def test_default_campus_is_the_seed_zero_campus_shared_and_immutable() -> None:
+    campus = default_campus()
+    assert campus is default_campus()  # generated once per process
+    assert campus.fingerprint() == generate_campus().fingerprint()
+    assert campus.n_nodes == 101
+    with pytest.raises(ValueError, match="read-only"):
+        campus.transitions[0, 0] = -1
+    # Closures live in navigation graphs over the shared map, never in the map itself
+    one, two = NavigationGraph(campus), NavigationGraph(campus)
     u, v = one.sample_closures(1, np.random.default_rng(0))[0]
     one.close_road(u, v)
-    assert two.closed_roads == frozenset() and default_campus().closed_roads == frozenset()
+    assert two.closed_roads == frozenset() and NavigationGraph(default_campus()).closed_roads == frozenset()
 
 
 @pytest.mark.parametrize("graph_name", ["campus", "campus_1000"])
@@ -160,5 +167,5 @@ def test_ten_thousand_nodes_generate_in_seconds() -> None:
     elapsed = time.perf_counter() - start
     print(f"generate_campus(10_000): {elapsed:.2f} s")
     assert graph.n_nodes == 10_000
-    assert np.all(graph.hops_to(graph.landmarks["Dreese Lab"]) >= 0)
+    assert np.all(NavigationGraph(graph).hops_to(graph.landmarks["Dreese Lab"]) >= 0)
     assert graph.degrees.max() <= 4

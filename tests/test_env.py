@@ -13,9 +13,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-from campusnav_env import GOALS, CampusNavEnv, RoadClosureError
+from campusnav_env import GOALS, CampusNavEnv, NavigationGraph, RoadClosureError, road_key
 from campusnav_env.maps.campus import generate_campus
-from campusnav_env.maps.road_graph import BACK, FORWARD
+from campusnav_env.maps.compass import BACK, FORWARD
 from campusnav_env.rendering.street_view import RenderSettings
 
 SMALL_VIEWS = RenderSettings(width=64, height=48)
@@ -69,6 +69,37 @@ def test_features_observation_holds_compass_views_goal_views_and_heading(cache_d
     assert env.observation_space.contains(obs)
 
 
+def test_batched_observations_equal_single_ones(cache_dir: Path) -> None:
+    for mode in ("features", "image"):
+        env = make_env(cache_dir, observation_mode=mode)
+        nodes, headings = np.array([0, 5, 5, 42]), np.array([0, 1, 3, 2])
+        batch = env.observations_at(nodes, headings, "Dreese Lab")
+        for i, (node, heading) in enumerate(zip(nodes, headings, strict=True)):
+            single = env.observation_at(int(node), int(heading), "Dreese Lab")
+            if mode == "features":
+                for key in single:  # the same rows copied out of the same arrays: exact
+                    np.testing.assert_array_equal(batch[key][i], single[key])
+            else:
+                np.testing.assert_array_equal(batch[i], single)
+                assert env.observation_space.contains(batch[i])
+
+
+def test_view_dim_projects_every_view_onto_its_leading_principal_axes(cache_dir: Path) -> None:
+    env = make_env(cache_dir, view_dim=16)
+    obs, _ = env.reset(seed=0)
+    assert obs["views"].shape == obs["goal_views"].shape == (4 * 16,)
+    assert env.observation_space.contains(obs)
+    # Views that differ before the projection still differ after it: the agent can tell the same states apart
+    projected = env.observations_at(np.arange(101), np.zeros(101, dtype=int), "Dreese Lab")["views"].reshape(-1, 16)
+    full = make_env(cache_dir).observations_at(np.arange(101), np.zeros(101, dtype=int), "Dreese Lab")["views"]
+    distinct_full = np.unique(full.reshape(404, -1).round(4), axis=0).shape[0]
+    assert np.unique(projected.round(4), axis=0).shape[0] == distinct_full
+    with pytest.raises(ValueError, match="view_dim must be an int"):
+        make_env(cache_dir, view_dim=100_000)
+    with pytest.raises(ValueError, match="does not apply to observation mode 'image'"):
+        make_env(cache_dir, view_dim=16, observation_mode="image")
+
+
 def test_image_observation_tiles_current_views_front_first_over_goal_views(cache_dir: Path) -> None:
     env = make_env(cache_dir, observation_mode="image")
     obs, info = env.reset(seed=1)
@@ -82,7 +113,7 @@ def test_image_observation_tiles_current_views_front_first_over_goal_views(cache
 
 def test_rewards_for_goal_step_and_collision(cache_dir: Path) -> None:
     env = make_env(cache_dir)
-    graph = env.graph
+    graph = env.graph.map
     goal = env.goal_nodes[0]
     # Start next to the goal, facing the road towards it
     neighbour_slot = int(np.flatnonzero(graph.slots[goal] >= 0)[0])
@@ -124,7 +155,7 @@ def test_truncates_at_the_step_limit(cache_dir: Path) -> None:
     env = make_env(cache_dir, max_steps=5)
     _, info = env.reset(seed=0)
     node = info["node"]
-    empty = np.flatnonzero(env.graph.slots[node] < 0)
+    empty = np.flatnonzero(env.graph.map.slots[node] < 0)
     action = int((empty[0] - info["heading"]) % 4) if empty.size else BACK
     for step in range(5):
         _, _, terminated, truncated, info = env.step(action)
@@ -144,14 +175,15 @@ def test_closing_a_road_blocks_it_updates_distances_and_reopens(cache_dir: Path)
     env = make_env(cache_dir)
     goal = env.goal_nodes[0]
     before = env.node_distances(goal).copy()
-    neighbour = int(env.graph.slots[goal][env.graph.slots[goal] >= 0][0])
+    slots = env.graph.map.slots
+    neighbour = int(slots[goal][slots[goal] >= 0][0])
     try:
         env.close_road(goal, neighbour)
     except RoadClosureError:
         pytest.skip("the goal's first road is a bridge")
     assert (goal, neighbour) in env.closed_roads or (neighbour, goal) in env.closed_roads
     assert env.node_distances(goal)[neighbour] > 1
-    slot = int(np.flatnonzero(env.graph.slots[neighbour] == goal)[0])
+    slot = int(np.flatnonzero(slots[neighbour] == goal)[0])
     env.reset(seed=0, options={"start": neighbour, "heading": slot})
     _, reward, _, _, info = env.step(FORWARD)
     assert info["collision"] and reward == -0.01
@@ -164,12 +196,18 @@ def test_closures_are_per_env_and_refuse_cutting_the_goal_off(cache_dir: Path) -
     env = make_env(cache_dir, world=graph)
     other = make_env(cache_dir, world=graph)
     goal = env.goal_nodes[0]
-    roads = [r for r in env.graph.roads if goal in r]
+    roads = [r for r in graph.roads if goal in r]
     for road in roads[:-1]:
         env.close_road(*road, force=True)
     with pytest.raises(RoadClosureError, match="cut"):
         env.close_road(*roads[-1])
-    assert other.closed_roads == frozenset() and graph.closed_roads == frozenset()
+    assert other.closed_roads == frozenset()
+    # A navigation graph passed in keeps its own closures; the env starts from them and works on a copy
+    shared = NavigationGraph(graph, [roads[0]])
+    third = make_env(cache_dir, world=shared)
+    assert third.closed_roads == {roads[0]}
+    third.reopen_road(*roads[0])
+    assert shared.closed_roads == {roads[0]}
     with pytest.raises(KeyError, match="0"):
         env.close_road(0, 0)
 
@@ -198,6 +236,14 @@ def test_bad_input_gives_clear_errors(cache_dir: Path) -> None:
         env.reset(options={"start": 999})
     with pytest.raises(ValueError, match="is the goal"):
         env.reset(options={"start": env.goal_nodes[0]})
+    # A start cut off from the goal (a forced closure) would only time out: refused, naming the closed road
+    slots = env.graph.map.slots
+    dead_end = int(np.flatnonzero(env.graph.map.degrees == 1)[0])
+    road = road_key(dead_end, int(slots[dead_end].max()))
+    env.close_road(*road, force=True)
+    with pytest.raises(ValueError, match=rf"start node {dead_end} cannot reach the goal .*{road}"):
+        env.reset(options={"start": dead_end})
+    env.reopen_road(*road)
     with pytest.raises(KeyError, match="goal"):
         env.reset(options={"goal": "Cinema"})
     with pytest.raises(KeyError, match="teleport"):

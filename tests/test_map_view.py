@@ -7,14 +7,15 @@ import numpy as np
 import pytest
 
 from campusnav_env.maps.campus import default_campus
+from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.rendering.contact_sheet import default_nodes, main, write_contact_sheet
 from campusnav_env.rendering.map_view import CLOSED_RGB, GOAL_RGB, PATH_RGB, ROUTE_COLOURS, draw_map
 from campusnav_env.rendering.street_view import RenderSettings
 
 
 @pytest.fixture()
-def graph():
-    return default_campus()
+def graph() -> NavigationGraph:
+    return NavigationGraph(default_campus())
 
 
 def _share(image: np.ndarray, rgb: tuple[int, int, int], tol: int = 12) -> float:
@@ -26,7 +27,7 @@ def test_map_is_rgb_with_the_aspect_of_the_road_network(graph):
     assert image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
     height, width = image.shape[:2]
     assert max(height, width) == 600
-    points = np.concatenate(graph.geometries)
+    points = np.concatenate(graph.map.geometries)
     span = np.ptp(points, axis=0)
     assert width / height == pytest.approx(span[0] / span[1], rel=0.08)
     assert len(np.unique(image.reshape(-1, 3), axis=0)) > 20  # roads, nodes, landmark colours, text
@@ -35,7 +36,7 @@ def test_map_is_rgb_with_the_aspect_of_the_road_network(graph):
 def test_closing_a_road_marks_it_red(graph):
     before = draw_map(graph)
     assert _share(before, CLOSED_RGB) == 0.0
-    u, v = graph.roads[len(graph.roads) // 2]
+    u, v = graph.map.roads[len(graph.map.roads) // 2]
     graph.close_road(u, v, force=True)
     after = draw_map(graph)
     assert _share(after, CLOSED_RGB) > 0.0005
@@ -83,18 +84,18 @@ def test_map_rejects_bad_input(graph):
 
 def test_contact_sheet_is_a_readable_png_of_views_above_the_map(tmp_path, graph):
     small = RenderSettings(width=160, height=120)
-    nodes = default_nodes(graph, 2)
+    nodes = default_nodes(graph.map, 2)
     assert nodes == [graph.landmarks["Dreese Lab"], graph.landmarks["Town house"]]
-    out = write_contact_sheet(tmp_path / "sheet.png", graph=graph, nodes=nodes, settings=small)
+    out = write_contact_sheet(tmp_path / "sheet.png", graph=graph.map, nodes=nodes, settings=small)
     image = cv2.imread(str(out))
     assert image is not None
     assert image.shape[1] == 4 * 160 + 5 * 6  # four views per row with gaps
     assert image.shape[0] > 2 * 120 + 300  # two rows of views and the map
     assert [p.name for p in tmp_path.iterdir()] == ["sheet.png"]  # no temp file left behind
     with pytest.raises(FileNotFoundError, match="missing"):
-        write_contact_sheet(tmp_path / "missing" / "sheet.png", graph=graph, nodes=nodes, settings=small)
+        write_contact_sheet(tmp_path / "missing" / "sheet.png", graph=graph.map, nodes=nodes, settings=small)
     with pytest.raises(ValueError, match="node 500"):
-        write_contact_sheet(tmp_path / "bad.png", graph=graph, nodes=[500], settings=small)
+        write_contact_sheet(tmp_path / "bad.png", graph=graph.map, nodes=[500], settings=small)
 
 
 def test_contact_sheet_command_line(tmp_path, capsys):

@@ -74,7 +74,7 @@ def test_spl_and_coverage_follow_their_definitions() -> None:
 
 def test_closures_change_the_shortest_paths_it_scores_against(env: CampusNavEnv) -> None:
     goal = env.goal_nodes[0]
-    road = next(r for r in env.graph.roads if goal in r)
+    road = next(r for r in env.graph.map.roads if goal in r)
     before = evaluate_routes(env, oracle(env)).mean_shortest
     try:
         env.close_road(*road)

@@ -12,6 +12,7 @@ import pytest
 h5py = pytest.importorskip("h5py")
 
 from campusnav_env.env import CampusNavEnv  # noqa: E402
+from campusnav_env.maps.navigation import NavigationGraph  # noqa: E402
 from campusnav_env.maps.scene_file import load_scene_file  # noqa: E402
 
 # AI2-THOR-style actions: 0 forward, 1 backward, 2 turn left, 3 turn right; rotations 0/90/180/270 degrees
@@ -77,7 +78,7 @@ def test_hops_agree_with_the_files_shortest_path_distance(tmp_path: Path) -> Non
     goal_states = np.flatnonzero(scene.graph.state_nodes == goal)
     per_state = distances[:, goal_states].min(axis=1)
     expected = np.array([per_state[scene.graph.state_nodes == n].min() for n in range(9)])
-    np.testing.assert_array_equal(scene.graph.hops_to(goal), expected)
+    np.testing.assert_array_equal(NavigationGraph(scene.graph).hops_to(goal), expected)
 
 
 def test_runs_as_an_environment_with_goals_by_name_and_closures(tmp_path: Path) -> None:
@@ -103,6 +104,21 @@ def test_runs_as_an_environment_with_goals_by_name_and_closures(tmp_path: Path) 
     assert image_env.reset(seed=0)[0].shape == (3, 96, 256)
     picture = image_env.render()
     assert picture.ndim == 3 and picture.dtype == np.uint8
+
+
+def test_a_scene_file_env_renders_after_moves_and_closures(tmp_path: Path) -> None:
+    path = tmp_path / "grid.h5"
+    write_grid_scene(path)
+    env = CampusNavEnv.from_scene_file(path, goals=[8], render_mode="rgb_array")
+    _, info = env.reset(seed=0, options={"start": 0, "heading": 0})
+    first = env.render()
+    _, _, _, _, info = env.step(0)  # forward, north: a move to another location
+    assert info["node"] != 0 and not info["collision"]
+    moved = env.render()  # the route so far follows the scene's roads
+    assert moved.shape == first.shape and not np.array_equal(moved, first)
+    env.close_road(0, info["node"])
+    closed = env.render()  # the closed road is drawn
+    assert not np.array_equal(closed, moved)
 
 
 def test_bad_scene_files_give_clear_errors(tmp_path: Path) -> None:

@@ -39,7 +39,7 @@ import math
 import numpy as np
 
 from campusnav_env.maps.disjoint_set import DisjointSet
-from campusnav_env.maps.road_graph import RoadGraph
+from campusnav_env.maps.road_graph import RoadGraph, road_key
 
 GOALS = ("Dreese Lab", "Town house", "Cinema", "Intramural fields")
 PLACES = ("Library", "Stadium", "Student union", "Hospital", "Museum", "Train station", "Chapel", "Bookstore")
@@ -105,16 +105,13 @@ def generate_campus(n_nodes: int = 101, *, width: float = 2500.0, height: float 
 
 
 @functools.lru_cache(maxsize=1)
-def _default_campus() -> RoadGraph:
-    return generate_campus()
-
-
 def default_campus() -> RoadGraph:
-    """The built-in campus, ``generate_campus()`` with the defaults (101 intersections, 2.5 km x 1.7 km, seed 0).
-
-    Generated once per process; each call returns an independent copy (closures do not leak between callers).
     """
-    return _default_campus().copy()
+    The built-in campus, ``generate_campus()`` with the defaults (101 intersections, 2.5 km x 1.7 km, seed 0).
+
+    Generated once per process and shared: a road graph never changes (closures live in a ``NavigationGraph``).
+    """
+    return generate_campus()
 
 
 def _grid_with_holes(n_nodes: int, aspect: float, rng: np.random.Generator) -> tuple[int, int, np.ndarray]:
@@ -303,7 +300,7 @@ def _add_diagonals(
         if others.size and _point_segment_distance(others, a, b).min() < 0.15 * np.linalg.norm(b - a):
             continue
         new = len(edge_list)
-        edge_list.append([min(u, v), max(u, v)])
+        edge_list.append(list(road_key(u, v)))
         geometries.append(np.stack([positions[min(u, v)], positions[max(u, v)]]))
         incident[u].append(new)
         incident[v].append(new)

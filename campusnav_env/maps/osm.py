@@ -23,7 +23,7 @@ The import, step by step:
   keeping the shortest.
 * **Crowded intersections.** A :class:`RoadGraph` intersection has at most four roads (one per compass slot). Where
   an intersection has more, the four roads kept are those whose initial bearings best cover the compass: the
-  4-subset whose compass-slot assignment (the rule in :mod:`campusnav_env.maps.road_graph`) has the smallest summed
+  4-subset whose compass-slot assignment (the rule in :mod:`campusnav_env.maps.compass`) has the smallest summed
   angular deviation, ties to the first subset in road order. The others are dropped with an
   :class:`OsmImportWarning` counting them.
 * **Connectivity.** Only the largest connected component is kept (with a warning counting what was dropped), so
@@ -49,8 +49,9 @@ from typing import Any, Literal
 
 import numpy as np
 
+from campusnav_env.maps.compass import compass_slots, initial_bearing
 from campusnav_env.maps.disjoint_set import DisjointSet
-from campusnav_env.maps.road_graph import RoadGraph, compass_slots, initial_bearing, require_networkx
+from campusnav_env.maps.road_graph import RoadGraph, require_networkx, road_key
 
 EARTH_RADIUS_M = 6_371_008.8
 _WKT_LINESTRING = re.compile(r"^\s*LINESTRING\s*(?:ZM|Z|M)?\s*\((?P<body>.*)\)\s*$", re.IGNORECASE | re.DOTALL)
@@ -243,7 +244,7 @@ def import_networkx(
     road_names = {}
     for road in roads:
         a, b = new_id[road.u], new_id[road.v]
-        key = (min(a, b), max(a, b))
+        key = road_key(a, b)
         if road.oneway:
             oneway.add(key)
         if road.name:
@@ -402,7 +403,7 @@ def _read_edges(
         if length <= 0.0:
             dropped["zero_length"] += 1
             continue
-        key = (min(u, v), max(u, v))
+        key = road_key(u, v)
         if _truthy(data.get("oneway", False)):
             oneway_directions.setdefault(key, set()).add((u, v))
         else:

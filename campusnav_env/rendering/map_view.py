@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.rendering.world import landmark_colour
 
 if TYPE_CHECKING:
@@ -114,17 +115,9 @@ def _disjoint(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(a[2] < b[0] or b[2] < a[0] or a[3] < b[1] or b[3] < a[1])
 
 
-def _check_node(graph: RoadGraph, node: int, what: str) -> int:
-    if isinstance(node, bool) or not isinstance(node, (int, np.integer)):
-        raise TypeError(f"{what} must be an int node id, got {node!r}")
-    if not 0 <= int(node) < graph.n_nodes:
-        raise ValueError(f"{what} {node} out of range for a graph of {graph.n_nodes} nodes")
-    return int(node)
-
-
 def _route_polyline(graph: RoadGraph, nodes: Sequence[int], what: str) -> np.ndarray | None:
     """World polyline of a node sequence, following each road's geometry (straight where nodes are not adjacent)."""
-    nodes = [_check_node(graph, n, what) for n in nodes]
+    nodes = [graph.check_node(n, what) for n in nodes]
     # Staying put (a blocked move) adds nothing to the drawn route.
     nodes = [n for i, n in enumerate(nodes) if i == 0 or n != nodes[i - 1]]
     if len(nodes) < 2:
@@ -160,7 +153,7 @@ def _star(center: np.ndarray, radius: float) -> np.ndarray:
 
 
 def draw_map(
-    graph: RoadGraph,
+    graph: RoadGraph | NavigationGraph,
     *,
     size: int = 800,
     agent: int | None = None,
@@ -173,7 +166,7 @@ def draw_map(
     """Draw a road graph from above.
 
     Args:
-        graph: the road network; its closed roads are drawn in red with an X at their midpoint.
+        graph: the road network; a ``NavigationGraph``'s closed roads are drawn in red with an X at their midpoint.
         size: length of the longer image side (pixels).
         agent: node of the agent (a triangle pointing along ``heading``, a disc if the heading is ``None``).
         heading: compass heading of the agent (0 N, 1 E, 2 S, 3 W).
@@ -189,10 +182,12 @@ def draw_map(
         raise ValueError(f"size must be an int >= 64 pixels, got {size!r}")
     if heading is not None and (isinstance(heading, bool) or heading not in (0, 1, 2, 3)):
         raise ValueError(f"heading must be 0 (N), 1 (E), 2 (S), 3 (W) or None, got {heading!r}")
+    closed_roads = graph.closed_roads if isinstance(graph, NavigationGraph) else frozenset()
+    graph = graph.map if isinstance(graph, NavigationGraph) else graph
     canvas = _Canvas(graph, int(size))
     unit = canvas.unit
 
-    closed = {graph.road_id(u, v) for u, v in graph.closed_roads}
+    closed = {graph.road_id(u, v) for u, v in closed_roads}
     canvas.lines([g for i, g in enumerate(graph.geometries) if i not in closed], ROAD_RGB, 2.0 * unit)
 
     legend: list[tuple[str, tuple[int, int, int]]] = []
@@ -239,9 +234,9 @@ def draw_map(
         legend_box = np.array([x - 3 * unit, y - 6 * unit, x + box_w + 3 * unit, y + row * (len(legend) - 0.4)])
         taken.append(legend_box)
     goals = [] if goal is None else [goal] if isinstance(goal, (int, np.integer)) else list(goal)
-    goal_nodes = [_check_node(graph, g, "goal") for g in goals]
+    goal_nodes = [graph.check_node(g, "goal") for g in goals]
     if agent is not None:
-        agent = _check_node(graph, agent, "agent")
+        agent = graph.check_node(agent, "agent")
     for node in [*goal_nodes, *([] if agent is None else [agent])]:
         # Labels keep clear of the goal stars, the agent marker and the landmark dots too.
         p = canvas.px(graph.positions[node])
