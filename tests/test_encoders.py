@@ -111,9 +111,11 @@ def test_lite0_is_deterministic_and_tells_views_apart(
     np.testing.assert_array_equal(first, lite0.encode(street_views))
     distance = np.linalg.norm(first[0] - first[1]) / np.linalg.norm(first[0])
     assert distance > 0.05
-    # Internal batching does not change the result.
+    # Internal batching does not change the result beyond rounding: other batch shapes make the CPU kernels sum in
+    # another order, ~1e-6 of the feature scale per layer; 1e-4 of the scale covers ~20 layers and is still far below
+    # the distance between two views (~0.2 of the scale).
     small_batches = EfficientNetLite0Encoder(batch_size=2)
-    np.testing.assert_allclose(small_batches.encode(street_views), first, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(small_batches.encode(street_views), first, rtol=0, atol=1e-4 * np.abs(first).max())
 
 
 def test_lite0_runs_the_packaged_imagenet_weights(lite0: EfficientNetLite0Encoder) -> None:

@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
+import re
+import socket
+import subprocess
+import sys
+import time
+import warnings
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +22,7 @@ import campusnav_env.features.feature_cache as feature_cache
 from campusnav_env.features.encoders import PixelProjectionEncoder, ThumbnailEncoder, ViewEncoder
 from campusnav_env.features.feature_cache import (
     CACHE_FORMAT_VERSION,
+    LOCK_TIMEOUT_ENV,
     cache_key,
     cache_path,
     cached_view_features,
@@ -27,13 +36,14 @@ KEY = {"world": "world-fingerprint-abc", "render": "640x480-fov90-noon"}
 class CountingRenderer:
     """Deterministic fake renderer: node n gives four small views drawn from seed n; counts calls."""
 
-    def __init__(self, fail_at: int | None = None) -> None:
+    def __init__(self, fail_at: int | None = None, error: type[BaseException] = RuntimeError) -> None:
         self.calls: list[int] = []
         self.fail_at = fail_at
+        self.error = error
 
     def __call__(self, node: int) -> np.ndarray:
         if node == self.fail_at:
-            raise RuntimeError(f"renderer crashed at node {node}")
+            raise self.error(f"renderer crashed at node {node}")
         self.calls.append(node)
         return np.random.default_rng(node).integers(0, 256, (4, 24, 32, 3), dtype=np.uint8)
 
@@ -49,8 +59,11 @@ def build(
     render: Callable[[int], np.ndarray],
     key: dict[str, str] = KEY,
     n_nodes: int = N_NODES,
+    lock_timeout: float | None = None,
 ) -> np.ndarray:
-    return cached_view_features(key, n_nodes, render, encoder, cache_dir=cache_dir, progress=False)
+    return cached_view_features(
+        key, n_nodes, render, encoder, cache_dir=cache_dir, progress=False, lock_timeout=lock_timeout
+    )
 
 
 def test_first_call_computes_every_node_second_call_loads(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
@@ -58,8 +71,12 @@ def test_first_call_computes_every_node_second_call_loads(tmp_path: Path, encode
     features = build(tmp_path, encoder, render)
     assert sorted(render.calls) == list(range(N_NODES))
     assert features.shape == (N_NODES, 4, 8) and features.dtype == np.float32
+    # The cache encodes 8 nodes per matrix product, the reference one node alone: float32 sums of 576 products then
+    # run in a shape- and CPU-dependent order (6.6e-7 apart on AVX2; ~sqrt(576) * 6e-8 of the feature scale). 1e-4 of
+    # the scale is far above such rounding and far below the distance between two nodes' features (~0.3 of it).
+    atol = 1e-4 * np.abs(features).max()
     for node in (0, 7):
-        np.testing.assert_array_equal(features[node], encoder.encode(render(node)))
+        np.testing.assert_allclose(features[node], encoder.encode(render(node)), rtol=0, atol=atol)
 
     again = CountingRenderer()
     np.testing.assert_array_equal(build(tmp_path, encoder, again), features)
@@ -291,3 +308,184 @@ def test_unwritable_cache_dir_fails_before_rendering(
     with pytest.raises(PermissionError, match=rf"{tmp_path.name} is not writable"):
         build(tmp_path, encoder, render)
     assert render.calls == []
+
+
+# --- one build at a time: the lock file ----------------------------------------------------------------------------
+
+
+def lock_file(cache_dir: Path, encoder: ViewEncoder) -> Path:
+    """The lock of a cache file is ``<cache file>.lock``."""
+    path = cache_path(KEY, N_NODES, encoder, cache_dir=cache_dir)
+    return path.with_name(path.name + ".lock")
+
+
+def write_lock(lock: Path, *, pid: int, host: str | None = None, token: str = "another-owner") -> None:
+    """Hold ``lock`` as another owner would: a JSON record of its pid, host name, random token and start time."""
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    record = {"pid": pid, "host": host or socket.gethostname(), "token": token, "since": time.time()}
+    lock.write_text(json.dumps(record))
+
+
+def write_unreadable_lock(lock: Path, *, age: float) -> None:
+    """A lock without a record, as left by an owner that died between creating the file and writing into it."""
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    lock.write_bytes(b"")
+    os.utime(lock, (time.time() - age, time.time() - age))
+
+
+def dead_pid() -> int:
+    """The pid of a process that has exited (and been reaped)."""
+    child = subprocess.Popen([sys.executable, "-I", "-S", "-c", ""])
+    child.wait()
+    return child.pid
+
+
+class LoggingRenderer(CountingRenderer):
+    """A slow CountingRenderer that logs ``<pid> <node>`` per call to a file shared between processes."""
+
+    def __init__(self, log: Path, delay: float = 0.0) -> None:
+        super().__init__()
+        self.log = log
+        self.delay = delay
+
+    def __call__(self, node: int) -> np.ndarray:
+        time.sleep(self.delay)
+        with open(self.log, "a") as f:
+            f.write(f"{os.getpid()} {node}\n")
+        return super().__call__(node)
+
+
+def build_in_this_process(cache_dir: Path, log: Path, delay: float) -> np.ndarray:
+    """Entry point of the other process: build the cache with a slow logging renderer."""
+    return build(cache_dir, PixelProjectionEncoder(dim=8), LoggingRenderer(log, delay), lock_timeout=60)
+
+
+def test_concurrent_builds_compute_once_and_share_the_file(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    cache_dir, log = tmp_path / "cache", tmp_path / "render-calls.log"
+    lock = lock_file(cache_dir, encoder)
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        # The other process renders 10 nodes at 50 ms each, so it holds the lock for half a second.
+        other = pool.submit(build_in_this_process, cache_dir, log, 0.05)
+        deadline = time.monotonic() + 60  # a spawned process imports torch first: seconds on a busy machine
+        while not lock.exists():
+            assert not other.done(), f"the other process finished without holding the lock: {other.exception()}"
+            assert time.monotonic() < deadline, "the other process did not start building"
+            time.sleep(0.005)
+        with pytest.warns(RuntimeWarning, match="waiting for another process .*building the same feature cache"):
+            mine = build(cache_dir, encoder, LoggingRenderer(log), lock_timeout=60)  # fail, not hang, if broken
+        theirs = other.result()
+
+    calls = [line.split() for line in log.read_text().splitlines()]
+    assert sorted(int(node) for _, node in calls) == list(range(N_NODES))  # every node rendered once in total
+    assert str(os.getpid()) not in {pid for pid, _ in calls}  # ... all by the other process
+    np.testing.assert_array_equal(mine, theirs)  # this process loaded the very file the other one stored
+    assert os.listdir(cache_dir) == [cache_path(KEY, N_NODES, encoder, cache_dir=cache_dir).name]
+
+
+def test_the_builder_holds_a_lock_recording_its_pid_and_host(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    lock = lock_file(tmp_path, encoder)
+    records: list[dict[str, object]] = []
+
+    def render(node: int) -> np.ndarray:
+        records.append(json.loads(lock.read_text()))
+        return CountingRenderer()(node)
+
+    features = build(tmp_path, encoder, render)
+    assert records[0]["pid"] == os.getpid() and records[0]["host"] == socket.gethostname()
+    assert not lock.exists()
+    # Loading a valid file takes no lock (so read-only cache dirs work): it succeeds while another owner holds one.
+    write_lock(lock, pid=os.getpid())
+    np.testing.assert_array_equal(build(tmp_path, encoder, CountingRenderer(), lock_timeout=0), features)
+
+
+@pytest.mark.parametrize(
+    ("hold", "reason"),
+    [
+        (lambda lock: write_lock(lock, pid=dead_pid()), r"its owner, pid \d+ on host .*, no longer runs"),
+        (lambda lock: write_unreadable_lock(lock, age=60), r"it holds no readable owner record and is \d+ s old"),
+    ],
+    ids=["owner-died", "unreadable-and-old"],
+)
+def test_a_stale_lock_is_taken_over_with_a_warning(
+    tmp_path: Path, encoder: PixelProjectionEncoder, hold: Callable[[Path], None], reason: str
+) -> None:
+    lock = lock_file(tmp_path, encoder)
+    hold(lock)
+    render = CountingRenderer()
+    with pytest.warns(RuntimeWarning, match=rf"removed the stale lock .*{re.escape(lock.name)}: {reason}"):
+        build(tmp_path, encoder, render, lock_timeout=5)
+    assert sorted(render.calls) == list(range(N_NODES))
+    assert os.listdir(tmp_path) == [cache_path(KEY, N_NODES, encoder, cache_dir=tmp_path).name]
+
+
+@pytest.mark.parametrize(
+    "hold",
+    [
+        # The test's own (live) pid, but another owner's token: e.g. another thread of this process.
+        lambda lock: write_lock(lock, pid=os.getpid()),
+        # Pids of other hosts cannot be checked, so even a dead-looking one is waited for.
+        lambda lock: write_lock(lock, pid=dead_pid(), host="another-host.example.org"),
+        # Just created, its record not written yet.
+        lambda lock: write_unreadable_lock(lock, age=0),
+    ],
+    ids=["live-owner", "owner-on-another-host", "record-being-written"],
+)
+def test_waiting_for_a_live_lock_times_out_with_a_clear_error(
+    tmp_path: Path, encoder: PixelProjectionEncoder, hold: Callable[[Path], None]
+) -> None:
+    lock = lock_file(tmp_path, encoder)
+    hold(lock)
+    before = lock.read_bytes()
+    render = CountingRenderer()
+    start = time.monotonic()
+    with (
+        pytest.warns(RuntimeWarning, match=rf"waiting for another process .*{re.escape(lock.name)}"),
+        pytest.raises(TimeoutError, match=rf"after 0.3 s .*lock file {re.escape(str(lock))}.*delete .*{lock.name}"),
+    ):
+        build(tmp_path, encoder, render, lock_timeout=0.3)
+    assert 0.3 <= time.monotonic() - start < 5
+    assert render.calls == []
+    assert lock.read_bytes() == before  # another owner's lock is left alone
+
+
+def test_lock_timeout_comes_from_the_argument_or_the_environment(
+    tmp_path: Path, encoder: PixelProjectionEncoder, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    write_lock(lock_file(tmp_path, encoder), pid=os.getpid())
+    monkeypatch.setenv(LOCK_TIMEOUT_ENV, "0.1")
+    with pytest.warns(RuntimeWarning, match="waiting"), pytest.raises(TimeoutError, match=r"after 0.1 s"):
+        build(tmp_path, encoder, CountingRenderer())
+    with pytest.warns(RuntimeWarning, match="waiting"), pytest.raises(TimeoutError, match=r"after 0 s"):
+        build(tmp_path, encoder, CountingRenderer(), lock_timeout=0)  # the argument wins
+
+    for bad in ("soon", "-1", "nan"):
+        monkeypatch.setenv(LOCK_TIMEOUT_ENV, bad)
+        with pytest.raises(ValueError, match=rf"\${LOCK_TIMEOUT_ENV} must be a number of seconds >= 0, got '{bad}'"):
+            build(tmp_path, encoder, CountingRenderer())
+    with pytest.raises(ValueError, match=r"lock_timeout must be a number of seconds >= 0, got -1"):
+        build(tmp_path, encoder, CountingRenderer(), lock_timeout=-1)
+
+
+@pytest.mark.parametrize("error", [RuntimeError, KeyboardInterrupt])
+def test_the_lock_is_released_when_building_fails(
+    tmp_path: Path, encoder: PixelProjectionEncoder, error: type[BaseException]
+) -> None:
+    with pytest.raises(error, match="crashed at node 6"):
+        build(tmp_path, encoder, CountingRenderer(fail_at=6, error=error))
+    assert os.listdir(tmp_path) == []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the next build neither waits nor finds a stale lock
+        build(tmp_path, encoder, CountingRenderer(), lock_timeout=0)
+
+
+def test_a_lock_taken_over_meanwhile_is_left_to_its_new_owner(tmp_path: Path, encoder: PixelProjectionEncoder) -> None:
+    lock = lock_file(tmp_path, encoder)
+
+    def render(node: int) -> np.ndarray:
+        if node == 3:  # someone deleted this process's lock, and another process took it
+            write_lock(lock, pid=os.getpid(), token="new-owner")
+        return CountingRenderer()(node)
+
+    with pytest.warns(RuntimeWarning, match=rf"{re.escape(lock.name)} was deleted or taken over"):
+        build(tmp_path, encoder, render)
+    assert json.loads(lock.read_text())["token"] == "new-owner"

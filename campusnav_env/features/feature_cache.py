@@ -7,15 +7,30 @@ the encoder's name and output shape/dtype and the number of nodes; the file reco
 array, and a file that fails either check (or cannot be read) is reported with a warning and rebuilt. Files are
 written to a temporary file in the same directory and moved into place with :func:`os.replace`, so readers never see a
 partial file.
+
+Processes that need the same missing file at the same time (parallel envs, jobs sharing ``$CAMPUSNAV_CACHE``) build it
+once. The builder holds the lock file ``<cache file>.lock``, created with ``O_CREAT | O_EXCL`` (atomic on every OS and
+on NFS v3+) and recording the owner's pid, host name and a random token. The others warn that they wait for it, poll,
+and once they hold the lock find the file valid and load it. The lock is released in a ``finally``, also on
+exceptions and Ctrl-C. A lock whose owner no longer runs on this host (a crashed or killed process) is stale: the next
+process removes it with a warning and carries on. Owners on other hosts cannot be checked, so waiting ends after
+``lock_timeout`` seconds (default :data:`DEFAULT_LOCK_TIMEOUT`, or ``$CAMPUSNAV_CACHE_LOCK_TIMEOUT``) with a
+:class:`TimeoutError` that names the lock file and says how to proceed. Loading a valid file takes no lock, so a
+read-only cache directory works.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import os
+import socket
+import sys
 import tempfile
+import time
+import uuid
 import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -25,13 +40,32 @@ from tqdm import tqdm
 
 from campusnav_env.features.encoders import ViewEncoder
 
-__all__ = ["CACHE_FORMAT_VERSION", "cache_key", "cache_path", "cached_view_features", "default_cache_dir"]
+__all__ = [
+    "CACHE_FORMAT_VERSION",
+    "DEFAULT_LOCK_TIMEOUT",
+    "LOCK_TIMEOUT_ENV",
+    "cache_key",
+    "cache_path",
+    "cached_view_features",
+    "default_cache_dir",
+]
 
 # Bump when the file layout or the meaning of cached arrays changes: old files then simply stop matching.
 CACHE_FORMAT_VERSION = 1
 VIEWS_PER_NODE = 4
 # Views encoded per call: amortises CNN batching (32 views = 8 nodes) while bounding memory (~30 MB at 640x480).
 _VIEWS_PER_BATCH = 32
+
+# Seconds to wait for another process building the same cache: a ResNet-50 pass over a large map on a CPU takes tens
+# of minutes, so an hour only gives up on owners that hang or died on another host.
+DEFAULT_LOCK_TIMEOUT = 3600.0
+LOCK_TIMEOUT_ENV = "CAMPUSNAV_CACHE_LOCK_TIMEOUT"
+# Polling starts fast (short builds, tests) and backs off to one check a second (a stat and a tiny read).
+_POLL_FIRST = 0.02
+_POLL_MAX = 1.0
+# An owner writes its record and a breaker removes a stale lock within milliseconds: a lock file without a readable
+# record, or a break guard, older than this was left by a process that died in between.
+_ORPHAN_AGE = 10.0
 
 
 def default_cache_dir() -> Path:
@@ -172,6 +206,243 @@ def _compute(
     return features
 
 
+@dataclasses.dataclass(frozen=True)
+class _LockOwner:
+    """The record in a lock file: who builds the cache."""
+
+    pid: int
+    host: str
+    token: str
+    since: float
+
+    @classmethod
+    def me(cls) -> _LockOwner:
+        return cls(pid=os.getpid(), host=socket.gethostname(), token=uuid.uuid4().hex, since=time.time())
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+    def __str__(self) -> str:
+        started = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.since))
+        return f"pid {self.pid} on host {self.host!r} since {started}"
+
+
+def _read_owner(lock: Path) -> _LockOwner | None:
+    """
+    Read a lock file's record.
+
+    :param lock: The lock file
+    :return: Its owner, or None if the record is unreadable (being written, or garbage)
+    :raises FileNotFoundError: if the lock file does not exist (it was released)
+    """
+    try:
+        data = lock.read_bytes()
+    except PermissionError:  # Windows: the owner is deleting it right now
+        return None
+    try:
+        record = json.loads(data)
+        return _LockOwner(
+            pid=int(record["pid"]), host=str(record["host"]), token=str(record["token"]), since=float(record["since"])
+        )
+    except (ValueError, KeyError, TypeError):  # JSON and Unicode errors are ValueErrors
+        return None
+
+
+def _unlink(path: Path) -> None:
+    """Delete ``path`` if it exists, retrying briefly: Windows refuses while another process has it open."""
+    for attempt in range(50):
+        try:
+            path.unlink(missing_ok=True)
+            return
+        except PermissionError:
+            if attempt == 49:
+                raise
+            time.sleep(0.01)
+
+
+def _pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine; errs towards True, as a live owner must never lose its lock."""
+    if pid <= 0:
+        return False
+    if sys.platform == "win32":
+        import ctypes
+        from ctypes import wintypes
+
+        # os.kill(pid, 0) would terminate the process on Windows: ask for its exit code instead.
+        kernel32 = ctypes.WinDLL("kernel32", use_last_error=True)
+        kernel32.OpenProcess.argtypes = (wintypes.DWORD, wintypes.BOOL, wintypes.DWORD)
+        kernel32.OpenProcess.restype = wintypes.HANDLE
+        kernel32.GetExitCodeProcess.argtypes = (wintypes.HANDLE, ctypes.POINTER(wintypes.DWORD))
+        kernel32.CloseHandle.argtypes = (wintypes.HANDLE,)
+        handle = kernel32.OpenProcess(0x1000, False, pid)  # PROCESS_QUERY_LIMITED_INFORMATION
+        if not handle:
+            return ctypes.get_last_error() == 5  # ERROR_ACCESS_DENIED: it exists; otherwise there is no such process
+        try:
+            code = wintypes.DWORD()
+            if not kernel32.GetExitCodeProcess(handle, ctypes.byref(code)):
+                return True
+            return code.value == 259  # STILL_ACTIVE
+        finally:
+            kernel32.CloseHandle(handle)
+    try:
+        os.kill(pid, 0)  # signal 0 only checks that the process exists
+    except ProcessLookupError:
+        return False
+    except OSError:  # EPERM: it exists but belongs to another user
+        return True
+    return True
+
+
+def _stale_reason(lock: Path, owner: _LockOwner | None) -> str | None:
+    """Say why the lock was left by a process that died, or return None if its owner may still be building."""
+    if owner is None:
+        with contextlib.suppress(OSError):
+            age = time.time() - lock.stat().st_mtime
+            if age > _ORPHAN_AGE:
+                return f"it holds no readable owner record and is {age:.0f} s old"
+        return None
+    if owner.host == socket.gethostname() and not _pid_alive(owner.pid):
+        return f"its owner, {owner}, no longer runs"
+    return None
+
+
+def _remove_if_stale(lock: Path) -> str | None:
+    """
+    Remove a stale lock, guarded so that two waiters judging it stale at once cannot remove a fresh lock between them.
+
+    :param lock: The lock file
+    :return: Why the removed lock was stale, or None if nothing was removed (the lock is live, or another process is
+        removing it)
+    """
+    guard = lock.with_name(lock.name + ".break")
+    try:
+        fd = os.open(guard, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    except FileExistsError:
+        with contextlib.suppress(OSError):
+            if time.time() - guard.stat().st_mtime > _ORPHAN_AGE:
+                _unlink(guard)  # its owner died while removing a stale lock
+        return None
+    os.close(fd)
+    try:
+        # Judge again while holding the guard: the lock may have been removed and re-created by a live process.
+        try:
+            reason = _stale_reason(lock, _read_owner(lock))
+        except FileNotFoundError:
+            return None
+        if reason is not None:
+            _unlink(lock)
+        return reason
+    finally:
+        _unlink(guard)
+
+
+def _try_create(lock: Path, owner: _LockOwner) -> bool:
+    """Create the lock file with ``owner``'s record if there is none; return whether this process now holds it."""
+    try:
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    except FileExistsError:
+        return False
+    except PermissionError:
+        if sys.platform == "win32":  # the previous owner's lock is still being deleted
+            return False
+        raise
+    try:
+        try:
+            os.write(fd, owner.to_json().encode("utf-8"))
+        finally:
+            os.close(fd)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            lock.unlink()
+        raise
+    return True
+
+
+def _acquire_lock(lock: Path, cache_file: Path, timeout: float) -> _LockOwner:
+    """
+    Wait for and take the lock of a cache file.
+
+    :param lock: The lock file
+    :param cache_file: The cache file it protects (for messages)
+    :param timeout: Seconds to wait for another owner
+    :return: The record written into the lock (pass it to :func:`_release_lock`)
+    :raises TimeoutError: if another process still holds the lock after ``timeout`` seconds
+    """
+    me = _LockOwner.me()
+    deadline = time.monotonic() + timeout
+    delay = _POLL_FIRST
+    announced = False
+    while not _try_create(lock, me):
+        try:
+            owner = _read_owner(lock)
+        except FileNotFoundError:
+            continue  # released since our attempt: try again at once
+        if _stale_reason(lock, owner) is not None:
+            reason = _remove_if_stale(lock)
+            if reason is not None:
+                warnings.warn(f"removed the stale lock {lock}: {reason}", RuntimeWarning, stacklevel=3)
+                continue
+        who = str(owner) if owner is not None else "an owner whose record is not readable (yet)"
+        if not announced:
+            warnings.warn(
+                f"waiting for another process ({who}) that is building the same feature cache {cache_file} "
+                f"(lock file {lock}, timeout {timeout:g} s)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            announced = True
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            raise TimeoutError(
+                f"gave up after {timeout:g} s waiting for the lock file {lock}, held by {who}, which is building "
+                f"the feature cache {cache_file}. If no process is building it any more (e.g. one on another host "
+                f"crashed), delete {lock} and retry; to wait longer pass lock_timeout or set ${LOCK_TIMEOUT_ENV}"
+            )
+        time.sleep(min(delay, remaining))
+        delay = min(2 * delay, _POLL_MAX)
+    return me
+
+
+def _release_lock(lock: Path, me: _LockOwner) -> None:
+    """Remove the lock if it still holds this process's record (someone may have deleted and re-taken it)."""
+    try:
+        owner = _read_owner(lock)
+    except FileNotFoundError:
+        owner = None
+    if owner is not None and owner.token == me.token:
+        try:
+            _unlink(lock)
+        except OSError as e:  # warn, not raise: this runs in a finally and must not hide the build's outcome
+            warnings.warn(
+                f"could not remove the lock file {lock} ({e}); other processes take it over once this one exits",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+    else:
+        warnings.warn(
+            f"lock file {lock} was deleted or taken over by another process while this one built the cache; "
+            "leaving it alone",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+
+
+def _resolve_lock_timeout(lock_timeout: float | None) -> float:
+    """Return the lock timeout in seconds: the argument, else ``$CAMPUSNAV_CACHE_LOCK_TIMEOUT``, else the default."""
+    source: str = "lock_timeout"
+    value: object = lock_timeout
+    if lock_timeout is None:
+        source = f"${LOCK_TIMEOUT_ENV}"
+        value = os.environ.get(LOCK_TIMEOUT_ENV, "").strip() or DEFAULT_LOCK_TIMEOUT
+    try:
+        seconds = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        seconds = float("nan")
+    if isinstance(value, bool) or not seconds >= 0:  # `not >=` also rejects NaN
+        raise ValueError(f"{source} must be a number of seconds >= 0, got {value!r}")
+    return seconds
+
+
 def cached_view_features(
     key_parts: Mapping[str, str],
     n_nodes: int,
@@ -180,26 +451,28 @@ def cached_view_features(
     *,
     cache_dir: str | Path | None = None,
     progress: bool = True,
+    lock_timeout: float | None = None,
 ) -> np.ndarray:
-    """Return the encodings of every node's four views, computing and caching them on first use.
+    """
+    Return the encodings of every node's four views, computing and caching them on first use.
 
-    Args:
-        key_parts: Everything besides the encoder that determines the views, as strings (e.g.
-            ``{"world": world.fingerprint(), "render": settings.key()}``); order does not matter.
-        n_nodes: Number of nodes; nodes ``0 .. n_nodes - 1`` are rendered.
-        render_node: ``render_node(node)`` returns the node's views, ``(4, H, W, 3)`` uint8 RGB in N, E, S, W order.
-        encoder: Encoder applied to the views.
-        cache_dir: Cache directory; None uses :func:`default_cache_dir`.
-        progress: Show a tqdm progress bar while computing.
-
-    Returns:
-        ``(n_nodes, 4, *encoder.output_shape)`` array of dtype ``encoder.dtype``.
-
-    Raises:
-        ValueError: ``render_node`` or the encoder returned arrays of the wrong shape or dtype, or ``n_nodes`` < 1.
-        PermissionError: The cache directory is not writable (other ``OSError`` if it cannot be created).
+    :param key_parts: Everything besides the encoder that determines the views, as strings (e.g.
+        ``{"world": world.fingerprint(), "render": settings.key()}``); order does not matter
+    :param n_nodes: Number of nodes; nodes ``0 .. n_nodes - 1`` are rendered
+    :param render_node: ``render_node(node)`` returns the node's views, ``(4, H, W, 3)`` uint8 RGB in N, E, S, W order
+    :param encoder: Encoder applied to the views
+    :param cache_dir: Cache directory; None uses :func:`default_cache_dir`
+    :param progress: Show a tqdm progress bar while computing
+    :param lock_timeout: Seconds to wait while another process builds the same file (see the module docstring); None
+        reads ``$CAMPUSNAV_CACHE_LOCK_TIMEOUT``, else :data:`DEFAULT_LOCK_TIMEOUT`
+    :return: ``(n_nodes, 4, *encoder.output_shape)`` array of dtype ``encoder.dtype``
+    :raises ValueError: if ``render_node`` or the encoder returned arrays of the wrong shape or dtype, ``n_nodes`` < 1
+        or the lock timeout is not a number >= 0
+    :raises PermissionError: if the cache directory is not writable (other ``OSError`` if it cannot be created)
+    :raises TimeoutError: if another process still holds the file's lock after ``lock_timeout`` seconds
     """
     n_nodes = _check_n_nodes(n_nodes)
+    timeout = _resolve_lock_timeout(lock_timeout)
     document = _key_document(key_parts, n_nodes, encoder)
     key = cache_key(key_parts, n_nodes, encoder)
     path = cache_path(key_parts, n_nodes, encoder, cache_dir=cache_dir)
@@ -207,13 +480,22 @@ def cached_view_features(
     dtype = np.dtype(encoder.dtype)
 
     if path.exists():
-        try:
+        with contextlib.suppress(ValueError):  # an invalid file is reported and rebuilt below, under the lock
             return _load(path, key, shape, dtype)
-        except ValueError as e:
-            warnings.warn(f"feature cache {path} is invalid: {e}; rebuilding it", RuntimeWarning, stacklevel=2)
 
-    # Fail before spending minutes on rendering if the result could not be stored.
+    # Fail before waiting or spending minutes on rendering if the result could not be stored.
     _ensure_writable_dir(path.parent)
-    features = _compute(n_nodes, render_node, encoder, progress)
-    _save_atomic(path, features, {**document, "key": key, "checksum": _checksum(features)})
-    return features
+    lock = path.with_name(path.name + ".lock")
+    me = _acquire_lock(lock, path, timeout)
+    try:
+        # Another process may have built the file while this one waited for the lock.
+        if path.exists():
+            try:
+                return _load(path, key, shape, dtype)
+            except ValueError as e:
+                warnings.warn(f"feature cache {path} is invalid: {e}; rebuilding it", RuntimeWarning, stacklevel=2)
+        features = _compute(n_nodes, render_node, encoder, progress)
+        _save_atomic(path, features, {**document, "key": key, "checksum": _checksum(features)})
+        return features
+    finally:
+        _release_lock(lock, me)
