@@ -1,6 +1,10 @@
-"""Shared test fixtures: keep torch to one thread so that two cores are not oversubscribed."""
+"""Shared test fixtures: one torch thread (two cores are not oversubscribed) and nothing left in the temp dir."""
 
 from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import torch
@@ -9,3 +13,22 @@ import torch
 @pytest.fixture(autouse=True)
 def _single_torch_thread() -> None:
     torch.set_num_threads(1)
+
+
+@pytest.fixture(autouse=True)
+def _sb3_logs_in_tmp_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # learn() without a TensorBoard folder configures SB3's logger with $SB3_LOGDIR, else a new SB3-<date> folder in
+    # the system temp dir (stable_baselines3.common.logger.configure); subprocesses inherit the variable
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path / "sb3-logs"))
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _library_caches_in_pytest_temp(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    # torch's first optimizer step imports torch._dynamo, which creates <temp dir>/torchinductor_<user>; matplotlib
+    # (imported by the RL Zoo) writes its font cache to ~/.cache/matplotlib. Both move unless set by the caller.
+    caches = {"TORCHINDUCTOR_CACHE_DIR": "torchinductor", "MPLCONFIGDIR": "matplotlib"}
+    with pytest.MonkeyPatch.context() as patch:
+        for variable, name in caches.items():
+            if variable not in os.environ:
+                patch.setenv(variable, str(tmp_path_factory.mktemp(name)))
+        yield
