@@ -9,7 +9,7 @@ import pytest
 from campusnav_env.maps.campus import default_campus
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.rendering.contact_sheet import default_nodes, main, write_contact_sheet
-from campusnav_env.rendering.map_view import CLOSED_RGB, GOAL_RGB, PATH_RGB, ROUTE_COLOURS, draw_map
+from campusnav_env.rendering.map_view import AGENT_RGB, CLOSED_RGB, GOAL_RGB, PATH_RGB, ROUTE_COLOURS, draw_map
 from campusnav_env.rendering.street_view import RenderSettings
 
 
@@ -104,3 +104,29 @@ def test_contact_sheet_command_line(tmp_path, capsys):
     assert capsys.readouterr().out.strip() == str(out)
     image = cv2.imread(str(out))
     assert image is not None and image.shape[1] == 4 * 320 + 5 * 6
+
+
+def _arrow_bearing(image: np.ndarray) -> float:
+    """
+    Bearing (degrees clockwise from north) the agent's triangle points to: from its centroid to its farthest pixel,
+    the tip (the tip is 1.07 r from the centroid, the base corners 0.8 r).
+    """
+    rows, cols = np.nonzero(np.abs(image.astype(int) - np.asarray(AGENT_RGB)).max(axis=-1) <= 12)
+    pixels = np.stack([cols, rows], axis=1).astype(float)
+    offsets = pixels - pixels.mean(axis=0)
+    east, south = offsets[np.argmax(np.linalg.norm(offsets, axis=1))]
+    return float(np.degrees(np.arctan2(east, -south)) % 360.0)
+
+
+def test_agent_arrow_points_where_its_forward_view_looks(graph):
+    # Node 42's road to 43 leaves at 81 degrees but sits in slot S: heading S, forward takes it and the view looks
+    # along it, so the arrow points east-north-east rather than south. Empty slots keep their compass bearing.
+    road_map = graph.map
+    assert road_map.slots[42, 2] == 43
+    image = draw_map(graph, agent=42, heading=2, labels=False)
+    assert abs(_arrow_bearing(image) - road_map.slot_bearings[42, 2]) < 10.0
+    dead_end = int(np.flatnonzero((road_map.slots >= 0).sum(axis=1) == 1)[0])
+    empty = int(np.flatnonzero(road_map.slots[dead_end] < 0)[0])
+    image = draw_map(graph, agent=dead_end, heading=empty, labels=False)
+    off = abs(_arrow_bearing(image) - 90.0 * empty) % 360.0
+    assert min(off, 360.0 - off) < 10.0

@@ -1,4 +1,8 @@
-"""Contact sheet of street views: the N/E/S/W views of a few intersections above the map, as one PNG.
+"""
+Contact sheet of street views: the N/E/S/W views of a few intersections above the map, as one PNG.
+
+Each view is labelled with its compass slot and the bearing it looks along (the road in that slot, see
+:func:`~campusnav_env.rendering.street_view.view_bearings`), e.g. ``E 034``.
 
 Command line (console script ``campusnav-views``)::
 
@@ -61,19 +65,19 @@ def write_contact_sheet(
     world_seed: int = 0,
     rng: np.random.Generator | None = None,
 ) -> Path:
-    """Render the four views of a few nodes and write them, labelled, above the map as one PNG.
+    """
+    Render the four views of a few nodes and write them, labelled, above the map as one PNG.
 
-    Args:
-        path: output PNG file (its folder must exist).
-        graph: road network; ``None`` = the built-in campus.
-        nodes: nodes to show; ``None`` = the first ``n_nodes`` landmark nodes (goals first).
-        settings: render settings; ``None`` = defaults. Views wider than 320 pixels are shown at half size.
-        n_nodes: how many nodes when ``nodes`` is ``None``.
-        world_seed: seed of the buildings, trees and fields.
-        rng: source of the random appearance changes the settings ask for (time of day, cars).
-
-    Returns:
-        The path written.
+    :param path: Output PNG file (its folder must exist)
+    :param graph: Road network; ``None`` = the built-in campus
+    :param nodes: Nodes to show; ``None`` = the first ``n_nodes`` landmark nodes (goals first)
+    :param settings: Render settings; ``None`` = defaults. Views wider than 320 pixels are shown at half size
+    :param n_nodes: How many nodes when ``nodes`` is ``None``
+    :param world_seed: Seed of the buildings, trees and fields
+    :param rng: Source of the random appearance changes the settings ask for (time of day, cars)
+    :return: The path written
+    :raises FileNotFoundError: if the folder of ``path`` does not exist
+    :raises ValueError: if there are no nodes to show or a node is out of range
     """
     path = Path(path)
     if not path.parent.is_dir():
@@ -106,7 +110,7 @@ def write_contact_sheet(
         for d, view in enumerate(views):
             thumb = cv2.resize(view, (tw, th), interpolation=cv2.INTER_AREA) if shrink > 1 else view
             thumb = np.ascontiguousarray(thumb)
-            _label(thumb, _COMPASS[d], (8, 24))
+            _label(thumb, f"{_COMPASS[d]} {round(renderer.view_bearing(node, d)) % 360:03d}", (8, 24))
             x = gap + d * (tw + gap)
             row[header : header + th, x : x + tw] = thumb
         rows.append(row)

@@ -1,4 +1,5 @@
-"""Top-down RGB map of a road graph: roads, closures, landmarks, agent, goals, the route so far and extra routes.
+"""
+Top-down RGB map of a road graph: roads, closures, landmarks, agent, goals, the route so far and extra routes.
 
 Used by ``CampusNavEnv.render()`` and for route pictures (original vs re-routed). Drawn with OpenCV onto a light
 background, anti-aliased, north up; the longer side of the image is ``size`` pixels and the other follows the map.
@@ -15,6 +16,7 @@ import cv2
 import numpy as np
 
 from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.rendering.street_view import view_bearings
 from campusnav_env.rendering.world import landmark_colour
 
 if TYPE_CHECKING:
@@ -96,8 +98,10 @@ class _Canvas:
         cv2.putText(self.image, text, at, cv2.FONT_HERSHEY_SIMPLEX, scale, rgb, thick, cv2.LINE_AA)
 
     def label(self, anchor: np.ndarray, text: str, scale: float, gap: float, taken: list[np.ndarray]) -> None:
-        """Write ``text`` next to a dot at ``anchor``, in the first of eight places around it that lies inside the
-        image and overlaps no earlier label or marker (``taken`` boxes, updated)."""
+        """
+        Write ``text`` next to a dot at ``anchor``, in the first of eight places around it that lies inside the image
+        and overlaps no earlier label or marker (``taken`` boxes, updated).
+        """
         thick = max(1, round(scale * 1.6))
         (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick + 2)
         x, y = float(anchor[0]), float(anchor[1])
@@ -163,20 +167,20 @@ def draw_map(
     labels: bool = True,
     routes: Mapping[str, Sequence[int]] | None = None,
 ) -> np.ndarray:
-    """Draw a road graph from above.
+    """
+    Draw a road graph from above.
 
-    Args:
-        graph: the road network; a ``NavigationGraph``'s closed roads are drawn in red with an X at their midpoint.
-        size: length of the longer image side (pixels).
-        agent: node of the agent (a triangle pointing along ``heading``, a disc if the heading is ``None``).
-        heading: compass heading of the agent (0 N, 1 E, 2 S, 3 W).
-        goal: goal node or nodes (stars).
-        path: nodes visited so far, drawn as a blue route along the roads.
-        labels: write the landmark names.
-        routes: extra named routes (name -> node sequence) in distinct colours, with a legend.
-
-    Returns:
-        ``(H, W, 3)`` uint8 RGB image.
+    :param graph: The road network; a ``NavigationGraph``'s closed roads are drawn in red with an X at their midpoint
+    :param size: Length of the longer image side (pixels)
+    :param agent: Node of the agent: a triangle pointing where its forward view looks (along the road in the slot of
+        ``heading``, see :func:`~campusnav_env.rendering.street_view.view_bearings`), a disc if the heading is ``None``
+    :param heading: Compass heading of the agent (0 N, 1 E, 2 S, 3 W)
+    :param goal: Goal node or nodes (stars)
+    :param path: Nodes visited so far, drawn as a blue route along the roads
+    :param labels: Write the landmark names
+    :param routes: Extra named routes (name -> node sequence) in distinct colours, with a legend
+    :return: ``(H, W, 3)`` uint8 RGB image
+    :raises ValueError: on a bad size or heading, or a node out of range
     """
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 64:
         raise ValueError(f"size must be an int >= 64 pixels, got {size!r}")
@@ -262,7 +266,8 @@ def draw_map(
         if heading is None:
             canvas.disc(p, 4.5 * unit, AGENT_RGB, TEXT_RGB)
         else:
-            bearing = math.radians(90.0 * heading)
+            # The agent faces where its forward view looks: the road in slot ``heading`` (its compass bearing if empty)
+            bearing = math.radians(view_bearings(graph)[agent, heading])
             ahead = np.array([math.sin(bearing), -math.cos(bearing)])  # image y points south
             side = np.array([-ahead[1], ahead[0]])
             r = 7.0 * unit

@@ -1,7 +1,12 @@
-"""Street-view renderer: what a camera at an intersection sees in each compass direction.
+"""
+Street-view renderer: what a camera at an intersection sees in each of its four compass slots.
 
-The camera is a horizontal pinhole camera standing at the intersection (``eye_height`` above the road), looking along
-the compass bearing 0/90/180/270 with a 90-degree horizontal field of view, like a street-view car. One shared
+The camera is a horizontal pinhole camera standing at the intersection (``eye_height`` above the road) with a 90-degree
+horizontal field of view, like a street-view car. View ``d`` of a node (``d`` = 0 N, 1 E, 2 S, 3 W, the node's compass
+slots, :mod:`campusnav_env.maps.compass`) looks along the *view bearing* of that slot: the initial bearing of the road
+in slot ``d`` (``RoadGraph.slot_bearings``), or the slot's compass bearing 0/90/180/270 where the slot is empty (see
+:func:`view_bearings`). So the road seen straight ahead in view ``d`` is always the road that the action pointing to
+slot ``d`` takes, even where a road sits far from its slot's compass bearing. One shared
 :class:`~campusnav_env.rendering.world.World` supplies every view, so the same building seen from two intersections
 looks related.
 
@@ -30,16 +35,22 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from campusnav_env.maps.compass import SLOT_BEARINGS
 from campusnav_env.rendering.world import SpatialIndex, World, footprint_walls
 
-__all__ = ["RENDERER_VERSION", "RenderSettings", "StreetViewRenderer"]
+if TYPE_CHECKING:
+    from campusnav_env.maps.road_graph import RoadGraph
+
+__all__ = ["RENDERER_VERSION", "RenderSettings", "StreetViewRenderer", "view_bearings"]
 
 # Bump when the drawing changes: feature caches key on RenderSettings.key().
-RENDERER_VERSION = 1
+# v2: each view looks along its slot's road (RoadGraph.slot_bearings) instead of the compass bearing.
+RENDERER_VERSION = 2
 
 MAX_DISTANCE = 400.0  # objects farther than this are not drawn (m)
 NEAR = 0.3  # near plane (m)
@@ -68,16 +79,17 @@ CAR_PALETTE = (
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """Camera and appearance settings of the street views.
+    """
+    Camera and appearance settings of the street views.
 
-    Args:
-        width: image width (pixels).
-        height: image height (pixels).
-        fov_deg: horizontal field of view (degrees).
-        eye_height: camera height above the road (m); 2.5 m is a street-view car's camera mast.
-        time_of_day: hour in [0, 24] that sets sun, sky and lit windows, with random cloud cover and exposure drawn
-            from the render call's rng; ``None`` = fixed noon without variation.
-        cars: draw passing cars on the roads near the camera (positions and colours from the rng).
+    :param width: Image width (pixels)
+    :param height: Image height (pixels)
+    :param fov_deg: Horizontal field of view (degrees)
+    :param eye_height: Camera height above the road (m); 2.5 m is a street-view car's camera mast
+    :param time_of_day: Hour in [0, 24] that sets sun, sky and lit windows, with random cloud cover and exposure drawn
+        from the render call's rng; ``None`` = fixed noon without variation
+    :param cars: Draw passing cars on the roads near the camera (positions and colours from the rng)
+    :raises ValueError: if a setting is out of range
     """
 
     width: int = 640
@@ -189,12 +201,36 @@ class _View:
     wall_of_pixel: np.ndarray  # (height, width) int32 id of the wall each pixel shows (-1: none)
 
 
-class StreetViewRenderer:
-    """Draws the four compass views at every intersection of a :class:`~campusnav_env.rendering.world.World`.
+def view_bearings(graph: RoadGraph) -> np.ndarray:
+    """
+    The bearing each view of each node looks along (degrees clockwise from north, in ``[0, 360)``).
 
-    Args:
-        world: the scene (see :func:`~campusnav_env.rendering.world.build_world`).
-        settings: camera and appearance settings.
+    View ``d`` of a node looks along the initial bearing of the road in compass slot ``d`` (its first non-degenerate
+    polyline segment leaving the node, ``graph.slot_bearings``), so that what the agent sees ahead in view ``d`` is the
+    road that the action pointing to slot ``d`` takes; an empty slot keeps its compass bearing ``90 * d``. Graphs
+    without compass slots (built from scene files, ``slot_bearings`` is ``None``) get the compass bearings everywhere.
+
+    :param graph: The road network
+    :return: ``(N, 4)`` float64 array, read-only
+    """
+    if graph.slot_bearings is None:
+        bearings = np.tile(SLOT_BEARINGS, (graph.n_nodes, 1))
+    else:
+        bearings = np.array(graph.slot_bearings, dtype=np.float64)
+        if bearings.shape != (graph.n_nodes, 4):
+            raise ValueError(f"slot_bearings must have shape ({graph.n_nodes}, 4), got {bearings.shape}")
+    bearings.flags.writeable = False
+    return bearings
+
+
+class StreetViewRenderer:
+    """
+    Draws the four views at every intersection of a :class:`~campusnav_env.rendering.world.World`, view ``d``
+    looking along the road in compass slot ``d`` (``view_bearings[node, d]``, see :func:`view_bearings`).
+
+    :param world: The scene (see :func:`~campusnav_env.rendering.world.build_world`)
+    :param settings: Camera and appearance settings; ``None`` = defaults
+    :raises TypeError: if ``world`` is not a ``World`` or ``settings`` not a ``RenderSettings``
     """
 
     def __init__(self, world: World, settings: RenderSettings | None = None) -> None:
@@ -210,6 +246,8 @@ class StreetViewRenderer:
         self.cx, self.cy = (self.width - 1) / 2.0, (self.height - 1) / 2.0
         self.eye = float(settings.eye_height)
         self.positions = np.asarray(world.graph.positions, dtype=np.float64)
+        # (N, 4) bearing each view looks along: the road in the slot, the compass bearing where the slot is empty
+        self.view_bearings = view_bearings(world.graph)
         # Camera-space x/z of each column's ray (the ray direction is forward + x * right).
         self._col_x = (np.arange(self.width) - self.cx) / self.fx
         self._rows = np.arange(self.height, dtype=np.float32)
@@ -223,28 +261,47 @@ class StreetViewRenderer:
     # Public API
     # ----------------------------------------------------------------------------------------------------------------
 
-    def render_view(self, node: int, direction: int, *, rng: np.random.Generator | None = None) -> np.ndarray:
-        """The view from ``node`` looking along compass ``direction`` (0 N, 1 E, 2 S, 3 W).
+    def view_bearing(self, node: int, direction: int) -> float:
+        """
+        The bearing that view ``direction`` of ``node`` looks along: the initial bearing of the road in that compass
+        slot, or the slot's compass bearing ``90 * direction`` where it is empty.
 
-        Args:
-            node: intersection id.
-            direction: compass direction.
-            rng: source of the random appearance changes (only used when the settings ask for them).
-
-        Returns:
-            ``(height, width, 3)`` uint8 RGB image.
+        :param node: Intersection id
+        :param direction: Compass slot (0 N, 1 E, 2 S, 3 W)
+        :return: Degrees clockwise from north, in ``[0, 360)``
+        :raises ValueError: if the node or the direction is out of range
+        :raises TypeError: if the node is not an int
         """
         node = self._check_node(node)
-        if direction not in (0, 1, 2, 3) or isinstance(direction, bool):
-            raise ValueError(f"direction must be 0 (N), 1 (E), 2 (S) or 3 (W), got {direction!r}")
-        lighting, cars = self._moment(node, rng, salt=int(direction) + 1)
-        return self._render(node, int(direction), lighting, cars)
+        return float(self.view_bearings[node, self._check_direction(direction)])
+
+    def render_view(self, node: int, direction: int, *, rng: np.random.Generator | None = None) -> np.ndarray:
+        """
+        The view from ``node`` in compass slot ``direction`` (0 N, 1 E, 2 S, 3 W), looking along
+        :meth:`view_bearing` ``(node, direction)``: down the road that the action pointing to that slot takes.
+
+        :param node: Intersection id
+        :param direction: Compass slot
+        :param rng: Source of the random appearance changes (only used when the settings ask for them)
+        :return: ``(height, width, 3)`` uint8 RGB image
+        :raises ValueError: if the node or the direction is out of range
+        :raises TypeError: if the node is not an int
+        """
+        node = self._check_node(node)
+        direction = self._check_direction(direction)
+        lighting, cars = self._moment(node, rng, salt=direction + 1)
+        return self._render(node, direction, lighting, cars)
 
     def render_node(self, node: int, *, rng: np.random.Generator | None = None) -> np.ndarray:
-        """The four views at ``node`` in compass order N, E, S, W, taken at one moment (same light, same cars).
+        """
+        The four views at ``node`` in slot order N, E, S, W (each along its :meth:`view_bearing`), taken at one
+        moment (same light, same cars).
 
-        Returns:
-            ``(4, height, width, 3)`` uint8 RGB images.
+        :param node: Intersection id
+        :param rng: Source of the random appearance changes (only used when the settings ask for them)
+        :return: ``(4, height, width, 3)`` uint8 RGB images
+        :raises ValueError: if the node is out of range
+        :raises TypeError: if the node is not an int
         """
         node = self._check_node(node)
         lighting, cars = self._moment(node, rng, salt=0)
@@ -260,6 +317,12 @@ class StreetViewRenderer:
         if not 0 <= int(node) < len(self.positions):
             raise ValueError(f"node {node} out of range for a graph of {len(self.positions)} intersections")
         return int(node)
+
+    @staticmethod
+    def _check_direction(direction: int) -> int:
+        if isinstance(direction, bool) or direction not in (0, 1, 2, 3):
+            raise ValueError(f"direction must be 0 (N), 1 (E), 2 (S) or 3 (W), got {direction!r}")
+        return int(direction)
 
     def _prepare_walls(self) -> None:
         buildings = self.world.buildings
@@ -422,7 +485,7 @@ class StreetViewRenderer:
     # ----------------------------------------------------------------------------------------------------------------
 
     def _render(self, node: int, direction: int, lighting: _Lighting, cars: list[_Car]) -> np.ndarray:
-        yaw = math.radians(90.0 * direction)
+        yaw = math.radians(self.view_bearings[node, direction])  # the road in this slot, or its compass bearing
         h, w = self.height, self.width
         view = _View(
             node=node,
@@ -547,7 +610,11 @@ class StreetViewRenderer:
         ground += (view.lighting.haze * fog).astype(np.float32)
 
     def _draw_walls(self, view: _View) -> np.ndarray:
-        """Cast one ray per column through the walls; fill facade pixels, depth and wall ids. Returns visible walls."""
+        """
+        Cast one ray per column through the walls; fill facade pixels, depth and wall ids.
+
+        :return: Ids of the walls that some pixel shows
+        """
         ids = self._wall_index.query(view.cam, MAX_DISTANCE)
         if len(ids) == 0:
             return ids
@@ -623,7 +690,8 @@ class StreetViewRenderer:
         wall: np.ndarray,
         lighting: _Lighting,
     ) -> np.ndarray:
-        """Facade colour of every wall pixel (``rows``, ``hit`` index into the per-hit ``z``, ``t``, ``wall``).
+        """
+        Facade colour of every wall pixel (``rows``, ``hit`` index into the per-hit ``z``, ``t``, ``wall``).
 
         Everything constant along a column of one wall (where along the wall, shading, haze, distance fading) is
         computed per hit; per pixel remain the storey, the window test and a lookup in a small per-hit palette.
@@ -714,7 +782,11 @@ class StreetViewRenderer:
     def _warp_board(
         self, board: np.ndarray, quad: np.ndarray
     ) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray] | None:
-        """Warp an RGBA board onto an image quad (TL, TR, BR, BL); returns the clipped box, colours and alpha."""
+        """
+        Warp an RGBA board onto an image quad (TL, TR, BR, BL).
+
+        :return: The clipped box ``(x0, y0, x1, y1)``, colours and alpha, or ``None`` where under 2 pixels show
+        """
         x0, y0 = np.floor(quad.min(axis=0)).astype(int)
         x1, y1 = np.ceil(quad.max(axis=0)).astype(int) + 1
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, self.width), min(y1, self.height)

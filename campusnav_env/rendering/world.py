@@ -1,4 +1,5 @@
-"""The shared 2D scene around a road graph: buildings, trees, open fields and landmark signs.
+"""
+The shared 2D scene around a road graph: buildings, trees, open fields and landmark signs.
 
 :func:`build_world` places, deterministically from a seed, everything a street-view camera at an intersection can see
 besides the roads themselves:
@@ -103,21 +104,21 @@ DISTRICT_STYLES = (
 
 @dataclass(frozen=True, eq=False)
 class Building:
-    """An extruded footprint with a facade pattern.
+    """
+    An extruded footprint with a facade pattern.
 
-    Args:
-        footprint: ``(k, 2)`` counter-clockwise polygon (metres); wall ``i`` runs from vertex ``i`` to ``i + 1``.
-        height: roof height (m).
-        facade_rgb: wall colour.
-        window_rgb: glass colour.
-        roof_rgb: roof colour (top-down map and pictures).
-        floor_height: storey height (m); windows repeat with it vertically.
-        window_spacing: horizontal window pitch along a wall (m).
-        window_width: share of the pitch that is glass (1.0 = ribbon windows).
-        window_height: share of the storey that is glass.
-        name: landmark name shown as a sign, or ``None``.
-        node: the landmark's intersection, or ``None``.
-        sign_wall: index of the wall carrying the sign (the one facing ``node``), or ``None``.
+    :param footprint: ``(k, 2)`` counter-clockwise polygon (metres); wall ``i`` runs from vertex ``i`` to ``i + 1``
+    :param height: Roof height (m)
+    :param facade_rgb: Wall colour
+    :param window_rgb: Glass colour
+    :param roof_rgb: Roof colour (top-down map and pictures)
+    :param floor_height: Storey height (m); windows repeat with it vertically
+    :param window_spacing: Horizontal window pitch along a wall (m)
+    :param window_width: Share of the pitch that is glass (1.0 = ribbon windows)
+    :param window_height: Share of the storey that is glass
+    :param name: Landmark name shown as a sign, or ``None``
+    :param node: The landmark's intersection, or ``None``
+    :param sign_wall: Index of the wall carrying the sign (the one facing ``node``), or ``None``
     """
 
     footprint: np.ndarray
@@ -157,7 +158,8 @@ class Field:
 
 @dataclass(frozen=True, eq=False)
 class Sign:
-    """A free-standing monument sign: a board of ``width`` x ``height`` m whose bottom is ``elevation`` m up.
+    """
+    A free-standing monument sign: a board of ``width`` x ``height`` m whose bottom is ``elevation`` m up.
 
     The board stands at ``position`` across the direction ``bearing`` (degrees clockwise from north) that its face
     points to; the text reads correctly from either side.
@@ -175,18 +177,18 @@ class Sign:
 
 @dataclass(eq=False)
 class World:
-    """Everything around a road graph that the street-view renderer draws.
+    """
+    Everything around a road graph that the street-view renderer draws.
 
-    Attributes:
-        graph: the road network (closures do not change the world).
-        buildings: building footprints, landmarks first.
-        trees: street and park trees.
-        fields: sports fields and parks (ground-level areas).
-        signs: monument signs of landmarks without a building.
-        road_width: asphalt width of every road (m).
-        verge_width: grass strip between asphalt and sidewalk on each side (m).
-        sidewalk_width: sidewalk width on each side (m).
-        seed: the placement seed.
+    :param graph: The road network (closures do not change the world)
+    :param buildings: Building footprints, landmarks first
+    :param trees: Street and park trees
+    :param fields: Sports fields and parks (ground-level areas)
+    :param signs: Monument signs of landmarks without a building
+    :param road_width: Asphalt width of every road (m)
+    :param verge_width: Grass strip between asphalt and sidewalk on each side (m)
+    :param sidewalk_width: Sidewalk width on each side (m)
+    :param seed: The placement seed
     """
 
     graph: RoadGraph
@@ -283,15 +285,13 @@ def _segment_segment_distances(p1: np.ndarray, p2: np.ndarray, q1: np.ndarray, q
 
 
 def polygon_segment_distances(polygons: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance from each polygon to the segment paired with it (0 if the segment enters it).
+    """
+    Distance from each polygon to the segment paired with it (0 if the segment enters it).
 
-    Args:
-        polygons: ``(P, k, 2)`` closed polygons (the last vertex connects to the first).
-        a: ``(P, 2)`` segment starts.
-        b: ``(P, 2)`` segment ends.
-
-    Returns:
-        ``(P,)`` distances.
+    :param polygons: ``(P, k, 2)`` closed polygons (the last vertex connects to the first)
+    :param a: ``(P, 2)`` segment starts
+    :param b: ``(P, 2)`` segment ends
+    :return: ``(P,)`` distances
     """
     v1 = polygons
     v2 = np.roll(polygons, -1, axis=1)
@@ -306,12 +306,12 @@ def polygon_segment_distances(polygons: np.ndarray, a: np.ndarray, b: np.ndarray
 
 
 class SpatialIndex:
-    """Uniform-grid lookup of axis-aligned boxes: which items may lie within a radius of a point.
+    """
+    Uniform-grid lookup of axis-aligned boxes: which items may lie within a radius of a point.
 
-    Args:
-        lo: ``(n, 2)`` lower corners of the items' bounding boxes.
-        hi: ``(n, 2)`` upper corners.
-        cell: grid cell size (m).
+    :param lo: ``(n, 2)`` lower corners of the items' bounding boxes
+    :param hi: ``(n, 2)`` upper corners
+    :param cell: Grid cell size (m)
     """
 
     def __init__(self, lo: np.ndarray, hi: np.ndarray, cell: float = 100.0) -> None:
@@ -358,9 +358,15 @@ class SpatialIndex:
         return np.unique(idx)
 
     def pairs(self, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-        """Candidate (point id, item id) pairs: every point within ``radius`` (at most one cell) of an item's box.
+        """
+        Candidate (point id, item id) pairs: every point within ``radius`` (at most one cell) of an item's box.
 
         Candidates come from the 3x3 cells around each point, so some pairs are farther apart; callers measure.
+
+        :param points: ``(n, 2)`` query points
+        :param radius: Search radius (m), at most one grid cell
+        :return: ``(point_ids, item_ids)``, equally long int64 arrays
+        :raises ValueError: if ``radius`` exceeds the grid cell
         """
         points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         if self.n == 0 or len(points) == 0:
@@ -589,9 +595,11 @@ def _place_outward(
     occupancy: _Occupancy,
     min_clear: float,
 ) -> tuple[np.ndarray, float] | None:
-    """Slide a rectangle out from an intersection along ``bearing`` (front facing it) until it clears the roads.
+    """
+    Slide a rectangle out from an intersection along ``bearing`` (front facing it) until it clears the roads.
 
-    Returns the footprint (vertices 0-1 = the front wall, facing the intersection) and the front distance, or ``None``.
+    :return: The footprint (vertices 0-1 = the front wall, facing the intersection) and the front distance, or
+        ``None`` where no place is free
     """
     direction = _unit(bearing)
     along = np.array([direction[1], -direction[0]])  # front wall runs across the bearing
@@ -608,14 +616,13 @@ def _place_outward(
 
 
 def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
-    """Place buildings, landmarks, fields, parks and trees around ``graph``, deterministically from ``seed``.
+    """
+    Place buildings, landmarks, fields, parks and trees around ``graph``, deterministically from ``seed``.
 
-    Args:
-        graph: the road network (any :class:`~campusnav_env.maps.road_graph.RoadGraph`).
-        seed: placement seed; the same graph and seed always give the same world.
-
-    Returns:
-        The :class:`World`.
+    :param graph: The road network (any :class:`~campusnav_env.maps.road_graph.RoadGraph`)
+    :param seed: Placement seed; the same graph and seed always give the same world
+    :return: The :class:`World`
+    :raises ValueError: if ``seed`` is not an int
     """
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
         raise ValueError(f"seed must be an int, got {seed!r}")
