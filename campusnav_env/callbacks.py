@@ -1,0 +1,451 @@
+"""Stable-Baselines3 callbacks for dynamic routing: close roads during training, evaluate routes, measure recovery.
+
+This is the one module of ``campusnav_env`` that imports Stable-Baselines3. The callbacks work with any SB3
+algorithm (DCQN, DQN, PPO, ...), with one env or several (``DummyVecEnv`` or ``SubprocVecEnv``).
+
+- :class:`RouteEvaluationCallback` runs :func:`~campusnav_env.route_evaluation.evaluate_routes` (the greedy policy
+  from every start to every goal) every ``eval_freq`` steps or episodes and logs ``eval/success_rate``, ``eval/spl``,
+  ``eval/coverage``, ``eval/mean_steps`` and ``eval/optimality_gap``, overall and per goal (``eval/<goal>/...``).
+- :class:`RoadClosureCallback` closes and reopens roads on a :class:`~campusnav_env.closures.ClosureSchedule`, in
+  every training env (``VecEnv.env_method``) and in the evaluation env alike, logs each event (``closure/...``) and,
+  with a route evaluation attached, evaluates right after each closure and then every ``recovery_eval_freq``
+  episodes until the routes are good again: the recovery (episodes, env steps and training seconds) is logged as
+  ``closure/recovery_episodes``, ``closure/recovery_steps``, ``closure/recovery_seconds`` and returned by
+  :attr:`RoadClosureCallback.recoveries` (see :mod:`campusnav_env.recovery`).
+
+Training seconds exclude the time spent evaluating routes, so that a recovery measures what training costs.
+
+Example::
+
+    evaluation = RouteEvaluationCallback(eval_env, eval_freq=2_000)
+    closures = RoadClosureCallback([ClosureEvent(at=3_000, close_on_route="busiest")], evaluation=evaluation)
+    model.learn(60_000, callback=closures)
+    print(recovery_table(closures.recoveries))
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback, EventCallback
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from campusnav_env.closures import (
+    ClosureEvent,
+    ClosureSchedule,
+    apply_fixed_event,
+    busiest_road,
+    first_road_on_route,
+    road_usage,
+)
+from campusnav_env.env import CampusNavEnv
+from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.recovery import (
+    DEFAULT_SPL_THRESHOLD,
+    DEFAULT_SUCCESS_THRESHOLD,
+    ClosureRecord,
+    Recovery,
+    RouteEvaluation,
+    measure_recoveries,
+)
+from campusnav_env.route_evaluation import evaluate_routes
+
+__all__ = ["RoadClosureCallback", "RouteEvaluationCallback"]
+
+_SUMMARY_KEYS = ("success_rate", "spl", "coverage", "mean_steps", "optimality_gap")
+
+
+class _TrainingProgress(BaseCallback):
+    """Counts training episodes and training wall time (only while training runs, minus the excluded seconds)."""
+
+    def __init__(self, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.episodes = 0
+        self.excluded_seconds = 0.0
+        self._trained_seconds = 0.0
+        self._started: float | None = None
+        self._first_timestep: int | None = None
+
+    @property
+    def train_seconds(self) -> float:
+        running = 0.0 if self._started is None else time.perf_counter() - self._started
+        return self._trained_seconds + running - self.excluded_seconds
+
+    @property
+    def steps(self) -> int:
+        """Env steps since this callback first started training."""
+        return self.num_timesteps - (self._first_timestep or 0)
+
+    def _on_training_start(self) -> None:
+        if self._first_timestep is None:
+            self._first_timestep = self.model.num_timesteps
+        self._started = time.perf_counter()
+
+    def _on_training_end(self) -> None:
+        if self._started is not None:
+            self._trained_seconds += time.perf_counter() - self._started
+            self._started = None
+
+    def _on_step(self) -> bool:
+        dones = self.locals.get("dones")
+        self.episodes += 0 if dones is None else int(np.sum(dones))
+        return True
+
+
+def _campus_env(env: gym.Env | CampusNavEnv) -> CampusNavEnv:
+    nav = env.unwrapped if isinstance(env, gym.Env) else env
+    if not isinstance(nav, CampusNavEnv):
+        raise TypeError(f"route evaluation needs a CampusNavEnv (or a wrapper of one), got {type(env).__name__}")
+    return nav
+
+
+class RouteEvaluationCallback(_TrainingProgress):
+    """
+    Evaluate the greedy policy from every start to every goal during training.
+
+    :param eval_env: A ``CampusNavEnv`` or a wrapper of one. ``None``: the first training env, when training runs in
+        a ``DummyVecEnv`` (with a ``SubprocVecEnv`` pass an env of your own; a :class:`RoadClosureCallback` applies
+        its closures to it too)
+    :param eval_freq: Evaluate every ``eval_freq`` env steps (``unit="step"``) or training episodes
+    :param unit: ``"step"`` or ``"episode"``
+    :param goals: Goal names to evaluate (default: all of the env's goals)
+    :param max_steps: Step limit per route (default: the env's ``max_steps``)
+    :param success_threshold: Success rate at which the map counts as solved
+    :param spl_threshold: SPL at which the map counts as solved
+    :param stop_when_solved: Stop training at the first evaluation at both thresholds
+    :param evaluate_at_end: Evaluate once more when training ends (unless the last evaluation is current)
+    :param verbose: 1 prints a line per evaluation
+    """
+
+    def __init__(
+        self,
+        eval_env: gym.Env | CampusNavEnv | None = None,
+        eval_freq: int = 2_000,
+        unit: str = "step",
+        goals: Sequence[str] | None = None,
+        max_steps: int | None = None,
+        success_threshold: float = DEFAULT_SUCCESS_THRESHOLD,
+        spl_threshold: float = DEFAULT_SPL_THRESHOLD,
+        stop_when_solved: bool = False,
+        evaluate_at_end: bool = True,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(verbose)
+        if unit not in ("step", "episode"):
+            raise ValueError(f"unit must be 'step' or 'episode', got {unit!r}")
+        if eval_freq < 1:
+            raise ValueError(f"eval_freq must be at least 1, got {eval_freq}")
+        self.eval_env = None if eval_env is None else _campus_env(eval_env)
+        self.eval_freq = eval_freq
+        self.unit = unit
+        self.goals = goals
+        self.max_steps = max_steps
+        self.success_threshold = success_threshold
+        self.spl_threshold = spl_threshold
+        self.stop_when_solved = stop_when_solved
+        self.evaluate_at_end = evaluate_at_end
+        self.evaluations: list[RouteEvaluation] = []
+        self.shares_training_env = False
+        self._next_due = eval_freq
+        self._dense_every: int | None = None
+        self._next_dense = 0
+
+    def _init_callback(self) -> None:
+        if self.eval_env is None:
+            env = self.training_env
+            if not isinstance(env, DummyVecEnv):
+                raise ValueError(
+                    "RouteEvaluationCallback: with a SubprocVecEnv (or another VecEnv than DummyVecEnv) pass "
+                    "eval_env=gym.make(...) with the same map; closures are applied to it as well"
+                )
+            self.eval_env = _campus_env(env.envs[0])
+            self.shares_training_env = True
+
+    @property
+    def solved(self) -> bool:
+        """Whether the last evaluation is at both thresholds."""
+        return bool(self.evaluations) and self.evaluations[-1].meets(self.success_threshold, self.spl_threshold)
+
+    def dense(self, every_episodes: int | None) -> None:
+        """Also evaluate every ``every_episodes`` training episodes from now on (``None``: stop doing so)."""
+        self._dense_every = every_episodes
+        self._next_dense = self.episodes + (every_episodes or 0)
+
+    def _on_step(self) -> bool:
+        super()._on_step()  # count the episodes that just ended
+        progress = self.steps if self.unit == "step" else self.episodes
+        due = progress >= self._next_due
+        if self._dense_every is not None and self.episodes >= self._next_dense:
+            due = True
+            self._next_dense = self.episodes + self._dense_every
+        if due:
+            while self._next_due <= progress:
+                self._next_due += self.eval_freq
+            self.evaluate()
+            if self.stop_when_solved and self.solved:
+                return False
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.evaluate_at_end and (not self.evaluations or self.evaluations[-1].step != self.model.num_timesteps):
+            self.evaluate()
+        super()._on_training_end()
+
+    def evaluate(self) -> RouteEvaluation:
+        """Evaluate now, record the result, log it and return it (its time does not count as training)."""
+        assert self.eval_env is not None, "the callback is not initialised"
+        start = time.perf_counter()
+        model = self.model
+
+        def policy(observations: Any) -> np.ndarray:
+            return model.predict(observations, deterministic=True)[0]
+
+        report = evaluate_routes(self.eval_env, policy, goals=self.goals, max_steps=self.max_steps)
+        step = self.model.num_timesteps
+        evaluation = RouteEvaluation(step=step, episode=self.episodes, train_seconds=self.train_seconds, report=report)
+        self.evaluations.append(evaluation)
+        summary = report.summary()
+        for key in _SUMMARY_KEYS:
+            self.logger.record(f"eval/{key}", summary[key])
+        goals = sorted({route.goal for route in report.routes})
+        if len(goals) > 1:
+            for goal in goals:
+                per_goal = report.for_goal(goal).summary()
+                for key in _SUMMARY_KEYS:
+                    self.logger.record(f"eval/{goal}/{key}", per_goal[key])
+        self.logger.record("eval/train_seconds", evaluation.train_seconds)
+        self.logger.dump(step)
+        if self.verbose >= 1:
+            print(
+                f"[routes] step {evaluation.step}, episode {evaluation.episode}, {evaluation.train_seconds:.1f} s: "
+                f"success {report.success_rate:.3f}, SPL {report.spl:.3f}",
+                flush=True,
+            )
+        self.excluded_seconds += time.perf_counter() - start
+        return evaluation
+
+
+class RoadClosureCallback(EventCallback):
+    """
+    Close (and reopen) roads during training on a schedule, in every training env and in the evaluation env.
+
+    The schedule is checked against the map before training starts: an unknown road, a closure that would cut a
+    goal off or a random draw that cannot be met raise an error naming the event. Roads chosen on the route at run
+    time that cannot be closed are skipped and reported in :attr:`records` (``refused``) and in the log.
+
+    :param schedule: A :class:`~campusnav_env.closures.ClosureSchedule`, a list of events, or a YAML file
+    :param evaluation: Route evaluation to drive (this callback calls it; do not pass it to ``learn`` as well). It
+        measures the recovery after each closure; without it only the events are recorded
+    :param recovery_eval_freq: While recovering, evaluate every this many training episodes
+    :param verbose: 1 prints a line per event and per recovery
+    """
+
+    callback: RouteEvaluationCallback | None
+
+    def __init__(
+        self,
+        schedule: ClosureSchedule | Sequence[ClosureEvent] | str | Path,
+        evaluation: RouteEvaluationCallback | None = None,
+        recovery_eval_freq: int = 5,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(evaluation, verbose)
+        if isinstance(schedule, (str, Path)):
+            schedule = ClosureSchedule.from_yaml(schedule)
+        elif not isinstance(schedule, ClosureSchedule):
+            schedule = ClosureSchedule(list(schedule))
+        if recovery_eval_freq < 1:
+            raise ValueError(f"recovery_eval_freq must be at least 1, got {recovery_eval_freq}")
+        self.schedule = schedule
+        self.recovery_eval_freq = recovery_eval_freq
+        self.records: list[ClosureRecord] = []
+        self._pending = schedule.ordered()
+        self._progress = evaluation if evaluation is not None else _TrainingProgress()
+        self._graph: NavigationGraph | None = None
+        self._protect: list[int] = []
+        self._recovering: ClosureRecord | None = None
+
+    @property
+    def evaluation(self) -> RouteEvaluationCallback | None:
+        return self.callback
+
+    @property
+    def recoveries(self) -> list[Recovery]:
+        """The recovery after every closure so far (needs a route evaluation)."""
+        if self.evaluation is None:
+            raise ValueError("recoveries need a RouteEvaluationCallback: pass evaluation=... to RoadClosureCallback")
+        evaluation = self.evaluation
+        return measure_recoveries(
+            self.records, evaluation.evaluations, evaluation.success_threshold, evaluation.spl_threshold
+        )
+
+    @property
+    def graph(self) -> NavigationGraph:
+        """This callback's copy of the training envs' navigation graph (their closures, mirrored)."""
+        if self._graph is None:
+            raise ValueError("the callback is not initialised: it learns the map when training starts")
+        return self._graph
+
+    def init_callback(self, model: Any) -> None:
+        super().init_callback(model)
+        if self.evaluation is None:
+            self._progress.init_callback(model)
+
+    def _init_callback(self) -> None:
+        env = self.training_env
+        goals = env.get_attr("goal_nodes")[0]
+        self._protect = list(goals)
+        # A copy: with DummyVecEnv get_attr hands out the env's own graph, which only env_method may change
+        self._graph = env.get_attr("graph")[0].copy()
+        # Events still to come (a later learn() call continues the schedule), checked against the map as it is now
+        ClosureSchedule(self._pending).validate(self._graph, self._protect)
+
+    def _on_training_start(self) -> None:
+        super()._on_training_start()
+        if self.evaluation is None:
+            self._progress.on_training_start(self.locals, self.globals)
+
+    def on_training_end(self) -> None:
+        if self.callback is not None:
+            self.callback.on_training_end()
+        else:
+            self._progress.on_training_end()
+        super().on_training_end()
+
+    def update_child_locals(self, locals_: dict[str, Any]) -> None:
+        super().update_child_locals(locals_)
+        if self.evaluation is None:
+            self._progress.update_locals(locals_)
+
+    def _on_step(self) -> bool:
+        continue_training = self._on_event() if self.evaluation is not None else self._progress.on_step()
+        while self._pending and self._due(self._pending[0]):
+            self.apply(self._pending.pop(0))
+        # Every evaluation since the closure belongs to its window (the first one was made right after it)
+        recovering, evaluation = self._recovering, self.evaluation
+        if recovering is not None and evaluation and len(evaluation.evaluations) > recovering.evaluation_index:
+            latest = evaluation.evaluations[-1]
+            if latest.meets(evaluation.success_threshold, evaluation.spl_threshold):
+                self._log_recovery(recovering, latest)
+        return continue_training
+
+    def _due(self, event: ClosureEvent) -> bool:
+        progress = self._progress.episodes if event.unit == "episode" else self._progress.steps
+        return progress >= event.at
+
+    def apply(self, event: ClosureEvent) -> ClosureRecord:
+        """
+        Apply an event now (scheduled events are applied when due; call this for a closure of your own between or
+        during ``learn`` calls).
+
+        :return: what was closed, reopened and refused
+        """
+        graph = self.graph
+        refused: list[tuple[str, str]] = []
+        closed: list[tuple[int, int]] = []
+        reopened: list[tuple[int, int]] = []
+        if event.close_on_route is not None:
+            road = self._road_on_route(event, refused)
+            if road is not None:
+                graph.close_road(*road, protect=self._protect)
+                closed.append(road)
+        else:
+            try:
+                closed, reopened = apply_fixed_event(graph, event, self._protect)
+            except (KeyError, ValueError) as error:  # RoadClosureError is a ValueError
+                refused.append((event.describe(), str(error.args[0] if isinstance(error, KeyError) else error)))
+        # The routes the closure interrupts: those of the last evaluation (made just now for a route closure)
+        before = self.evaluation.evaluations[-1] if self.evaluation and self.evaluation.evaluations else None
+        for road in closed:
+            self._everywhere("close_road", road, force=True)  # already checked on the mirror
+        for road in reopened:
+            self._everywhere("reopen_road", road)
+        affected = None
+        if before is not None and closed:
+            closed_set = set(closed)
+            affected = sum(bool(closed_set & set(road_usage([r.nodes]))) for r in before.report.routes)
+        record = ClosureRecord(
+            description=event.describe(),
+            step=self.model.num_timesteps,
+            episode=self._progress.episodes,
+            train_seconds=self._progress.train_seconds,
+            closed=tuple(closed),
+            reopened=tuple(reopened),
+            refused=tuple(refused),
+            evaluation_index=len(self.evaluation.evaluations) if self.evaluation else 0,
+            routes_affected=affected,
+        )
+        self.records.append(record)
+        self._log_event(record)
+        if record.changed and self.evaluation is not None:
+            if self._recovering is not None:
+                self._log_not_recovered(self._recovering)
+            self._recovering = record
+            self.evaluation.evaluate()  # right after the closure, before any more training
+            self.evaluation.dense(self.recovery_eval_freq)
+        return record
+
+    def _road_on_route(self, event: ClosureEvent, refused: list[tuple[str, str]]) -> tuple[int, int] | None:
+        if self.evaluation is None or self.evaluation.eval_env is None:
+            refused.append((event.describe(), "closing a road on the route needs a RouteEvaluationCallback"))
+            return None
+        routes = self.evaluation.evaluate().report.routes  # the current greedy routes
+        if event.close_on_route == "busiest":
+            road = busiest_road(self.graph, [r.nodes for r in routes], self._protect)
+        else:
+            # The longest of the start's routes (its headings may differ): the one with the most roads to choose from
+            from_start = [r.nodes for r in routes if r.start == int(event.close_on_route)]
+            road = first_road_on_route(self.graph, max(from_start, key=len), self._protect) if from_start else None
+        if road is None:
+            refused.append((event.describe(), "no road on the current route can be closed without cutting a goal off"))
+        return road
+
+    def _everywhere(self, method: str, road: tuple[int, int], **kwargs: Any) -> None:
+        self.training_env.env_method(method, *road, **kwargs)
+        evaluation = self.evaluation
+        if evaluation is not None and evaluation.eval_env is not None and not evaluation.shares_training_env:
+            getattr(evaluation.eval_env, method)(*road, **kwargs)
+
+    def _log_event(self, record: ClosureRecord) -> None:
+        self.logger.record("closure/events", len(self.records))
+        self.logger.record("closure/closed_roads", len(self.graph.closed_roads))
+        self.logger.record("closure/refused", sum(len(r.refused) for r in self.records))
+        if record.routes_affected is not None:
+            self.logger.record("closure/routes_affected", record.routes_affected)
+        self.logger.dump(self.model.num_timesteps)
+        if self.verbose >= 1:
+            roads = ", ".join(f"{u}-{v}" for u, v in record.closed) or "-"
+            again = ", ".join(f"{u}-{v}" for u, v in record.reopened) or "-"
+            refused = "; ".join(f"{what}: {why}" for what, why in record.refused)
+            print(
+                f"[closure] {record.description}: closed {roads}, reopened {again}"
+                + (f", refused {refused}" if refused else ""),
+                flush=True,
+            )
+
+    def _log_recovery(self, closure: ClosureRecord, at: RouteEvaluation) -> None:
+        self._recovering = None
+        assert self.evaluation is not None
+        self.evaluation.dense(None)
+        self.logger.record("closure/recovered", 1)
+        self.logger.record("closure/recovery_episodes", at.episode - closure.episode)
+        self.logger.record("closure/recovery_steps", at.step - closure.step)
+        self.logger.record("closure/recovery_seconds", at.train_seconds - closure.train_seconds)
+        self.logger.dump(self.model.num_timesteps)
+        if self.verbose >= 1:
+            print(
+                f"[closure] recovered from '{closure.description}' after {at.episode - closure.episode} episodes, "
+                f"{at.step - closure.step} steps, {at.train_seconds - closure.train_seconds:.1f} s",
+                flush=True,
+            )
+
+    def _log_not_recovered(self, closure: ClosureRecord) -> None:
+        self.logger.record("closure/recovered", 0)
+        self.logger.dump(self.model.num_timesteps)
+        if self.verbose >= 1:
+            print(f"[closure] not recovered from '{closure.description}' before the next event", flush=True)
