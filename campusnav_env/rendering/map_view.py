@@ -150,6 +150,24 @@ def _midpoint(polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return polyline[k] + t * seg[k], seg[k] / max(lengths[k], 1e-9)
 
 
+def _legend_corner(canvas: _Canvas, size: np.ndarray, markers: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """The box ``[x0, y0, x1, y1]`` of the legend in the map corner that hides the fewest markers (goals and agent
+    first, then landmarks); ties go to top left, top right, bottom left, bottom right."""
+    inset = canvas.margin * 0.6
+    x_options = (inset, canvas.width - inset - size[0])
+    y_options = (inset, canvas.height - inset - size[1])
+    boxes = [np.array([x, y, x + size[0], y + size[1]]) for y in y_options for x in x_options]
+
+    reach = 8.0 * canvas.unit  # a star or arrow reaches this far from its node
+
+    def hidden(box: np.ndarray, points: np.ndarray) -> int:
+        px = canvas.px(points.reshape(-1, 2))
+        lo, hi = box[:2] - reach, box[2:] + reach
+        return int(np.sum(np.all((px >= lo) & (px <= hi), axis=1)))
+
+    return min(boxes, key=lambda box: (hidden(box, markers), hidden(box, landmarks)))
+
+
 def _star(center: np.ndarray, radius: float) -> np.ndarray:
     angles = -np.pi / 2 + np.arange(10) * np.pi / 5
     r = np.where(np.arange(10) % 2 == 0, radius, radius * 0.45)
@@ -229,18 +247,20 @@ def draw_map(
 
     text_scale = 0.32 * unit
     taken: list[np.ndarray] = []
-    legend_box = None
-    if legend:
-        # Top-left corner; labels keep out of it.
-        x, y = canvas.margin + 4 * unit, canvas.margin + 6 * unit
-        row = 11.0 * unit
-        box_w = 24 * unit + max(cv2.getTextSize(n, cv2.FONT_HERSHEY_SIMPLEX, text_scale, 1)[0][0] for n, _ in legend)
-        legend_box = np.array([x - 3 * unit, y - 6 * unit, x + box_w + 3 * unit, y + row * (len(legend) - 0.4)])
-        taken.append(legend_box)
     goals = [] if goal is None else [goal] if isinstance(goal, (int, np.integer)) else list(goal)
     goal_nodes = [graph.check_node(g, "goal") for g in goals]
     if agent is not None:
         agent = graph.check_node(agent, "agent")
+    legend_box = None
+    if legend:
+        row = 11.0 * unit
+        box_w = 24 * unit + max(cv2.getTextSize(n, cv2.FONT_HERSHEY_SIMPLEX, text_scale, 1)[0][0] for n, _ in legend)
+        size_xy = np.array([box_w + 6 * unit, row * (len(legend) - 0.4) + 6 * unit])
+        markers = [*goal_nodes, *([] if agent is None else [agent])]
+        landmarks = graph.positions[list(graph.landmarks.values())]
+        legend_box = _legend_corner(canvas, size_xy, graph.positions[markers], landmarks)
+        x, y = legend_box[0] + 3 * unit, legend_box[1] + 6 * unit
+        taken.append(legend_box)
     for node in [*goal_nodes, *([] if agent is None else [agent])]:
         # Labels keep clear of the goal stars, the agent marker and the landmark dots too.
         p = canvas.px(graph.positions[node])

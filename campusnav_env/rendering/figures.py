@@ -1,0 +1,459 @@
+"""
+Figures of the dynamic-routing experiments, as RGB images: route panels per closure and training curves.
+
+- :func:`closure_route_panels` (the paper's Fig. 7 and 9): one map per closure with the route the agent learned from
+  one start before the closure and the route it took after recovering (or at the end of the closure's window if it
+  never did), every road closed so far in red, start and goal marked and a title per panel, tiled in a grid.
+- :func:`training_curves` (the paper's Fig. 8): episode reward and episode length against training episodes, smoothed,
+  with a vertical line per closure, and optionally the route evaluations' success rate and SPL.
+- :func:`write_figure` writes either image as a PNG, atomically.
+
+The inputs are what :class:`~campusnav_env.callbacks.RoadClosureCallback` and
+:class:`~campusnav_env.callbacks.RouteEvaluationCallback` produce (``records``, ``recoveries``, ``evaluations``) and
+what a :class:`~stable_baselines3.common.monitor.Monitor` records per episode::
+
+    rgb = closure_route_panels(env.graph.map, evaluation.evaluations, closures.recoveries)
+    write_figure("runs/routes_per_closure.png", rgb)
+    rgb = training_curves(monitor.get_episode_rewards(), monitor.get_episode_lengths(), closures.recoveries,
+                          evaluation.evaluations)
+    write_figure("runs/training_curves.png", rgb)
+
+Matplotlib draws on its own ``Figure`` with an Agg canvas, so no global backend (``pyplot``) is touched.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from campusnav_env.atomic_files import write_png
+from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.maps.road_graph import RoadGraph, road_key
+from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation
+from campusnav_env.rendering.map_view import CLOSED_RGB, TEXT_RGB, draw_map
+from campusnav_env.route_evaluation import Route
+
+__all__ = ["closure_route_panels", "panel_title", "training_curves", "write_figure"]
+
+COMPASS_LETTERS = ("N", "E", "S", "W")
+RECOVERED_RGB = (20, 120, 60)
+BORDER_RGB = (200, 200, 204)
+PAGE_RGB = (255, 255, 255)
+_SHADE = {True: "tab:green", False: "tab:red"}  # training span after a closure: recovered or not
+Road = tuple[int, int]
+
+
+# ------------------------------------------------------------------------------------------------ route panels
+def _roads_text(roads: Sequence[Road], limit: int = 3) -> str:
+    names = [f"{u}-{v}" for u, v in roads]
+    if len(names) > limit:
+        names = [*names[:limit], f"+{len(names) - limit} more"]
+    return ("road " if len(roads) == 1 else "roads ") + ", ".join(names)
+
+
+def _change_text(closure: ClosureRecord) -> str:
+    parts = []
+    if closure.closed:
+        parts.append(_roads_text(closure.closed) + " closed")
+    if closure.reopened:
+        parts.append(_roads_text(closure.reopened) + " reopened")
+    return "; ".join(parts) or "nothing changed"
+
+
+def _status_text(recovery: Recovery) -> str:
+    if not recovery.recovered:
+        return "not recovered"
+    episodes = round(recovery.episodes)
+    return f"recovered after {episodes} episode{'' if episodes == 1 else 's'} / {recovery.seconds:.1f} s"
+
+
+def panel_title(number: int, recovery: Recovery) -> str:
+    """
+    First title line of a route panel, e.g. ``"closure 2: road 81-82 closed; recovered after 35 episodes / 4.1 s"``.
+
+    :param number: Number of the closure (1 for the first)
+    :param recovery: The closure and how the agent fared after it
+    :return: the title
+    """
+    return f"closure {number}: {_change_text(recovery.closure)}; {_status_text(recovery)}"
+
+
+def _route_from(evaluation: RouteEvaluation | None, goal: str, start: int, heading: int) -> Route | None:
+    if evaluation is None:
+        return None
+    return next(
+        (r for r in evaluation.report.routes if (r.goal, r.start, r.heading) == (goal, start, heading)),
+        None,
+    )
+
+
+def _before(evaluations: Sequence[RouteEvaluation], closure: ClosureRecord) -> RouteEvaluation | None:
+    """The last evaluation made before the closure (its routes are the learned ones)."""
+    index = closure.evaluation_index - 1
+    return evaluations[index] if 0 <= index < len(evaluations) else None
+
+
+def _uses(route: Route, roads: set[Road]) -> bool:
+    return any(u != v and road_key(u, v) in roads for u, v in itertools.pairwise(route.nodes))
+
+
+def _pick_route(routes: list[Route], roads: set[Road]) -> Route:
+    """A route that travels one of ``roads`` (the longest), else the one from the farthest start."""
+    using = [r for r in routes if _uses(r, roads)]
+    if using:
+        return max(using, key=lambda r: (len(r.nodes), -r.start, -r.heading))
+    return max(routes, key=lambda r: (r.shortest, len(r.nodes), -r.start, -r.heading))
+
+
+def _route_steps(route: Route | None) -> str:
+    if route is None:
+        return "-"
+    return f"{route.steps} steps" if route.success else "fails"
+
+
+def _header(width: int, lines: Sequence[tuple[str, tuple[int, int, int]]], scale: float) -> np.ndarray:
+    """
+    A white band with one line of text per entry, shrunk where a line would not fit the width.
+
+    The band's height depends on ``scale`` only, so that panels whose titles were shrunk line up with the others.
+    """
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    pad = max(4, round(8 * scale))
+    rows = []
+    for i, (text, rgb) in enumerate(lines):
+        nominal = scale if i == 0 else scale * 0.85  # the detail line is smaller than the title
+        s, thick = nominal, max(1, round(nominal * 2))
+        # OpenCV renders text in steps of size, so shrink until what it measures fits
+        while cv2.getTextSize(text, font, s, thick)[0][0] > width - 2 * pad and s > 0.15:
+            s *= 0.95
+            thick = max(1, round(s * 2))
+        (_, h), base = cv2.getTextSize("Ag", font, nominal, max(1, round(nominal * 2)))
+        rows.append((text, rgb, s, thick, h + base, base))
+    band = np.full((pad * (len(rows) + 1) + sum(r[4] for r in rows), width, 3), PAGE_RGB, dtype=np.uint8)
+    y = pad
+    for text, rgb, s, thick, height, base in rows:
+        cv2.putText(band, text, (pad, y + height - base), font, s, rgb, thick, cv2.LINE_AA)
+        y += height + pad
+    return band
+
+
+def closure_route_panels(
+    road_graph: RoadGraph | NavigationGraph,
+    evaluations: Sequence[RouteEvaluation],
+    recoveries: Sequence[Recovery],
+    start: int | None = None,
+    heading: int | None = None,
+    *,
+    goal: str | None = None,
+    size: int = 600,
+    columns: int = 3,
+    labels: bool = False,
+) -> np.ndarray:
+    """
+    One map per closure with the route before it and the route after recovery, tiled in a grid.
+
+    Every panel shows the routes from one fixed start (and heading): the *learned route* (from the last evaluation
+    before the closure, ``evaluations[closure.evaluation_index - 1]``) and the route at recovery (or, if the agent never
+    recovered, at the last evaluation of the closure's window), the roads closed so far (all closures up to this one,
+    minus reopened roads) in red with an X, the start (a triangle facing the heading) and the goal (a star). Its title
+    names the change and the recovery (:func:`panel_title`); a second line gives the steps of both routes and the
+    shortest path at the end.
+
+    :param road_graph: The map (a ``NavigationGraph``'s own closures are ignored: they come from the records)
+    :param evaluations: All route evaluations in the order they were made (``RouteEvaluationCallback.evaluations``)
+    :param recoveries: One per closure, in order (``RoadClosureCallback.recoveries``); one panel each
+    :param start: Start node of the routes shown. Default: the start of the longest learned route that travelled a
+        road of the first closure, else the start farthest from the goal
+    :param heading: Start heading (0 N, 1 E, 2 S, 3 W). Default: that of the learned route chosen as above (among the
+        routes from ``start`` when it is given)
+    :param goal: Goal name of the routes (default: the goal of the first route in the evaluations)
+    :param size: Longer side of each map panel in pixels
+    :param columns: Panels per row at most
+    :param labels: Write the landmark names on the maps (off by default: they can hide a closed road; the goal is
+        named in the second title line)
+    :return: ``(H, W, 3)`` uint8 RGB image
+    :raises ValueError: no recoveries, a bad start, heading, goal, size or column count
+    :raises TypeError: a map that is neither a ``RoadGraph`` nor a ``NavigationGraph``
+    """
+    graph = road_graph.map if isinstance(road_graph, NavigationGraph) else road_graph
+    if not isinstance(graph, RoadGraph):
+        raise TypeError(f"road_graph must be a RoadGraph or NavigationGraph, got {type(road_graph).__name__}")
+    if not recoveries:
+        raise ValueError("closure_route_panels needs at least one recovery (one panel per closure)")
+    if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 1:
+        raise ValueError(f"columns must be a positive int, got {columns!r}")
+    if heading is not None and (isinstance(heading, bool) or heading not in (0, 1, 2, 3)):
+        raise ValueError(f"heading must be 0 (N), 1 (E), 2 (S), 3 (W) or None, got {heading!r}")
+    if start is not None:
+        start = graph.check_node(start, "start")
+
+    if goal is None:
+        goal = next((r.goal for e in evaluations for r in e.report.routes), None)
+        if goal is None:
+            raise ValueError("no routes in the evaluations: pass goal=... (a landmark name)")
+    if goal not in graph.landmarks:
+        raise ValueError(f"goal {goal!r} is not a landmark of the map ({sorted(graph.landmarks)})")
+    goal_node = graph.landmarks[goal]
+    if start is not None and start == goal_node:
+        raise ValueError(f"start {start} is the goal {goal!r}: there is no route to draw")
+
+    # The start (and heading) is chosen once, on the routes learned before the first closure, and kept for all panels
+    if start is None or heading is None:
+        first = recoveries[0].closure
+        learned = _before(evaluations, first)
+        candidates = [
+            r
+            for r in (learned.report.routes if learned else [])
+            if r.goal == goal and (start is None or r.start == start)
+        ]
+        if candidates:
+            chosen = _pick_route(candidates, set(first.closed))
+            start = chosen.start if start is None else start
+            heading = chosen.heading if heading is None else heading
+        else:
+            if start is None:
+                hops = NavigationGraph(graph).hops_to(goal_node)
+                start = int(np.argmax(hops))
+            heading = 0 if heading is None else heading
+    assert start is not None and heading is not None
+
+    panels = []
+    closed: set[Road] = set()
+    for number, recovery in enumerate(recoveries, start=1):
+        closure = recovery.closure
+        closed |= {road_key(u, v) for u, v in closure.closed}
+        closed -= {road_key(u, v) for u, v in closure.reopened}
+        before = _route_from(_before(evaluations, closure), goal, start, heading)
+        end = recovery.recovered_at if recovery.recovered_at is not None else recovery.last
+        after = _route_from(end, goal, start, heading)
+        # Both always in the legend, so that every panel has the same colours; drawn in this order, the route after
+        # the closure ends on top where both share a road
+        after_name = "re-routed" if recovery.recovered else "at end of window"
+        routes = {
+            "learned route (before)" if before else "learned route: none": list(before.nodes) if before else [],
+            after_name if after else f"{after_name}: none": list(after.nodes) if after else [],
+        }
+        navigation = NavigationGraph(graph, sorted(closed))
+        image = draw_map(
+            navigation, size=size, agent=start, heading=heading, goal=goal_node, routes=routes, labels=labels
+        )
+        shortest = navigation.hops_to(goal_node)[start]
+        detail = (
+            f"from node {start} facing {COMPASS_LETTERS[heading]} to {goal}: before {_route_steps(before)}, "
+            f"after {_route_steps(after)} (shortest now {shortest if shortest >= 0 else '-'})"
+        )
+        header = _header(
+            image.shape[1],
+            [(panel_title(number, recovery), RECOVERED_RGB if recovery.recovered else CLOSED_RGB), (detail, TEXT_RGB)],
+            scale=max(0.4, size / 1200),
+        )
+        panels.append(np.concatenate([header, image]))
+    return _tile(panels, int(columns), gap=max(8, size // 40))
+
+
+def _tile(panels: Sequence[np.ndarray], columns: int, gap: int) -> np.ndarray:
+    """Panels (same width, heights may differ) in rows of ``columns``, each framed, on a white page."""
+    columns = min(columns, len(panels))
+    rows = math.ceil(len(panels) / columns)
+    width = max(p.shape[1] for p in panels)
+    height = max(p.shape[0] for p in panels)
+    page = np.full((rows * (height + gap) + gap, columns * (width + gap) + gap, 3), PAGE_RGB, dtype=np.uint8)
+    for k, panel in enumerate(panels):
+        y, x = gap + (k // columns) * (height + gap), gap + (k % columns) * (width + gap)
+        page[y : y + panel.shape[0], x : x + panel.shape[1]] = panel
+        cv2.rectangle(page, (x - 1, y - 1), (x + panel.shape[1], y + panel.shape[0]), BORDER_RGB, 1)
+    return page
+
+
+# ------------------------------------------------------------------------------------------------ training curves
+def _moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing mean over the last ``window`` values (fewer at the start, so the curve starts at the first point)."""
+    sums = np.cumsum(np.concatenate([[0.0], values]))
+    ends = np.arange(1, values.size + 1)
+    starts = np.maximum(0, ends - window)
+    return (sums[ends] - sums[starts]) / (ends - starts)
+
+
+def _episode_array(values: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float64)
+    if array.ndim != 1:
+        raise ValueError(f"{name} must be one value per episode (1-D), got shape {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name} must be finite")
+    return array
+
+
+def training_curves(
+    episode_rewards: Sequence[float] | np.ndarray,
+    episode_lengths: Sequence[float] | np.ndarray,
+    closures: Sequence[ClosureRecord | Recovery] = (),
+    evaluations: Sequence[RouteEvaluation] = (),
+    *,
+    window: int = 50,
+    size: tuple[int, int] | None = None,
+    title: str | None = None,
+) -> np.ndarray:
+    """
+    Episode reward and length against training episodes, with the closures marked (the paper's Fig. 8).
+
+    Each curve is a trailing moving average over ``window`` episodes drawn over the raw values (faint). Every closure
+    that changed the network is a red vertical line at its episode, numbered as in :func:`closure_route_panels` and
+    labelled with its roads; events that changed nothing (refused) are grey dotted lines. Given recoveries, the
+    episodes from each closure to its recovery are shaded. Given evaluations, a third panel shows their success rate
+    and SPL against episodes.
+
+    Episode numbers are those of the callbacks (training episodes since the closure callback started); they match a
+    ``Monitor``'s episodes when both count from the same start of training.
+
+    :param episode_rewards: Return of every training episode, in order (``Monitor.get_episode_rewards()``)
+    :param episode_lengths: Steps of every training episode (``Monitor.get_episode_lengths()``)
+    :param closures: ``RoadClosureCallback.records`` or ``.recoveries`` (the latter also shade the recovery)
+    :param evaluations: ``RouteEvaluationCallback.evaluations``
+    :param window: Episodes in the moving average
+    :param size: ``(width, height)`` in pixels (default: 1100 wide, 560 high, 780 with evaluations)
+    :param title: Title above the panels
+    :return: ``(H, W, 3)`` uint8 RGB image of exactly ``size``
+    :raises ValueError: rewards and lengths of different lengths, non-finite values, a bad window or size
+    """
+    # Imported here: matplotlib is only needed for this figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rewards = _episode_array(episode_rewards, "episode_rewards")
+    lengths = _episode_array(episode_lengths, "episode_lengths")
+    if rewards.size != lengths.size:
+        raise ValueError(
+            f"episode_rewards and episode_lengths must have one value per episode each, got {rewards.size} "
+            f"rewards and {lengths.size} lengths"
+        )
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
+        raise ValueError(f"window must be a positive int, got {window!r}")
+    evaluations = list(evaluations)
+    if size is None:
+        size = (1100, 780 if evaluations else 560)
+    if (
+        len(size) != 2
+        or any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) for s in size)
+        or min(size) < 200
+    ):
+        raise ValueError(f"size must be (width, height) in whole pixels, each at least 200, got {size!r}")
+    width, height = int(size[0]), int(size[1])
+
+    dpi = 100
+    figure = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, layout="constrained")
+    canvas = FigureCanvasAgg(figure)
+    n_panels = 3 if evaluations else 2
+    axes = figure.subplots(n_panels, 1, sharex=True)
+    episodes = np.arange(1, rewards.size + 1)
+    for ax, values, label, colour in (
+        (axes[0], rewards, "episode reward", "tab:blue"),
+        (axes[1], lengths, "episode length (steps)", "tab:orange"),
+    ):
+        if values.size:
+            # Raw points faint and small: thousands of episodes would otherwise hide the trend
+            ax.scatter(episodes, values, s=3, color=colour, alpha=0.18, linewidths=0, rasterized=True)
+            ax.plot(episodes, _moving_average(values, int(window)), color=colour, lw=1.6, label=f"mean of {window}")
+            ax.legend(loc="lower right" if ax is axes[0] else "upper right", fontsize=8, framealpha=0.85)
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+
+    if evaluations:
+        ax = axes[2]
+        at = [e.episode for e in evaluations]
+        ax.plot(at, [e.success_rate for e in evaluations], "o-", color="tab:green", ms=3, lw=1.2, label="success rate")
+        ax.plot(at, [e.spl for e in evaluations], "s--", color="tab:purple", ms=3, lw=1.2, label="SPL")
+        ax.set_ylim(-0.03, 1.05)
+        ax.set_ylabel("route evaluation")
+        ax.legend(loc="lower right", fontsize=8, framealpha=0.85)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("training episode")
+    last = max([rewards.size, *(e.episode for e in evaluations), 1])
+
+    number = 0
+    key: list[str] = []  # one line per numbered closure, shown beside the panels
+    shades: dict[bool, bool] = {}
+    for item in closures:
+        recovery = item if isinstance(item, Recovery) else None
+        closure = item.closure if isinstance(item, Recovery) else item
+        if not isinstance(closure, ClosureRecord):
+            raise TypeError(f"closures must be ClosureRecord or Recovery objects, got {type(item).__name__}")
+        last = max(last, closure.episode)
+        if not closure.changed:
+            for ax in axes:
+                ax.axvline(closure.episode, color="0.55", ls=":", lw=1.0)
+            continue
+        number += 1
+        for ax in axes:
+            ax.axvline(closure.episode, color="tab:red", ls="--", lw=1.1, alpha=0.9)
+        text = f"{number}: {_change_text(closure)}"
+        if recovery is not None:
+            end = recovery.recovered_at if recovery.recovered_at is not None else recovery.last
+            if end is not None and end.episode > closure.episode:
+                for ax in axes:
+                    ax.axvspan(closure.episode, end.episode, color=_SHADE[recovery.recovered], alpha=0.1, lw=0)
+                shades[recovery.recovered] = True
+            text += ", " + (f"back after {round(recovery.episodes)} ep." if recovery.recovered else "not recovered")
+        key.append(text)
+        # The number above the top panel, where it covers no data; the key says what it was
+        axes[0].annotate(
+            str(number),
+            xy=(closure.episode, 1.0),
+            xycoords=("data", "axes fraction"),
+            xytext=(0, 3),
+            textcoords="offset points",
+            ha="center",
+            va="bottom",
+            fontsize=8,
+            color="white",
+            bbox={"boxstyle": "round,pad=0.25", "fc": "tab:red", "ec": "none"},
+        )
+    if key or shades:
+        from matplotlib.lines import Line2D
+        from matplotlib.patches import Patch
+
+        handles: list[Line2D | Patch] = [Line2D([], [], color="tab:red", ls="--", lw=1.1)]
+        names = ["closures"]
+        handles += [Line2D([], [], lw=0) for _ in key]
+        names += key
+        for recovered, label in ((True, "until recovered"), (False, "not recovered")):
+            if recovered in shades:
+                handles.append(Patch(color=_SHADE[recovered], alpha=0.2, lw=0))
+                names.append(label)
+        figure.legend(
+            handles, names, loc="outside right upper", fontsize=8, handlelength=1.6, frameon=False, borderaxespad=0.2
+        )
+    axes[-1].set_xlim(0, last * 1.01 + 1)
+    if title:
+        figure.suptitle(title, fontsize=11)
+
+    canvas.draw()
+    image = np.asarray(canvas.buffer_rgba())[..., :3].copy()
+    if image.shape[:2] != (height, width):  # rounding of the figure size: pad or crop to the size asked for
+        out = np.full((height, width, 3), 255, dtype=np.uint8)
+        h, w = min(height, image.shape[0]), min(width, image.shape[1])
+        out[:h, :w] = image[:h, :w]
+        image = out
+    return image
+
+
+# ------------------------------------------------------------------------------------------------ output
+def write_figure(path: str | Path, image: np.ndarray) -> Path:
+    """
+    Write an RGB figure as a PNG, atomically (the folder is created if needed).
+
+    :param path: Where to write it
+    :param image: ``(H, W, 3)`` uint8 RGB image
+    :return: the path written
+    :raises ValueError: if the image is not RGB uint8
+    """
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"a figure is an (H, W, 3) uint8 RGB image, got {image.dtype} of shape {image.shape}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_png(path, np.ascontiguousarray(image))

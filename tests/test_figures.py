@@ -1,0 +1,199 @@
+"""Figures of the dynamic-routing experiments: route panels per closure and training curves."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from campusnav_env import generate_campus
+from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.maps.road_graph import RoadGraph
+from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation, measure_recoveries
+from campusnav_env.rendering.figures import closure_route_panels, panel_title, training_curves, write_figure
+from campusnav_env.rendering.map_view import CLOSED_RGB, ROUTE_COLOURS
+from campusnav_env.route_evaluation import Route, RouteReport
+
+GOAL = "Dreese Lab"
+Road = tuple[int, int]
+
+
+@pytest.fixture(scope="module")
+def campus() -> RoadGraph:
+    # 16 intersections: from node 0 the shortest way to Dreese Lab (13) runs 0-3-4-5-9-8-13; closing 5-9 sends it
+    # round the one loop of the map, 5-6-7-10-9
+    return generate_campus(16, seed=1)
+
+
+def _share(image: np.ndarray, rgb: tuple[int, int, int], tol: int = 6) -> float:
+    return float(np.mean(np.abs(image.astype(int) - np.asarray(rgb)).max(axis=-1) <= tol))
+
+
+def _evaluation(graph: RoadGraph, closed: Sequence[Road], episode: int, failing: Sequence[int] = ()) -> RouteEvaluation:
+    """Routes along the shortest paths over open roads from every node (heading 0); ``failing`` starts loop."""
+    navigation = NavigationGraph(graph, closed)
+    goal = graph.landmarks[GOAL]
+    routes = []
+    for start in range(graph.n_nodes):
+        path = navigation.shortest_path(start, goal)
+        if start == goal or not path:
+            continue
+        shortest = len(path) - 1
+        if start in failing:  # out and back again: a loop, stopped as failed
+            routes.append(Route(GOAL, start, 0, False, 200, shortest, (*path[:3], *path[1:2])))
+        else:
+            routes.append(Route(GOAL, start, 0, True, shortest, shortest, tuple(path)))
+    return RouteEvaluation(step=10 * episode, episode=episode, train_seconds=episode / 10, report=RouteReport(routes))
+
+
+def _closure(episode: int, index: int, closed: Sequence[Road] = (), reopened: Sequence[Road] = ()) -> ClosureRecord:
+    return ClosureRecord(
+        description=f"episode {episode}: change",
+        step=10 * episode,
+        episode=episode,
+        train_seconds=episode / 10,
+        closed=tuple(closed),
+        reopened=tuple(reopened),
+        refused=(),
+        evaluation_index=index,
+    )
+
+
+def _timeline(graph: RoadGraph, recover_second: bool = True) -> tuple[list[RouteEvaluation], list[ClosureRecord]]:
+    """Close 5-9 (recovered), reopen it (recovered unless told), close 9-10 (recovered)."""
+    evaluations = [_evaluation(graph, [], 100)]
+    closures = [_closure(100, 1, closed=[(5, 9)])]
+    evaluations += [_evaluation(graph, [(5, 9)], 100, failing=[0]), _evaluation(graph, [(5, 9)], 135)]
+    closures.append(_closure(200, 3, reopened=[(5, 9)]))
+    evaluations.append(_evaluation(graph, [], 200, failing=[0]))
+    evaluations.append(_evaluation(graph, [], 230, failing=[] if recover_second else [0]))
+    closures.append(_closure(300, 5, closed=[(9, 10)]))
+    evaluations += [_evaluation(graph, [(9, 10)], 300), _evaluation(graph, [(9, 10)], 320)]
+    return evaluations, closures
+
+
+def test_one_panel_per_closure_with_both_routes_closures_start_and_goal(campus: RoadGraph) -> None:
+    evaluations, closures = _timeline(campus)
+    recoveries = measure_recoveries(closures, evaluations)
+    assert len(recoveries) == 3 and all(r.recovered for r in recoveries)
+    one = closure_route_panels(campus, evaluations, recoveries[:1], size=300)
+    two = closure_route_panels(campus, evaluations, recoveries[:2], size=300)
+    three = closure_route_panels(campus, evaluations, recoveries, size=300, columns=2)
+    for image in (one, two, three):
+        assert image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
+    # Side by side up to `columns` panels, then a new row
+    assert two.shape[0] == one.shape[0] and two.shape[1] > 1.8 * one.shape[1]
+    assert three.shape[1] == two.shape[1] and three.shape[0] > 1.8 * one.shape[0]
+    # The learned route and the re-routed one in the first two route colours, the closed road in red
+    for colour in (*ROUTE_COLOURS[:2], CLOSED_RGB):
+        assert _share(one, colour) > 0.001
+    # The start is the one whose learned route used the closed road (the longest such: node 0), heading 0
+    explicit = closure_route_panels(campus, evaluations, recoveries[:1], start=0, heading=0, size=300)
+    np.testing.assert_array_equal(one, explicit)
+    other = closure_route_panels(campus, evaluations, recoveries[:1], start=12, size=300)
+    assert not np.array_equal(one, other)
+
+
+def test_closed_roads_accumulate_and_reopened_ones_are_no_longer_red(campus: RoadGraph) -> None:
+    evaluations, closures = _timeline(campus)
+    close, reopen, _ = measure_recoveries(closures, evaluations)
+    image = closure_route_panels(campus, evaluations, [close, reopen], size=300, columns=1)
+    middle = image.shape[0] // 2  # two panels stacked
+    assert _share(image[:middle], CLOSED_RGB) > 0.001
+    assert _share(image[middle:], CLOSED_RGB) == 0.0  # 5-9 reopened: no road closed in the second panel
+
+
+def test_a_closure_never_recovered_from_says_so(campus: RoadGraph) -> None:
+    evaluations, closures = _timeline(campus, recover_second=False)
+    first, second, _ = measure_recoveries(closures, evaluations)
+    assert not second.recovered
+    assert panel_title(1, first) == "closure 1: road 5-9 closed; recovered after 35 episodes / 3.5 s"
+    assert panel_title(2, second) == "closure 2: road 5-9 reopened; not recovered"
+    # The panel shows the route at the end of the window (a failed one) and says so in red
+    recovered = closure_route_panels(campus, *_recovered_timeline(campus), size=300)
+    stuck = closure_route_panels(campus, evaluations, [first, second], size=300)
+    assert recovered.shape == stuck.shape and not np.array_equal(recovered, stuck)
+    header = stuck[: stuck.shape[0] // 8, stuck.shape[1] // 2 :]  # the second panel's title
+    assert _share(header, CLOSED_RGB, tol=40) > 0.0005
+
+
+def _recovered_timeline(campus: RoadGraph) -> tuple[list[RouteEvaluation], list[Recovery]]:
+    evaluations, closures = _timeline(campus)
+    return evaluations, measure_recoveries(closures, evaluations)[:2]
+
+
+def test_without_evaluations_before_the_closure_the_farthest_start_is_taken(campus: RoadGraph) -> None:
+    closure = _closure(0, 0, closed=[(5, 9)])
+    evaluations = [_evaluation(campus, [(5, 9)], 20)]
+    recoveries = measure_recoveries([closure], evaluations)
+    image = closure_route_panels(campus, evaluations, recoveries, size=300)
+    farthest = int(np.argmax(NavigationGraph(campus).hops_to(campus.landmarks[GOAL])))
+    np.testing.assert_array_equal(
+        image, closure_route_panels(campus, evaluations, recoveries, start=farthest, heading=0, size=300)
+    )
+    assert _share(image, ROUTE_COLOURS[1]) > 0.001  # only the route after the closure exists
+
+
+def test_route_panels_reject_bad_input(campus: RoadGraph) -> None:
+    evaluations, recoveries = _recovered_timeline(campus)
+    with pytest.raises(ValueError, match=r"start 99 out of range \[0, 16\)"):
+        closure_route_panels(campus, evaluations, recoveries, start=99)
+    with pytest.raises(ValueError, match="is the goal"):
+        closure_route_panels(campus, evaluations, recoveries, start=campus.landmarks[GOAL])
+    with pytest.raises(ValueError, match="heading"):
+        closure_route_panels(campus, evaluations, recoveries, heading=4)
+    with pytest.raises(ValueError, match="at least one recovery"):
+        closure_route_panels(campus, evaluations, [])
+    with pytest.raises(ValueError, match="not a landmark"):
+        closure_route_panels(campus, evaluations, recoveries, goal="Moon base")
+    with pytest.raises(ValueError, match="columns"):
+        closure_route_panels(campus, evaluations, recoveries, columns=0)
+    with pytest.raises(TypeError, match="RoadGraph"):
+        closure_route_panels("map", evaluations, recoveries)  # type: ignore[arg-type]
+
+
+def _episodes(n: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    lengths = np.round(8 + 60 * np.exp(-np.arange(n) / 80) + rng.gamma(2.0, 4.0, n))
+    return 1.0 - 0.01 * lengths, lengths
+
+
+def test_training_curves_mark_the_closures(campus: RoadGraph) -> None:
+    rewards, lengths = _episodes()
+    evaluations, closures = _timeline(campus)
+    plain = training_curves(rewards, lengths, size=(600, 400))
+    assert plain.dtype == np.uint8 and plain.shape == (400, 600, 3)
+    marked = training_curves(rewards, lengths, closures, size=(600, 400))
+    assert marked.shape == plain.shape and not np.array_equal(plain, marked)
+    tab_red = (214, 39, 40)  # the closure lines and their numbers
+    assert _share(marked, tab_red, tol=30) > _share(plain, tab_red, tol=30) + 0.001
+    with_evaluations = training_curves(rewards, lengths, measure_recoveries(closures, evaluations), evaluations)
+    assert with_evaluations.shape == (780, 1100, 3)  # the default size with an evaluation panel
+
+
+def test_training_curves_reject_bad_input() -> None:
+    rewards, lengths = _episodes(50)
+    with pytest.raises(ValueError, match="one value per episode each, got 50 rewards and 49 lengths"):
+        training_curves(rewards, lengths[:-1])
+    with pytest.raises(ValueError, match="finite"):
+        training_curves(np.r_[rewards[:-1], np.nan], lengths)
+    with pytest.raises(ValueError, match="window"):
+        training_curves(rewards, lengths, window=0)
+    with pytest.raises(ValueError, match="size"):
+        training_curves(rewards, lengths, size=(50, 50))
+    with pytest.raises(TypeError, match="ClosureRecord or Recovery"):
+        training_curves(rewards, lengths, closures=["episode 10: close 1-2"])  # type: ignore[list-item]
+
+
+def test_write_figure_writes_a_png_atomically(tmp_path: Path) -> None:
+    image = np.zeros((20, 30, 3), dtype=np.uint8)
+    image[:, :10] = (255, 0, 0)
+    path = write_figure(tmp_path / "figures" / "panels.png", image)
+    assert path == tmp_path / "figures" / "panels.png"
+    np.testing.assert_array_equal(cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB), image)
+    assert [p.name for p in path.parent.iterdir()] == ["panels.png"]  # no temporary file left
+    with pytest.raises(ValueError, match="uint8 RGB"):
+        write_figure(tmp_path / "bad.png", image.astype(np.float32))
