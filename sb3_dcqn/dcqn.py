@@ -15,12 +15,35 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import LinearSchedule, get_parameters_by_name, polyak_update
 from torch.nn import functional as F
 
+from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
 from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
 
 SelfDCQN = TypeVar("SelfDCQN", bound="DCQN")
 
 # Order of the per-step statistics gathered in ``train`` (kept as one tensor to avoid a sync per value)
 _STAT_NAMES = ("loss", "q_mean", "q_abs_diff", "target_q_mean")
+
+
+_BOOST_TRIGGERS = ("revision", "episode_length", "td_error")
+_BOOST_DEFAULTS = {"exploration": 0.3, "replay_ratio": 4, "steps": 2000, "factor": 2.0}
+
+
+def _check_boost(boost: dict[str, Any] | None, experience_revision: bool) -> dict[str, Any] | None:
+    """Fill in the defaults of an ``adaptation_boost`` and check it, naming the key that is wrong."""
+    if boost is None:
+        return None
+    unknown = set(boost) - {"trigger", *_BOOST_DEFAULTS}
+    if unknown:
+        allowed = ", ".join(["trigger", *_BOOST_DEFAULTS])
+        raise ValueError(f"adaptation_boost: unknown key(s) {sorted(unknown)}; allowed: {allowed}")
+    config = {**_BOOST_DEFAULTS, **boost}
+    if config.get("trigger") not in _BOOST_TRIGGERS:
+        raise ValueError(f"adaptation_boost['trigger'] must be one of {_BOOST_TRIGGERS}, got {config.get('trigger')!r}")
+    if config["trigger"] == "revision" and not experience_revision:
+        raise ValueError("adaptation_boost with trigger 'revision' needs experience_revision=True")
+    if not 0.0 <= config["exploration"] <= 1.0 or config["replay_ratio"] < 1 or config["steps"] < 1:
+        raise ValueError(f"adaptation_boost: need 0 <= exploration <= 1, replay_ratio >= 1, steps >= 1; got {config}")
+    return config
 
 
 def dcqn_td_target(
@@ -86,6 +109,16 @@ class DCQN(OffPolicyAlgorithm):
     :param exploration_initial_eps: initial value of random action probability
     :param exploration_final_eps: final value of random action probability
     :param max_grad_norm: The maximum value for the gradient clipping
+    :param experience_revision: Relabel stored transitions that the agent's new experience contradicts (a collision
+        where a stored transition of the same observation and action drove on: a closed road), see
+        :mod:`sb3_dcqn.buffers`. Off by default: the paper's agent keeps its stale experience
+    :param prioritized_replay: Replay transitions in proportion to their TD error, importance-weighted (Schaul et al.
+        2016); ``beta`` is annealed to 1 over training. Off by default
+    :param adaptation_boost: Temporarily raise exploration and the replay ratio when the world seems to have changed:
+        ``dict(trigger=..., exploration=0.3, replay_ratio=4, steps=2000)``, ``trigger`` one of ``"revision"`` (the
+        buffer revised contradicted experience; needs ``experience_revision``), ``"episode_length"`` (the mean length
+        of the last 5 episodes exceeds ``factor`` (default 2) times that of the last 100) or ``"td_error"`` (a
+        training loss above ``factor`` times its running mean). ``None`` (default): no boost
     :param stats_window_size: Window size for the rollout logging, specifying the number of episodes to average
         the reported success rate, mean episode length, and mean reward over
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
@@ -131,6 +164,9 @@ class DCQN(OffPolicyAlgorithm):
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.05,
         max_grad_norm: float = 10,
+        experience_revision: bool = False,
+        prioritized_replay: bool = False,
+        adaptation_boost: dict[str, Any] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -175,12 +211,21 @@ class DCQN(OffPolicyAlgorithm):
         self.max_grad_norm = max_grad_norm
         # "epsilon" for the epsilon-greedy exploration
         self.exploration_rate = 0.0
+        self.experience_revision = experience_revision
+        self.prioritized_replay = prioritized_replay
+        self.adaptation_boost = _check_boost(adaptation_boost, experience_revision)
+        self._boost_until = 0  # boosted while num_timesteps < _boost_until
+        self._revised_seen = 0
+        self._loss_average: float | None = None
 
         if _init_setup_model:
             self._setup_model()
 
     def _setup_model(self) -> None:
+        if self.experience_revision or self.prioritized_replay:
+            self._select_readaptation_buffer()
         super()._setup_model()
+        self._beta0 = getattr(self.replay_buffer, "beta", 1.0)
         self._create_aliases()
         # Copy running stats, see SB3 GH issue #996
         self.batch_norm_stats = get_parameters_by_name(self.q_net, ["running_"])
@@ -197,6 +242,47 @@ class DCQN(OffPolicyAlgorithm):
                 "therefore the target critics will be updated after each call to env.step() "
                 f"which corresponds to {self.n_envs} steps."
             )
+
+    def _select_readaptation_buffer(self) -> None:
+        """Use DCQN's replay buffer (revision, priorities) matching the observation space, configured by the flags."""
+        if self.n_steps > 1:
+            raise ValueError("experience_revision and prioritized_replay do not support n-step returns (n_steps > 1)")
+        if self.replay_buffer_class is None:
+            is_dict = isinstance(self.observation_space, spaces.Dict)
+            self.replay_buffer_class = DCQNDictReplayBuffer if is_dict else DCQNReplayBuffer
+        elif not issubclass(self.replay_buffer_class, (DCQNReplayBuffer, DCQNDictReplayBuffer)):
+            raise ValueError(
+                "experience_revision and prioritized_replay need DCQNReplayBuffer or DCQNDictReplayBuffer, got "
+                f"replay_buffer_class={self.replay_buffer_class.__name__}"
+            )
+        self.replay_buffer_kwargs = {
+            **self.replay_buffer_kwargs,
+            "revise_experience": self.experience_revision,
+            "prioritized": self.prioritized_replay,
+        }
+
+    @property
+    def boosted(self) -> bool:
+        """Whether the adaptation boost (more exploration, more gradient steps) is on now."""
+        return self.num_timesteps < self._boost_until
+
+    def _check_boost_triggers(self) -> None:
+        boost = self.adaptation_boost
+        if boost is None:
+            return
+        triggered = False
+        if boost["trigger"] == "revision":
+            revised = getattr(self.replay_buffer, "revised", 0)
+            triggered, self._revised_seen = revised > self._revised_seen, revised
+        elif boost["trigger"] == "episode_length" and len(self.ep_info_buffer) >= 20:
+            lengths = [info["l"] for info in self.ep_info_buffer]
+            triggered = np.mean(lengths[-5:]) > boost["factor"] * np.mean(lengths)
+        if triggered:
+            self._start_boost()
+
+    def _start_boost(self) -> None:
+        assert self.adaptation_boost is not None
+        self._boost_until = self.num_timesteps + int(self.adaptation_boost["steps"])
 
     def _create_aliases(self) -> None:
         self.q_net = self.policy.q_net
@@ -215,7 +301,10 @@ class DCQN(OffPolicyAlgorithm):
             polyak_update(self.q_net.parameters(), self.q_net_target.parameters(), self.tau)
             polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
 
+        self._check_boost_triggers()
         self.exploration_rate = self.exploration_schedule(self._current_progress_remaining)
+        if self.boosted:
+            self.exploration_rate = max(self.exploration_rate, self.adaptation_boost["exploration"])  # type: ignore
         self.logger.record("rollout/exploration_rate", self.exploration_rate)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
@@ -224,6 +313,12 @@ class DCQN(OffPolicyAlgorithm):
         self._update_learning_rate(self.policy.optimizer)
 
         n_critics = self.q_net.n_critics
+        if self.boosted:
+            gradient_steps *= int(self.adaptation_boost["replay_ratio"])  # type: ignore[index]
+        if self.prioritized_replay:
+            # Importance correction annealed to full (beta = 1) by the end of training (Schaul et al. 2016)
+            elapsed = 1.0 - self._current_progress_remaining
+            self.replay_buffer.beta = self._beta0 + (1.0 - self._beta0) * elapsed  # type: ignore[union-attr]
         step_stats: list[th.Tensor] = []
         for _ in range(gradient_steps):
             replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
@@ -240,9 +335,15 @@ class DCQN(OffPolicyAlgorithm):
             current_q_values = th.gather(current_q_values, dim=2, index=action_index)
 
             # Huber loss of each critic against the shared target, summed over critics
-            critic_losses = F.smooth_l1_loss(
+            per_sample = F.smooth_l1_loss(
                 current_q_values, target_q_values.unsqueeze(0).expand_as(current_q_values), reduction="none"
-            ).mean(dim=(1, 2))
+            )
+            if self.prioritized_replay:
+                per_sample = per_sample * replay_data.weights.unsqueeze(0)  # importance weights, (1, batch, 1)
+                td_errors = (current_q_values.detach() - target_q_values.unsqueeze(0)).abs().mean(dim=0)
+                buffer = self.replay_buffer
+                buffer.update_priorities(replay_data.indices, td_errors.cpu().numpy())  # type: ignore[union-attr]
+            critic_losses = per_sample.mean(dim=(1, 2))
             loss = critic_losses.sum()
 
             self.policy.optimizer.zero_grad()
@@ -271,6 +372,20 @@ class DCQN(OffPolicyAlgorithm):
             self.logger.record(f"train/{name}", float(value))
         for critic, value in enumerate(means[len(_STAT_NAMES) :], start=1):
             self.logger.record(f"train/critic_{critic}_loss", float(value))
+        if self.experience_revision:
+            self.logger.record("train/revised_transitions", self.replay_buffer.revised)  # type: ignore[union-attr]
+        if self.adaptation_boost is not None:
+            self.logger.record("train/boosted", float(self.boosted))
+            self._watch_loss(float(means[0]))
+
+    def _watch_loss(self, loss: float) -> None:
+        """The ``td_error`` trigger: a loss well above its running mean means the world stopped matching the critics."""
+        assert self.adaptation_boost is not None
+        if self.adaptation_boost["trigger"] != "td_error":
+            return
+        if self._loss_average is not None and loss > self.adaptation_boost["factor"] * self._loss_average:
+            self._start_boost()
+        self._loss_average = loss if self._loss_average is None else 0.99 * self._loss_average + 0.01 * loss
 
     def predict(
         self,
