@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -12,13 +13,13 @@ from gymnasium import spaces
 
 from campusnav_env.features.encoders import ViewEncoder, make_encoder
 from campusnav_env.features.feature_cache import cached_view_features
-from campusnav_env.features.projection import pca_project
+from campusnav_env.features.projection import ViewProjection
 from campusnav_env.maps.campus import default_campus
 from campusnav_env.maps.compass import ACTION_NAMES, COMPASS
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.map_view import draw_map
-from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
+from campusnav_env.rendering.street_view import BARRIER_VERSION, RenderSettings, StreetViewRenderer
 from campusnav_env.rendering.world import WORLD_VERSION, build_world
 
 OBSERVATION_MODES = ("features", "image")
@@ -65,6 +66,17 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     views ordered front, right, back, left (this order carries the heading), bottom row the goal views N, E, S, W;
     each view ``h x w = 48 x 64``.
 
+    Closures are invisible by default: the views are those of the open map, so the agent learns of a closed road
+    only by bumping into it. With ``visible_closures=True`` a closed road shows a construction barrier (striped
+    boards, "ROAD CLOSED" sign, cones) a few metres into the road at both ends, straight ahead in the view of the
+    road's slot at either end intersection: :meth:`close_road` and :meth:`reopen_road` re-render and re-encode the
+    four views of the road's two end nodes (with the barriers of every closed road at that node), in both observation
+    modes and for the goal views too. The new features go through the standardisation and projection fit on the open
+    map (never refit), and reopening restores the open map's features exactly. Re-encodings are cached in memory and
+    on disk (``cache_dir``), so closing a road again costs nothing; the first time costs rendering and encoding eight
+    views. The ``"views"``/``"goal_views"`` boxes then span the float32 range, since new views may fall outside the
+    open map's range.
+
     ## Rewards
     ``goal_reward`` (+1.0) on reaching the goal; ``collision_penalty`` (-0.01) for an action with no open road that
     way (the agent stays where it is); ``step_penalty`` (-0.005) for every other move.
@@ -102,6 +114,9 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     - ``max_steps``, ``goal_reward``, ``step_penalty``, ``collision_penalty``: episode limit and rewards.
     - ``normalize_features``, ``view_dim``: standardise the features; project each view to ``view_dim`` dimensions.
     - ``cache_dir``: where view features are cached (default ``$CAMPUSNAV_CACHE`` or ``~/.cache/campusnav``).
+    - ``visible_closures``: draw a barrier on closed roads in the views of their end nodes (see Observation Space);
+      the env then keeps its encoder and (built on first need) its 3D world and renderer. Closures of a
+      ``NavigationGraph`` passed as ``world`` are shown from the start. Not available for scene files.
     - ``render_mode``: ``"rgb_array"`` for :meth:`render`, a map of roads, closures, agent, goal and route so far.
     """
 
@@ -125,14 +140,29 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         cache_dir: str | Path | None = None,
         progress: bool = True,
         render_mode: str | None = None,
+        visible_closures: bool = False,
     ) -> None:
         graph = _resolve_world(world)
         _check_observation_mode(observation_mode)
-        node_views = _node_views(
+        source = _ViewSource(
             graph.map, observation_mode, encoder, encoder_kwargs, render_settings, world_seed, cache_dir, progress
         )
-        self._init_core(graph, goals, observation_mode, node_views, normalize_features, view_dim, render_mode)
+        node_views = source.open_views()
+        self._init_core(
+            graph,
+            goals,
+            observation_mode,
+            node_views,
+            normalize_features,
+            view_dim,
+            render_mode,
+            unbounded=visible_closures,
+        )
         self._set_rewards(max_steps, goal_reward, step_penalty, collision_penalty)
+        if visible_closures:
+            self._view_source = source
+            self._node_views = self._node_views.copy()  # rows are swapped in as roads close and reopen
+            self._show_closures()  # those of a NavigationGraph passed in
 
     @classmethod
     def from_scene_file(
@@ -148,14 +178,22 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         normalize_features: bool = True,
         view_dim: int | None = None,
         render_mode: str | None = None,
+        visible_closures: bool = False,
     ) -> CampusNavEnv:
         """
         An environment over a scene file in Zhu et al.'s HDF5 format (see :mod:`campusnav_env.maps.scene_file`).
 
         :param path: The ``.h5`` file
         :param goals: Goal locations: node ids (location indices) or names given in the file
+        :param visible_closures: Must be False: a scene file's views are fixed, there is nothing to draw a barrier in
         :return: the environment; other arguments as in the constructor
+        :raises ValueError: if ``visible_closures`` is True
         """
+        if visible_closures:
+            raise ValueError(
+                "visible_closures needs a renderer, and a scene file brings fixed views and no 3D scene: "
+                "closures in scene-file envs are invisible (build the env from a RoadGraph to see them)"
+            )
         from campusnav_env.maps.scene_file import load_scene_file
 
         scene = load_scene_file(path)
@@ -179,6 +217,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         normalize_features: bool,
         view_dim: int | None,
         render_mode: str | None,
+        *,
+        unbounded: bool = False,
     ) -> None:
         _check_observation_mode(observation_mode)
         if view_dim is not None and observation_mode != "features":
@@ -191,16 +231,21 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         self.goal_names, self.goal_nodes = _resolve_goals(graph.map, goals)
         self.action_space = spaces.Discrete(len(ACTION_NAMES))
 
+        # Fit once on the open map's views; views re-rendered later (visible closures) get the same transform
+        self._features = _FeatureTransform.fit(node_views, observation_mode, normalize_features, view_dim)
+        self._node_views = self._features.transform(node_views)
+        self._open_views = self._node_views
+        self._view_source: _ViewSource | None = None
+        self._closure_views: dict[tuple[int, frozenset[tuple[int, int]]], np.ndarray] = {}
+        # The closures the views show, and the graph version they were read at (None: not yet, so that closures of a
+        # NavigationGraph passed in are shown too)
+        self._shown_closures: frozenset[tuple[int, int]] = frozenset()
+        self._shown_version: int | None = None
         if observation_mode == "features":
-            views = node_views.astype(np.float32)
-            if normalize_features:
-                flat = views.reshape(-1, views.shape[-1])
-                views = (views - flat.mean(axis=0)) / (flat.std(axis=0) + 1e-6)
-            if view_dim is not None:
-                views = pca_project(views, view_dim)
-            # Flat (4 * D,) vectors, N, E, S, W blocks of D: SB3's extractors expect 1-D vectors
-            self._node_views = views.reshape(views.shape[0], -1).astype(np.float32)
-            low, high = float(self._node_views.min()), float(self._node_views.max())
+            if unbounded:  # the float32 range: infinite bounds draw a warning from Gymnasium's env checker
+                low, high = float(np.finfo(np.float32).min), float(np.finfo(np.float32).max)
+            else:
+                low, high = float(self._node_views.min()), float(self._node_views.max())
             view_space = spaces.Box(low, high, shape=self._node_views.shape[1:], dtype=np.float32)
             self.observation_space = spaces.Dict(
                 {
@@ -210,8 +255,6 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
                 }
             )
         else:
-            # node_views: (N, 4, 3, h, w) uint8 thumbnails in compass order
-            self._node_views = np.ascontiguousarray(node_views, dtype=np.uint8)
             _, _, channels, height, width = self._node_views.shape
             self.observation_space = spaces.Box(0, 255, shape=(channels, 2 * height, 4 * width), dtype=np.uint8)
 
@@ -317,13 +360,16 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         Close the road between intersections ``u`` and ``v`` (both directions).
 
         Refused (``RoadClosureError``) if it would cut one of this env's goals off from an intersection that reaches
-        it now, unless ``force=True``; an unknown road raises ``KeyError``.
+        it now, unless ``force=True``; an unknown road raises ``KeyError``. With ``visible_closures`` the views of
+        ``u`` and ``v`` show the barrier from now on.
         """
         self.graph.close_road(u, v, protect=self.goal_nodes, force=force)
+        self._show_closures()
 
     def reopen_road(self, u: int, v: int) -> None:
-        """Reopen a road closed with :meth:`close_road`."""
+        """Reopen a road closed with :meth:`close_road` (with ``visible_closures``, its barrier goes too)."""
         self.graph.reopen_road(u, v)
+        self._show_closures()
 
     @property
     def closed_roads(self) -> frozenset[tuple[int, int]]:
@@ -332,6 +378,27 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     def node_distances(self, goal: int) -> np.ndarray:
         """Fewest actions from every intersection to ``goal`` over open roads (-1 where unreachable)."""
         return self.graph.hops_to(goal)
+
+    def _show_closures(self) -> None:
+        """
+        With ``visible_closures``, bring the views of every node whose closed roads changed since the last call up to
+        date (also closures made on :attr:`graph` directly: observations call this too).
+        """
+        source = self._view_source
+        if source is None or self.graph.version == self._shown_version:
+            return
+        closed = self.graph.closed_roads
+        for node in sorted({node for road in closed ^ self._shown_closures for node in road}):
+            at_node = frozenset(road for road in closed if node in road)
+            if not at_node:  # the open map's row, exactly
+                self._node_views[node] = self._open_views[node]
+                continue
+            views = self._closure_views.get((node, at_node))
+            if views is None:
+                encoded = source.views_with(node, at_node)
+                views = self._closure_views[node, at_node] = self._features.transform(encoded[None])[0]
+            self._node_views[node] = views
+        self._shown_closures, self._shown_version = closed, self.graph.version
 
     # --- helpers --------------------------------------------------------------------------------------------------
 
@@ -379,6 +446,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         """
         nodes, headings = np.asarray(nodes, dtype=np.int64), np.asarray(headings, dtype=np.int64)
         goal_node = self.goal_nodes[self._goal_index_of(goal)]
+        self._show_closures()
         if self.observation_mode == "features":
             return {
                 "views": self._node_views[nodes],
@@ -448,38 +516,116 @@ def _resolve_goals(graph: RoadGraph, goals: str | int | Sequence[str | int]) -> 
     return names, nodes
 
 
-def _node_views(
-    graph: RoadGraph,
-    observation_mode: str,
-    encoder: str | ViewEncoder,
-    encoder_kwargs: Mapping[str, Any] | None,
-    render_settings: RenderSettings | None,
-    world_seed: int,
-    cache_dir: str | Path | None,
-    progress: bool,
-) -> np.ndarray:
-    """Per-node encodings of the four compass views, from the on-disk cache or rendered and encoded now."""
-    if observation_mode == "image":
-        height, width = _IMAGE_MODE_VIEW
-        encoder = make_encoder("thumbnail", height=height, width=width)
-        # Thumbnails are downscaled from renders 4x their size, which keeps signs and windows legible
-        render_settings = render_settings or RenderSettings(width=4 * width, height=4 * height)
-    elif isinstance(encoder, str):
-        encoder = make_encoder(encoder, **dict(encoder_kwargs or {}))
-    settings = render_settings or RenderSettings()
+@dataclass(frozen=True)
+class _FeatureTransform:
+    """
+    What turns encoded views into observation rows: fit once on the open map's views, then applied to any views of
+    that map (re-rendered with closure barriers), so that both are comparable.
 
-    renderer: StreetViewRenderer | None = None
+    :param mode: The observation mode: ``"image"`` keeps the thumbnails as they are
+    :param mean: Per-feature mean of the fitted views (standardisation), or None
+    :param scale: Per-feature standard deviation (plus 1e-6) of the fitted views, or None
+    :param projection: PCA projection fit on the standardised views (``view_dim``), or None
+    """
 
-    def render_node(node: int) -> np.ndarray:
-        nonlocal renderer
-        if renderer is None:  # built only on a cache miss
-            renderer = StreetViewRenderer(build_world(graph, seed=world_seed), settings)
-        return renderer.render_node(node)
+    mode: str
+    mean: np.ndarray | None = None
+    scale: np.ndarray | None = None
+    projection: ViewProjection | None = None
 
-    # Keyed without building the world: its inputs (graph, seed, generator version) determine it
-    key_parts = {
-        "graph": graph.fingerprint(),
-        "world": f"v{WORLD_VERSION}-seed{world_seed}",
-        "render": settings.key(),
-    }
-    return cached_view_features(key_parts, graph.n_nodes, render_node, encoder, cache_dir=cache_dir, progress=progress)
+    @classmethod
+    def fit(
+        cls, node_views: np.ndarray, mode: str, normalize_features: bool, view_dim: int | None
+    ) -> _FeatureTransform:
+        if mode != "features":
+            return cls(mode)
+        views = node_views.astype(np.float32)
+        mean = scale = projection = None
+        if normalize_features:
+            flat = views.reshape(-1, views.shape[-1])
+            mean, scale = flat.mean(axis=0), flat.std(axis=0) + 1e-6
+            views = (views - mean) / scale
+        if view_dim is not None:
+            projection = ViewProjection.fit(views, view_dim)
+        return cls(mode, mean, scale, projection)
+
+    def transform(self, node_views: np.ndarray) -> np.ndarray:
+        """
+        :param node_views: ``(n, 4, *encoding)`` encoded views of ``n`` nodes
+        :return: features mode: ``(n, 4 * D)`` float32 rows (N, E, S, W blocks of D: SB3's extractors expect 1-D
+            vectors); image mode: ``(n, 4, 3, h, w)`` uint8 thumbnails in compass order
+        """
+        if self.mode != "features":
+            return np.ascontiguousarray(node_views, dtype=np.uint8)
+        views = node_views.astype(np.float32)
+        if self.mean is not None:
+            views = (views - self.mean) / self.scale
+        if self.projection is not None:
+            views = self.projection.transform(views)
+        return views.reshape(views.shape[0], -1).astype(np.float32)
+
+
+class _ViewSource:
+    """
+    Per-node encodings of the four compass views, from the on-disk cache or rendered and encoded now: the open map's
+    (every node) and one node's with closure barriers. The 3D world and the renderer are built only on a cache miss.
+    """
+
+    def __init__(
+        self,
+        graph: RoadGraph,
+        observation_mode: str,
+        encoder: str | ViewEncoder,
+        encoder_kwargs: Mapping[str, Any] | None,
+        render_settings: RenderSettings | None,
+        world_seed: int,
+        cache_dir: str | Path | None,
+        progress: bool,
+    ) -> None:
+        if observation_mode == "image":
+            height, width = _IMAGE_MODE_VIEW
+            encoder = make_encoder("thumbnail", height=height, width=width)
+            # Thumbnails are downscaled from renders 4x their size, which keeps signs and windows legible
+            render_settings = render_settings or RenderSettings(width=4 * width, height=4 * height)
+        elif isinstance(encoder, str):
+            encoder = make_encoder(encoder, **dict(encoder_kwargs or {}))
+        self.graph = graph
+        self.encoder = encoder
+        self.settings = render_settings or RenderSettings()
+        self.world_seed = world_seed
+        self.cache_dir = cache_dir
+        self.progress = progress
+        self._renderer: StreetViewRenderer | None = None
+        # Keyed without building the world: its inputs (graph, seed, generator version) determine it
+        self.key_parts = {
+            "graph": graph.fingerprint(),
+            "world": f"v{WORLD_VERSION}-seed{world_seed}",
+            "render": self.settings.key(),
+        }
+
+    @property
+    def renderer(self) -> StreetViewRenderer:
+        if self._renderer is None:
+            self._renderer = StreetViewRenderer(build_world(self.graph, seed=self.world_seed), self.settings)
+        return self._renderer
+
+    def open_views(self) -> np.ndarray:
+        """``(N, 4, *encoding)``: every node's views of the open map."""
+        return cached_view_features(
+            self.key_parts,
+            self.graph.n_nodes,
+            lambda node: self.renderer.render_node(node),
+            self.encoder,
+            cache_dir=self.cache_dir,
+            progress=self.progress,
+        )
+
+    def views_with(self, node: int, closed_roads: frozenset[tuple[int, int]]) -> np.ndarray:
+        """``(4, *encoding)``: one node's views with barriers on ``closed_roads`` (a one-node cache entry)."""
+        roads = ",".join(f"{u}-{v}" for u, v in sorted(closed_roads))
+        key_parts = {**self.key_parts, "closures": f"barrier-v{BARRIER_VERSION}|node={node}|closed={roads}"}
+
+        def render(_: int) -> np.ndarray:  # the entry's only node, 0, is this node
+            return self.renderer.render_node(node, closed_roads=closed_roads)
+
+        return cached_view_features(key_parts, 1, render, self.encoder, cache_dir=self.cache_dir, progress=False)[0]

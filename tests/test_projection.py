@@ -1,11 +1,11 @@
-"""PCA projection of view features (the env's ``view_dim`` option)."""
+"""PCA projection of view features (the env's ``view_dim`` option): fit once, applied to any views."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from campusnav_env.features.projection import pca_project
+from campusnav_env.features.projection import ViewProjection, pca_project
 
 
 def _views(seed: int = 0, n: int = 30, d: int = 50) -> np.ndarray:
@@ -43,3 +43,27 @@ def test_projection_is_deterministic_up_to_the_axis_sign_rule() -> None:
 def test_projection_rejects_a_bad_dimension(dim: object) -> None:
     with pytest.raises(ValueError, match="view_dim must be an int"):
         pca_project(_views(), dim)  # type: ignore[arg-type]
+
+
+def test_a_fitted_projection_applies_the_same_transform_to_new_views() -> None:
+    views = _views(3)
+    projection = ViewProjection.fit(views, 5)
+    assert projection.dim == 5
+    np.testing.assert_array_equal(projection.transform(views), pca_project(views, 5))
+    # A few views on their own (e.g. one node re-rendered) get the rows they get among all views
+    np.testing.assert_allclose(projection.transform(views[7:9]), pca_project(views, 5)[7:9], atol=1e-5)
+    np.testing.assert_allclose(projection.transform(views[7, 2]), pca_project(views, 5)[7, 2], atol=1e-5)
+    # New views are not refit: an affine map, the fitted mean goes to zero
+    new = _views(4)[:3]
+    np.testing.assert_allclose(
+        projection.transform(new) - projection.transform(np.zeros_like(new)),
+        (new.astype(np.float64) @ projection.axes.T) / projection.spread,
+        atol=1e-4,
+    )
+    np.testing.assert_allclose(projection.transform(projection.mean), 0.0, atol=1e-6)
+    with pytest.raises(ValueError, match="read-only"):
+        projection.axes[0, 0] = 1.0
+    with pytest.raises(ValueError, match="50 features"):
+        projection.transform(np.zeros((2, 4, 49)))
+    with pytest.raises(ValueError, match=r"shape \(N, V, D\)"):
+        ViewProjection.fit(np.zeros((4, 50)), 2)

@@ -6,13 +6,84 @@ critics' first layer reads 8 views per observation (current and goal), so its co
 projecting each view onto its leading principal axes makes that layer proportionally cheaper. Like the z-scoring the
 env already does, the projection is fit on the map's own views (no labels, no map knowledge beyond what the camera
 sees) and is deterministic: the sign of each axis is fixed so that its largest loading is positive.
+
+The fit is kept (:class:`ViewProjection`), so that views rendered later (a closed road's barrier, see the env's
+``visible_closures``) go through exactly the transform the original views went through.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["pca_project"]
+__all__ = ["ViewProjection", "pca_project"]
+
+
+@dataclass(frozen=True)
+class ViewProjection:
+    """
+    A whitened PCA of view features: fit once on a map's views (:meth:`fit`), applied to any views (:meth:`transform`).
+
+    :param mean: ``(D,)`` mean of the views it was fit on
+    :param axes: ``(dim, D)`` leading principal axes, each signed so that its largest loading is positive
+    :param spread: ``(dim,)`` standard deviation of the fitted views along each axis
+    """
+
+    mean: np.ndarray
+    axes: np.ndarray
+    spread: np.ndarray
+
+    @classmethod
+    def fit(cls, views: np.ndarray, dim: int) -> ViewProjection:
+        """
+        The ``dim`` leading principal axes of all views.
+
+        :param views: Features of shape ``(N, V, D)``: ``V`` views of ``N`` intersections
+        :param dim: Number of axes to keep, ``1 <= dim <= min(N * V - 1, D)``
+        :return: the projection
+        :raises ValueError: if ``views`` is not 3-D or ``dim`` is out of range
+        """
+        views = np.asarray(views, dtype=np.float64)
+        if views.ndim != 3:
+            raise ValueError(f"views must have shape (N, V, D), got {views.shape}")
+        flat = views.reshape(-1, views.shape[-1])
+        limit = min(flat.shape[0] - 1, flat.shape[1])
+        if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 1 <= dim <= limit:
+            raise ValueError(
+                f"view_dim must be an int in [1, {limit}] for {flat.shape[0]} views of {flat.shape[1]} features, "
+                f"got {dim!r}"
+            )
+        mean = flat.mean(axis=0)
+        # Thin SVD of the (views x features) matrix: rows of vt are the principal axes, s their spread
+        _, s, vt = np.linalg.svd(flat - mean, full_matrices=False)
+        axes = vt[:dim]
+        signs = np.sign(axes[np.arange(dim), np.abs(axes).argmax(axis=1)])
+        spread = np.maximum(s[:dim] / np.sqrt(max(flat.shape[0] - 1, 1)), 1e-12)
+        parts = (mean, axes * signs[:, None], spread)
+        for part in parts:
+            part.flags.writeable = False
+        return cls(*parts)
+
+    @property
+    def dim(self) -> int:
+        """Number of output dimensions."""
+        return int(self.axes.shape[0])
+
+    def transform(self, views: np.ndarray) -> np.ndarray:
+        """
+        Project views onto the fitted axes, whitened (the views it was fit on get zero mean and unit variance).
+
+        :param views: Features of shape ``(..., D)``
+        :return: Shape ``(..., dim)`` float32
+        :raises ValueError: if the feature size is not the fitted one
+        """
+        views = np.asarray(views, dtype=np.float64)
+        if views.ndim == 0 or views.shape[-1] != self.mean.shape[0]:
+            raise ValueError(f"views must have {self.mean.shape[0]} features in their last axis, got {views.shape}")
+        flat = views.reshape(-1, views.shape[-1])
+        projected = ((flat - self.mean) @ self.axes.T) / self.spread
+        return projected.reshape(*views.shape[:-1], self.dim).astype(np.float32)
 
 
 def pca_project(views: np.ndarray, dim: int) -> np.ndarray:
@@ -24,22 +95,4 @@ def pca_project(views: np.ndarray, dim: int) -> np.ndarray:
     :return: Shape ``(N, V, dim)`` float32; each output dimension has zero mean and unit variance over the views
     :raises ValueError: if ``dim`` is out of range
     """
-    views = np.asarray(views, dtype=np.float64)
-    if views.ndim != 3:
-        raise ValueError(f"views must have shape (N, V, D), got {views.shape}")
-    flat = views.reshape(-1, views.shape[-1])
-    limit = min(flat.shape[0] - 1, flat.shape[1])
-    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 1 <= dim <= limit:
-        raise ValueError(
-            f"view_dim must be an int in [1, {limit}] for {flat.shape[0]} views of {flat.shape[1]} features, "
-            f"got {dim!r}"
-        )
-    centred = flat - flat.mean(axis=0)
-    # Thin SVD of the (views x features) matrix: rows of vt are the principal axes, s their spread
-    _, s, vt = np.linalg.svd(centred, full_matrices=False)
-    axes = vt[:dim]
-    signs = np.sign(axes[np.arange(dim), np.abs(axes).argmax(axis=1)])
-    axes = axes * signs[:, None]
-    spread = s[:dim] / np.sqrt(max(flat.shape[0] - 1, 1))
-    projected = (centred @ axes.T) / np.maximum(spread, 1e-12)
-    return projected.reshape(*views.shape[:2], dim).astype(np.float32)
+    return ViewProjection.fit(views, dim).transform(views)

@@ -23,7 +23,11 @@ How a view is drawn (numpy + OpenCV, no display; about 15-30 ms for a 640x480 vi
    first, gives the visible wall of every pixel exactly: no painter's-order errors and no near-plane artefacts.
    Facades are textured per pixel (windows per storey and pitch, cornice, entrance), shaded by the sun direction,
    anti-aliased with distance and fogged. Landmark signs are warped onto their wall where it is visible.
-4. **Trees, cars, monument signs**: billboards/boxes drawn far to near and depth-tested against the walls.
+4. **Trees, cars, monument signs, closure barriers**: billboards/boxes drawn far to near and depth-tested against the
+   walls. A closed road (``closed_roads`` of :meth:`StreetViewRenderer.render_node`) gets a construction barrier at
+   each end, :data:`BARRIER_OFFSET` along it from the intersection: red-and-white striped boards on trestles across
+   the asphalt, a "ROAD CLOSED" sign on top and two orange cones in front. The barrier is a vertical plane, so its
+   picture is one exact homography of a texture and its depth is exact per image column.
 
 Appearance changes (``RenderSettings.time_of_day``, ``RenderSettings.cars``) draw their random part (cloud cover,
 exposure, which windows are lit, where the cars are) from the ``rng`` passed to the render call, so they are
@@ -34,7 +38,9 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, fields
+from functools import partial
 from typing import TYPE_CHECKING
 
 import cv2
@@ -46,11 +52,20 @@ from campusnav_env.rendering.world import SpatialIndex, World, footprint_walls
 if TYPE_CHECKING:
     from campusnav_env.maps.road_graph import RoadGraph
 
-__all__ = ["RENDERER_VERSION", "RenderSettings", "StreetViewRenderer", "view_bearings"]
+__all__ = [
+    "BARRIER_OFFSET",
+    "BARRIER_VERSION",
+    "RENDERER_VERSION",
+    "RenderSettings",
+    "StreetViewRenderer",
+    "view_bearings",
+]
 
 # Bump when the drawing changes: feature caches key on RenderSettings.key().
 # v2: each view looks along its slot's road (RoadGraph.slot_bearings) instead of the compass bearing.
 RENDERER_VERSION = 2
+# Bump when the closure barriers' drawing changes: only views rendered with closed roads key on it.
+BARRIER_VERSION = 1
 
 MAX_DISTANCE = 400.0  # objects farther than this are not drawn (m)
 NEAR = 0.3  # near plane (m)
@@ -58,6 +73,12 @@ FOG_START = 40.0  # haze begins beyond this distance, so that nearby colours sta
 FOG_DISTANCE = 900.0  # e-folding distance of the haze beyond FOG_START (m)
 GROUND_RES = 0.3  # ground texture resolution (m per texel)
 GROUND_RADIUS = 240.0  # the ground texture covers +-this around the intersection (m)
+# Where the closed road leaves the intersection: past the crossing road's asphalt (6 m), before the zebra crossing
+BARRIER_OFFSET = 9.0  # distance along a closed road from each end to its barrier (m)
+BARRIER_NEAR = 1.0  # barrier parts nearer to the camera than this are clipped (m)
+BARRIER_TOP = 2.75  # top of the "ROAD CLOSED" sign above the road (m)
+BARRIER_RAILS = ((0.4, 0.75), (0.9, 1.25), (1.4, 1.75))  # (bottom, top) of the striped boards (m)
+BARRIER_TEXELS_PER_M = 64  # barrier texture resolution: sharp at 640x480 down to about 5 m away
 
 GRASS_RGB = (104, 138, 74)
 ASPHALT_RGB = (82, 82, 86)
@@ -65,6 +86,10 @@ SIDEWALK_RGB = (178, 174, 166)
 MARKING_RGB = (236, 236, 226)
 TRUNK_RGB = (92, 70, 52)
 LIT_WINDOW_RGB = (255, 212, 140)
+BARRIER_RED_RGB = (206, 28, 34)
+BARRIER_WHITE_RGB = (246, 246, 240)
+CONE_ORANGE_RGB = (250, 96, 10)
+BARRIER_LEG_RGB = (226, 226, 222)
 CAR_PALETTE = (
     (235, 235, 235),
     (30, 30, 34),
@@ -188,6 +213,14 @@ class _Car:
 
 
 @dataclass(frozen=True)
+class _Barrier:
+    """A closed road's barrier: a vertical board across the road, facing the intersection it guards."""
+
+    centre: np.ndarray  # ground point on the road's centreline (east, north)
+    facing: np.ndarray  # horizontal unit vector along the road towards that intersection
+
+
+@dataclass(frozen=True)
 class _View:
     """What the drawing steps of one rendered view share: the camera, the light and the buffers they fill in place."""
 
@@ -256,6 +289,8 @@ class StreetViewRenderer:
         self._prepare_sprites()
         self._ground_cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._sky_cache: tuple[tuple[bytes, bytes], np.ndarray] | None = None
+        self._road_barriers: dict[int, tuple[_Barrier, _Barrier]] = {}
+        self._barrier_image: np.ndarray | None = None
 
     # ----------------------------------------------------------------------------------------------------------------
     # Public API
@@ -275,37 +310,54 @@ class StreetViewRenderer:
         node = self._check_node(node)
         return float(self.view_bearings[node, self._check_direction(direction)])
 
-    def render_view(self, node: int, direction: int, *, rng: np.random.Generator | None = None) -> np.ndarray:
+    def render_view(
+        self,
+        node: int,
+        direction: int,
+        *,
+        closed_roads: Collection[tuple[int, int]] = (),
+        rng: np.random.Generator | None = None,
+    ) -> np.ndarray:
         """
         The view from ``node`` in compass slot ``direction`` (0 N, 1 E, 2 S, 3 W), looking along
         :meth:`view_bearing` ``(node, direction)``: down the road that the action pointing to that slot takes.
 
         :param node: Intersection id
         :param direction: Compass slot
+        :param closed_roads: Roads (node pairs, either order) that show a construction barrier at both ends
         :param rng: Source of the random appearance changes (only used when the settings ask for them)
         :return: ``(height, width, 3)`` uint8 RGB image
         :raises ValueError: if the node or the direction is out of range
         :raises TypeError: if the node is not an int
+        :raises KeyError: if a closed road is not a road of the graph
         """
         node = self._check_node(node)
         direction = self._check_direction(direction)
+        barriers = self._barriers(closed_roads)
         lighting, cars = self._moment(node, rng, salt=direction + 1)
-        return self._render(node, direction, lighting, cars)
+        return self._render(node, direction, lighting, cars, barriers)
 
-    def render_node(self, node: int, *, rng: np.random.Generator | None = None) -> np.ndarray:
+    def render_node(
+        self, node: int, *, closed_roads: Collection[tuple[int, int]] = (), rng: np.random.Generator | None = None
+    ) -> np.ndarray:
         """
         The four views at ``node`` in slot order N, E, S, W (each along its :meth:`view_bearing`), taken at one
         moment (same light, same cars).
 
         :param node: Intersection id
+        :param closed_roads: Roads (node pairs, either order) that show a construction barrier at both ends,
+            :data:`BARRIER_OFFSET` along the road from each intersection: a closed road of ``node`` is seen blocked
+            straight ahead in the view of its slot. Without closed roads the views are exactly the open map's.
         :param rng: Source of the random appearance changes (only used when the settings ask for them)
         :return: ``(4, height, width, 3)`` uint8 RGB images
         :raises ValueError: if the node is out of range
         :raises TypeError: if the node is not an int
+        :raises KeyError: if a closed road is not a road of the graph
         """
         node = self._check_node(node)
+        barriers = self._barriers(closed_roads)
         lighting, cars = self._moment(node, rng, salt=0)
-        return np.stack([self._render(node, d, lighting, cars) for d in range(4)])
+        return np.stack([self._render(node, d, lighting, cars, barriers) for d in range(4)])
 
     # ----------------------------------------------------------------------------------------------------------------
     # Set-up
@@ -484,7 +536,9 @@ class StreetViewRenderer:
     # Drawing
     # ----------------------------------------------------------------------------------------------------------------
 
-    def _render(self, node: int, direction: int, lighting: _Lighting, cars: list[_Car]) -> np.ndarray:
+    def _render(
+        self, node: int, direction: int, lighting: _Lighting, cars: list[_Car], barriers: list[_Barrier]
+    ) -> np.ndarray:
         yaw = math.radians(self.view_bearings[node, direction])  # the road in this slot, or its compass bearing
         h, w = self.height, self.width
         view = _View(
@@ -502,7 +556,7 @@ class StreetViewRenderer:
         self._draw_ground(view, horizon)
         visible_walls = self._draw_walls(view)
         self._draw_facade_signs(view, visible_walls)
-        self._draw_sprites(view, cars)
+        self._draw_sprites(view, cars, barriers)
         return cv2.convertScaleAbs(view.image)  # rounds and saturates to uint8 (all colours are >= 0)
 
     def _fog(self, z: np.ndarray) -> np.ndarray:
@@ -833,26 +887,29 @@ class StreetViewRenderer:
             region = view.image[y0:y1, x0:x1]
             region[:] = region * (1 - alpha[..., None]) + rgb * alpha[..., None]
 
-    def _draw_sprites(self, view: _View, cars: list[_Car]) -> None:
-        """Trees (all at once), then cars and monument signs far to near, each depth-tested against what is drawn."""
+    def _draw_sprites(self, view: _View, cars: list[_Car], barriers: list[_Barrier]) -> None:
+        """
+        Trees (all at once), then cars, monument signs and closure barriers far to near, each depth-tested against
+        what is drawn.
+        """
         self._draw_trees(view)
         tan_half = self.cx / self.fx
-        items: list[tuple[float, int]] = []
+        # (depth, tie-break, draw): sorted on the first two only, cars >= 0, signs and barrier parts < 0
+        items: list[tuple[float, int, Callable[[], None]]] = []
         for i, car in enumerate(cars):
             rel = car.center - view.cam
             z = float(rel @ view.fwd)
             if z > 2.0 and abs(float(rel @ view.right)) - 3.0 < z * tan_half:
-                items.append((z, i))
+                items.append((z, i, partial(self._draw_car, view, car)))
         for i, sign in enumerate(self.world.signs):
             rel = sign.position - view.cam
             z = float(rel @ view.fwd)
             if 1.0 < z < MAX_DISTANCE and abs(float(rel @ view.right)) - sign.width < z * tan_half:
-                items.append((z, -1 - i))
-        for _, i in sorted(items, reverse=True):
-            if i >= 0:
-                self._draw_car(view, cars[i])
-            else:
-                self._draw_sign_post(view, -1 - i)
+                items.append((z, -1 - i, partial(self._draw_sign_post, view, i)))
+        for k, (z, draw) in enumerate(self._barrier_parts(view, barriers)):
+            items.append((z, -1 - len(self.world.signs) - k, draw))
+        for _, _, draw in sorted(items, key=lambda item: item[:2], reverse=True):
+            draw()
 
     def _draw_trees(self, view: _View) -> None:
         """Every visible tree in one vectorised pass: a trunk and a two-tone crown, per-pixel nearest tree wins."""
@@ -936,14 +993,19 @@ class StreetViewRenderer:
         solid = alpha > 0.5
         view.depth.reshape(-1)[flat[solid]] = zt[solid]
 
-    def _composite(self, view: _View, box: tuple[int, int, int, int], rgba: np.ndarray, z: float) -> None:
-        """Blend an RGBA patch (float colours, alpha 0..1) into the image where it is nearer than what is there."""
+    def _composite(self, view: _View, box: tuple[int, int, int, int], rgba: np.ndarray, z: float | np.ndarray) -> None:
+        """
+        Blend an RGBA patch (float colours, alpha 0..1) into the image where it is nearer than what is there.
+
+        :param z: The patch's depth: one number, or an array broadcast against the patch (e.g. one per column)
+        """
         x0, y0, x1, y1 = box
         zone = view.depth[y0:y1, x0:x1]
         alpha = rgba[..., 3] * (zone > z)
         region = view.image[y0:y1, x0:x1]
         region[:] = region * (1 - alpha[..., None]) + rgba[..., :3] * alpha[..., None]
-        zone[alpha > 0.5] = z
+        solid = alpha > 0.5
+        zone[solid] = z if np.ndim(z) == 0 else np.broadcast_to(z, zone.shape)[solid]
 
     def _patch(self, x0: float, y0: float, x1: float, y1: float) -> tuple[tuple[int, int, int, int], int, int] | None:
         ix0, iy0 = max(math.floor(x0), 0), max(math.floor(y0), 0)
@@ -1056,3 +1118,177 @@ class StreetViewRenderer:
         fog = float(self._fog(np.array(z.mean())))
         patch[..., :3] = patch[..., :3] * light * (1 - fog) + view.lighting.haze * fog
         self._composite(view, box, patch, float(z.mean()))
+
+    # ----------------------------------------------------------------------------------------------------------------
+    # Closure barriers
+    # ----------------------------------------------------------------------------------------------------------------
+
+    def _barriers(self, closed_roads: Collection[tuple[int, int]]) -> list[_Barrier]:
+        """The barriers of the closed roads (two per road, placed once per road and kept)."""
+        graph = self.world.graph
+        barriers: list[_Barrier] = []
+        for road in sorted({graph.road_id(int(u), int(v)) for u, v in closed_roads}):
+            pair = self._road_barriers.get(road)
+            if pair is None:
+                pair = self._road_barriers[road] = self._place_barriers(road)
+            barriers.extend(pair)
+        return barriers
+
+    def _place_barriers(self, road: int) -> tuple[_Barrier, _Barrier]:
+        """One barrier :data:`BARRIER_OFFSET` along the road's polyline from each end (a third of short roads)."""
+        g = self._roads[road]
+        cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(g, axis=0), axis=1))])
+        total = float(cum[-1])
+        s = min(BARRIER_OFFSET, total / 3.0)
+        # The road's direction over a metre around each barrier: robust to bends and degenerate segments
+        at = np.array([s, total - s])
+        centres = self._along(g, cum, at)
+        ahead = self._along(g, cum, np.minimum(at + 0.5, total)) - self._along(g, cum, np.maximum(at - 0.5, 0.0))
+        ahead /= np.maximum(np.linalg.norm(ahead, axis=1), 1e-9)[:, None]
+        # The barrier near the first end faces back towards it, the one near the last end faces forward
+        return _Barrier(centres[0], -ahead[0]), _Barrier(centres[1], ahead[1])
+
+    def _barrier_parts(self, view: _View, barriers: list[_Barrier]) -> list[tuple[float, Callable[[], None]]]:
+        """``(depth, draw)`` of every barrier board and cone in the view's frustum."""
+        parts: list[tuple[float, Callable[[], None]]] = []
+        tan_half = self.cx / self.fx
+        half = self.world.road_width / 2
+        for barrier in barriers:
+            across = np.array([barrier.facing[1], -barrier.facing[0]])
+            rel = barrier.centre + np.outer([-half, half], across) - view.cam
+            x, z = rel @ view.right, rel @ view.fwd
+            in_view = (
+                (z > BARRIER_NEAR).any()
+                and z.min() < MAX_DISTANCE
+                and not (x > z * tan_half).all()  # both ends right of the frustum
+                and not (x < -z * tan_half).all()  # both ends left of it
+            )
+            if in_view:
+                parts.append((float(z.mean()), partial(self._draw_barrier, view, barrier)))
+            # Two cones on the intersection's side of the board, in the lanes
+            for offset in (-half + 2.0, half - 2.0):
+                cone = barrier.centre + barrier.facing * 1.6 + across * offset
+                x_cone, z_cone = (cone - view.cam) @ view.right, (cone - view.cam) @ view.fwd
+                if BARRIER_NEAR < z_cone < MAX_DISTANCE and abs(x_cone) - 0.3 < z_cone * tan_half:
+                    parts.append((float(z_cone), partial(self._draw_cone, view, cone)))
+        return parts
+
+    def _barrier_texture(self) -> np.ndarray:
+        """
+        RGBA picture of a barrier across the asphalt (built once): sections of three red-and-white striped boards on
+        trestles, a "ROAD CLOSED" sign on top; rows top (:data:`BARRIER_TOP` m) to bottom (the ground).
+        """
+        if self._barrier_image is not None:
+            return self._barrier_image
+        width = self.world.road_width
+        ppm = BARRIER_TEXELS_PER_M
+        img = np.zeros((round(BARRIER_TOP * ppm), round(width * ppm), 4), dtype=np.uint8)
+        n_rows, n_cols = img.shape[:2]
+
+        def col(metres: float) -> int:
+            return round(metres * ppm)
+
+        def row(height: float) -> int:
+            return round(n_rows - height * ppm)
+
+        # Diagonal red and white bands, 0.25 m each: legible up close, a pink-red block from afar
+        u, v = np.meshgrid(np.arange(n_cols) / ppm, (n_rows - np.arange(n_rows)) / ppm)
+        red = ((u + v) / 0.5) % 1.0 < 0.5
+        stripes = np.where(red[..., None], (*BARRIER_RED_RGB, 255), (*BARRIER_WHITE_RGB, 255)).astype(np.uint8)
+        n_sections = max(1, round(width / 3.0))
+        section = width / n_sections
+        leg = (*BARRIER_LEG_RGB, 255)
+        for k in range(n_sections):
+            a, b = k * section + 0.06, (k + 1) * section - 0.06
+            for x in (a + 0.15 * (b - a), b - 0.15 * (b - a)):
+                cv2.rectangle(img, (col(x - 0.04), row(1.8)), (col(x + 0.04), row(0.0)), leg, -1)
+                cv2.rectangle(img, (col(x - 0.3), row(0.06)), (col(x + 0.3), row(0.0)), (40, 40, 42, 255), -1)
+            for bottom, top in BARRIER_RAILS:
+                img[row(top) : row(bottom), col(a) : col(b)] = stripes[row(top) : row(bottom), col(a) : col(b)]
+        # The sign: black letters on white with a black border, on two posts above the middle
+        sign_w = min(3.0, 0.4 * width)
+        left, right, bottom, top = (width - sign_w) / 2, (width + sign_w) / 2, 1.85, BARRIER_TOP - 0.02
+        for x in (left + 0.2 * sign_w, right - 0.2 * sign_w):
+            cv2.rectangle(img, (col(x - 0.04), row(bottom)), (col(x + 0.04), row(1.7)), leg, -1)
+        cv2.rectangle(img, (col(left), row(top)), (col(right), row(bottom)), (*BARRIER_WHITE_RGB, 255), -1)
+        cv2.rectangle(img, (col(left), row(top)), (col(right), row(bottom)), (20, 20, 22, 255), max(1, col(0.05)))
+        text, font = "ROAD CLOSED", cv2.FONT_HERSHEY_DUPLEX
+        (tw, th), _ = cv2.getTextSize(text, font, 1.0, 2)
+        scale = min(0.86 * (col(right) - col(left)) / tw, 0.5 * (row(bottom) - row(top)) / th)
+        (tw, th), _ = cv2.getTextSize(text, font, scale, max(1, round(2 * scale)))
+        origin = ((n_cols - tw) // 2, (row(top) + row(bottom) + th) // 2)
+        cv2.putText(img, text, origin, font, scale, (20, 20, 22, 255), max(1, round(2 * scale)), cv2.LINE_AA)
+        self._barrier_image = img
+        return img
+
+    def _draw_barrier(self, view: _View, barrier: _Barrier) -> None:
+        """The barrier board warped onto its plane (clipped at :data:`BARRIER_NEAR`), depth exact per column."""
+        # Read from whichever side the camera is on: the texture's left end is the viewer's left
+        looking = -barrier.facing if float((view.cam - barrier.centre) @ barrier.facing) > 0 else barrier.facing
+        to_right = np.array([looking[1], -looking[0]])
+        half = self.world.road_width / 2
+        left, right = barrier.centre - to_right * half, barrier.centre + to_right * half
+        texture = self._barrier_texture()
+        z_ends = (np.array([left, right]) - view.cam) @ view.fwd
+        # The texture columns in front of the near clip (a board seen from the side may reach behind the camera)
+        t = np.array([0.0, 1.0])
+        if z_ends[0] < BARRIER_NEAR:
+            t[0] = (BARRIER_NEAR - z_ends[0]) / (z_ends[1] - z_ends[0])
+        if z_ends[1] < BARRIER_NEAR:
+            t[1] = (BARRIER_NEAR - z_ends[0]) / (z_ends[1] - z_ends[0])
+        c0, c1 = math.floor(t[0] * texture.shape[1]), math.ceil(t[1] * texture.shape[1])
+        if c1 - c0 < 2:
+            return
+        ends = left + np.outer(np.array([c0, c1]) / texture.shape[1], right - left)
+        quad, _ = self._project(ends[[0, 1, 1, 0]], np.array([BARRIER_TOP, BARRIER_TOP, 0.0, 0.0]), view)
+        board = texture[:, c0:c1]
+        warped = self._warp_board(self._fit_board(board, quad), quad)
+        if warped is None:
+            return
+        (x0, y0, x1, y1), rgb, alpha = warped
+        # Depth of the board in each column: where the column's ray meets the board's ground line
+        rel = ends - view.cam
+        xa, za = rel[0] @ view.right, rel[0] @ view.fwd
+        dx, dz = (rel[1] - rel[0]) @ view.right, (rel[1] - rel[0]) @ view.fwd
+        xc = self._col_x[x0:x1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            along = (xc * za - xa) / (dx - xc * dz)
+        along = np.clip(np.nan_to_num(along, nan=0.0), 0.0, 1.0)  # nan: a column that sees the board edge-on
+        z = (za + along * dz).astype(np.float32)
+        fog = self._fog(z)[None, :, None]
+        light = view.lighting.ambient + view.lighting.sun * 0.5 + 0.15
+        rgb = rgb * light * (1 - fog) + view.lighting.haze * fog
+        self._composite(view, (x0, y0, x1, y1), np.concatenate([rgb, alpha[..., None]], axis=2), z[None, :])
+
+    def _draw_cone(self, view: _View, position: np.ndarray) -> None:
+        """A traffic cone (0.75 m, orange with a white band, on a dark base), seen from the side at any angle."""
+        rel = position - view.cam
+        x, z = float(rel @ view.right), float(rel @ view.fwd)
+        f = self.fy / z
+        u = self.cx + self.fx * x / z
+        placed = self._patch(u - 0.25 * f, self.cy + f * (self.eye - 0.75), u + 0.25 * f, self.cy + f * self.eye)
+        if placed is None:
+            return
+        box, ox, oy = placed
+        patch = np.zeros((box[3] - box[1], box[2] - box[0], 4), dtype=np.uint8)
+        light = view.lighting.ambient + view.lighting.sun * 0.5 + 0.15
+
+        def outline(profile: list[tuple[float, float]]) -> np.ndarray:
+            """Image polygon of a solid of revolution's profile, (height, half width) pairs from the bottom up."""
+            heights = np.array([p[0] for p in profile] + [p[0] for p in profile[::-1]])
+            widths = np.array([-p[1] for p in profile] + [p[1] for p in profile[::-1]])
+            pts = np.stack([u + f * widths - ox, self.cy + f * (self.eye - heights) - oy], axis=1)
+            return np.round(pts * 16).astype(np.int32)
+
+        for profile, rgb in (
+            ([(0.0, 0.22), (0.05, 0.22)], (36.0, 36.0, 38.0)),
+            ([(0.05, 0.17), (0.75, 0.03)], CONE_ORANGE_RGB),
+            ([(0.3, 0.124), (0.45, 0.094)], BARRIER_WHITE_RGB),
+        ):
+            colour = np.clip(np.asarray(rgb, dtype=np.float32) * light, 0, 255)
+            cv2.fillPoly(patch, [outline(profile)], (*map(int, colour), 255), cv2.LINE_AA, 4)
+        out = patch.astype(np.float32)
+        fog = float(self._fog(np.array(z)))
+        out[..., :3] = out[..., :3] * (1 - fog) + view.lighting.haze * fog
+        out[..., 3] /= 255.0
+        self._composite(view, box, out, z)
