@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -11,20 +10,18 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from campusnav_env.features.encoders import ViewEncoder, make_encoder
-from campusnav_env.features.feature_cache import cached_view_features
-from campusnav_env.features.projection import ViewProjection
+from campusnav_env.features.encoders import ViewEncoder
+from campusnav_env.features.projection import FeatureTransform
+from campusnav_env.features.view_source import ViewSource
 from campusnav_env.maps.campus import default_campus
 from campusnav_env.maps.compass import ACTION_NAMES, COMPASS
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.map_view import draw_map
-from campusnav_env.rendering.street_view import BARRIER_VERSION, RenderSettings, StreetViewRenderer
-from campusnav_env.rendering.world import WORLD_VERSION, build_world
+from campusnav_env.rendering.street_view import RenderSettings
 
 OBSERVATION_MODES = ("features", "image")
 # Cheap settings for image mode: thumbnails are all the policy sees, so render small views directly
-_IMAGE_MODE_VIEW = (48, 64)  # (height, width) of each view in image mode
 
 
 class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
@@ -144,7 +141,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     ) -> None:
         graph = _resolve_world(world)
         _check_observation_mode(observation_mode)
-        source = _ViewSource(
+        source = ViewSource(
             graph.map, observation_mode, encoder, encoder_kwargs, render_settings, world_seed, cache_dir, progress
         )
         node_views = source.open_views()
@@ -232,10 +229,10 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         self.action_space = spaces.Discrete(len(ACTION_NAMES))
 
         # Fit once on the open map's views; views re-rendered later (visible closures) get the same transform
-        self._features = _FeatureTransform.fit(node_views, observation_mode, normalize_features, view_dim)
+        self._features = FeatureTransform.fit(node_views, observation_mode, normalize_features, view_dim)
         self._node_views = self._features.transform(node_views)
         self._open_views = self._node_views
-        self._view_source: _ViewSource | None = None
+        self._view_source: ViewSource | None = None
         self._closure_views: dict[tuple[int, frozenset[tuple[int, int]]], np.ndarray] = {}
         # The closures the views show, and the graph version they were read at (None: not yet, so that closures of a
         # NavigationGraph passed in are shown too)
@@ -514,118 +511,3 @@ def _resolve_goals(graph: RoadGraph, goals: str | int | Sequence[str | int]) -> 
         names.append(by_node.get(node, f"node {node}"))
         nodes.append(node)
     return names, nodes
-
-
-@dataclass(frozen=True)
-class _FeatureTransform:
-    """
-    What turns encoded views into observation rows: fit once on the open map's views, then applied to any views of
-    that map (re-rendered with closure barriers), so that both are comparable.
-
-    :param mode: The observation mode: ``"image"`` keeps the thumbnails as they are
-    :param mean: Per-feature mean of the fitted views (standardisation), or None
-    :param scale: Per-feature standard deviation (plus 1e-6) of the fitted views, or None
-    :param projection: PCA projection fit on the standardised views (``view_dim``), or None
-    """
-
-    mode: str
-    mean: np.ndarray | None = None
-    scale: np.ndarray | None = None
-    projection: ViewProjection | None = None
-
-    @classmethod
-    def fit(
-        cls, node_views: np.ndarray, mode: str, normalize_features: bool, view_dim: int | None
-    ) -> _FeatureTransform:
-        if mode != "features":
-            return cls(mode)
-        views = node_views.astype(np.float32)
-        mean = scale = projection = None
-        if normalize_features:
-            flat = views.reshape(-1, views.shape[-1])
-            mean, scale = flat.mean(axis=0), flat.std(axis=0) + 1e-6
-            views = (views - mean) / scale
-        if view_dim is not None:
-            projection = ViewProjection.fit(views, view_dim)
-        return cls(mode, mean, scale, projection)
-
-    def transform(self, node_views: np.ndarray) -> np.ndarray:
-        """
-        :param node_views: ``(n, 4, *encoding)`` encoded views of ``n`` nodes
-        :return: features mode: ``(n, 4 * D)`` float32 rows (N, E, S, W blocks of D: SB3's extractors expect 1-D
-            vectors); image mode: ``(n, 4, 3, h, w)`` uint8 thumbnails in compass order
-        """
-        if self.mode != "features":
-            return np.ascontiguousarray(node_views, dtype=np.uint8)
-        views = node_views.astype(np.float32)
-        if self.mean is not None:
-            views = (views - self.mean) / self.scale
-        if self.projection is not None:
-            views = self.projection.transform(views)
-        return views.reshape(views.shape[0], -1).astype(np.float32)
-
-
-class _ViewSource:
-    """
-    Per-node encodings of the four compass views, from the on-disk cache or rendered and encoded now: the open map's
-    (every node) and one node's with closure barriers. The 3D world and the renderer are built only on a cache miss.
-    """
-
-    def __init__(
-        self,
-        graph: RoadGraph,
-        observation_mode: str,
-        encoder: str | ViewEncoder,
-        encoder_kwargs: Mapping[str, Any] | None,
-        render_settings: RenderSettings | None,
-        world_seed: int,
-        cache_dir: str | Path | None,
-        progress: bool,
-    ) -> None:
-        if observation_mode == "image":
-            height, width = _IMAGE_MODE_VIEW
-            encoder = make_encoder("thumbnail", height=height, width=width)
-            # Thumbnails are downscaled from renders 4x their size, which keeps signs and windows legible
-            render_settings = render_settings or RenderSettings(width=4 * width, height=4 * height)
-        elif isinstance(encoder, str):
-            encoder = make_encoder(encoder, **dict(encoder_kwargs or {}))
-        self.graph = graph
-        self.encoder = encoder
-        self.settings = render_settings or RenderSettings()
-        self.world_seed = world_seed
-        self.cache_dir = cache_dir
-        self.progress = progress
-        self._renderer: StreetViewRenderer | None = None
-        # Keyed without building the world: its inputs (graph, seed, generator version) determine it
-        self.key_parts = {
-            "graph": graph.fingerprint(),
-            "world": f"v{WORLD_VERSION}-seed{world_seed}",
-            "render": self.settings.key(),
-        }
-
-    @property
-    def renderer(self) -> StreetViewRenderer:
-        if self._renderer is None:
-            self._renderer = StreetViewRenderer(build_world(self.graph, seed=self.world_seed), self.settings)
-        return self._renderer
-
-    def open_views(self) -> np.ndarray:
-        """``(N, 4, *encoding)``: every node's views of the open map."""
-        return cached_view_features(
-            self.key_parts,
-            self.graph.n_nodes,
-            lambda node: self.renderer.render_node(node),
-            self.encoder,
-            cache_dir=self.cache_dir,
-            progress=self.progress,
-        )
-
-    def views_with(self, node: int, closed_roads: frozenset[tuple[int, int]]) -> np.ndarray:
-        """``(4, *encoding)``: one node's views with barriers on ``closed_roads`` (a one-node cache entry)."""
-        roads = ",".join(f"{u}-{v}" for u, v in sorted(closed_roads))
-        key_parts = {**self.key_parts, "closures": f"barrier-v{BARRIER_VERSION}|node={node}|closed={roads}"}
-
-        def render(_: int) -> np.ndarray:  # the entry's only node, 0, is this node
-            return self.renderer.render_node(node, closed_roads=closed_roads)
-
-        return cached_view_features(key_parts, 1, render, self.encoder, cache_dir=self.cache_dir, progress=False)[0]

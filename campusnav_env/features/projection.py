@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ViewProjection", "pca_project"]
+__all__ = ["FeatureTransform", "ViewProjection", "pca_project"]
 
 
 @dataclass(frozen=True)
@@ -96,3 +96,52 @@ def pca_project(views: np.ndarray, dim: int) -> np.ndarray:
     :raises ValueError: if ``dim`` is out of range
     """
     return ViewProjection.fit(views, dim).transform(views)
+
+
+@dataclass(frozen=True)
+class FeatureTransform:
+    """
+    What turns encoded views into observation rows: fit once on the open map's views, then applied to any views of
+    that map (re-rendered with closure barriers), so that both are comparable.
+
+    :param mode: The observation mode: ``"image"`` keeps the thumbnails as they are
+    :param mean: Per-feature mean of the fitted views (standardisation), or None
+    :param scale: Per-feature standard deviation (plus 1e-6) of the fitted views, or None
+    :param projection: PCA projection fit on the standardised views (``view_dim``), or None
+    """
+
+    mode: str
+    mean: np.ndarray | None = None
+    scale: np.ndarray | None = None
+    projection: ViewProjection | None = None
+
+    @classmethod
+    def fit(
+        cls, node_views: np.ndarray, mode: str, normalize_features: bool, view_dim: int | None
+    ) -> FeatureTransform:
+        if mode != "features":
+            return cls(mode)
+        views = node_views.astype(np.float32)
+        mean = scale = projection = None
+        if normalize_features:
+            flat = views.reshape(-1, views.shape[-1])
+            mean, scale = flat.mean(axis=0), flat.std(axis=0) + 1e-6
+            views = (views - mean) / scale
+        if view_dim is not None:
+            projection = ViewProjection.fit(views, view_dim)
+        return cls(mode, mean, scale, projection)
+
+    def transform(self, node_views: np.ndarray) -> np.ndarray:
+        """
+        :param node_views: ``(n, 4, *encoding)`` encoded views of ``n`` nodes
+        :return: features mode: ``(n, 4 * D)`` float32 rows (N, E, S, W blocks of D: SB3's extractors expect 1-D
+            vectors); image mode: ``(n, 4, 3, h, w)`` uint8 thumbnails in compass order
+        """
+        if self.mode != "features":
+            return np.ascontiguousarray(node_views, dtype=np.uint8)
+        views = node_views.astype(np.float32)
+        if self.mean is not None:
+            views = (views - self.mean) / self.scale
+        if self.projection is not None:
+            views = self.projection.transform(views)
+        return views.reshape(views.shape[0], -1).astype(np.float32)
