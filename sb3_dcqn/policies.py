@@ -88,6 +88,20 @@ def create_ensemble_mlp(
     return nn.Sequential(*layers)
 
 
+def _check_heading_key(observation_space: spaces.Space, action_space: spaces.Space, heading_key: str | None) -> None:
+    """A heading key must name a one-hot Box with one entry per action in a Dict observation."""
+    if heading_key is None:
+        return
+    if not isinstance(observation_space, spaces.Dict) or heading_key not in observation_space.spaces:
+        raise ValueError(f"heading_key {heading_key!r} is not a key of the Dict observation space {observation_space}")
+    n_actions = int(action_space.n) if isinstance(action_space, spaces.Discrete) else -1
+    if observation_space[heading_key].shape != (n_actions,):
+        raise ValueError(
+            f"heading_key {heading_key!r}: the heading must be one-hot over the {n_actions} relative actions, got "
+            f"shape {observation_space[heading_key].shape}"
+        )
+
+
 def _has_parameters(module: nn.Module) -> bool:
     return any(True for _ in module.parameters())
 
@@ -104,6 +118,8 @@ class TwinQNetwork(BasePolicy):
     :param activation_fn: Activation function
     :param normalize_images: Whether to normalize images or not, dividing by 255.0 (True by default)
     :param n_critics: Number of critics
+    :param heading_key: Observation key of a one-hot heading to which the actions are relative (see
+        :class:`DCQNPolicy`); ``None``: the critics score the actions directly
     """
 
     action_space: spaces.Discrete
@@ -118,6 +134,7 @@ class TwinQNetwork(BasePolicy):
         activation_fn: type[nn.Module] = nn.ReLU,
         normalize_images: bool = True,
         n_critics: int = 2,
+        heading_key: str | None = None,
     ) -> None:
         if len(features_extractors) not in (1, n_critics):
             raise ValueError(
@@ -136,6 +153,7 @@ class TwinQNetwork(BasePolicy):
         self.activation_fn = activation_fn
         self.features_dim = features_dim
         self.n_critics = n_critics
+        self.heading_key = heading_key
         # The first extractor is registered by BasePolicy as `features_extractor`; the others (if any) live here
         self.extra_features_extractors = nn.ModuleList(features_extractors[1:])
         self.q_net = create_ensemble_mlp(n_critics, features_dim, int(action_space.n), net_arch, activation_fn)
@@ -151,12 +169,23 @@ class TwinQNetwork(BasePolicy):
         :param obs: Observation
         :return: Q-values of shape ``(n_critics, batch, n_actions)``
         """
+        seen = obs
+        if self.heading_key is not None:
+            assert isinstance(obs, dict)
+            seen = {key: value for key, value in obs.items() if key != self.heading_key}
         if self.shares_features_extractor:
-            features = self.extract_features(obs, self.features_extractor)
+            features = self.extract_features(seen, self.features_extractor)
         else:
             extractors = [self.features_extractor, *self.extra_features_extractors]
-            features = th.stack([self.extract_features(obs, extractor) for extractor in extractors])
-        return self.q_net(features)
+            features = th.stack([self.extract_features(seen, extractor) for extractor in extractors])
+        q_values = self.q_net(features)
+        if self.heading_key is None:
+            return q_values
+        # The critics scored the absolute directions; action a at heading h takes direction (h + a) % n
+        n_directions = q_values.shape[-1]
+        heading = obs[self.heading_key].argmax(dim=1)  # type: ignore[index]
+        directions = (heading[:, None] + th.arange(n_directions, device=heading.device)[None, :]) % n_directions
+        return th.gather(q_values, 2, directions.unsqueeze(0).expand(q_values.shape[0], -1, -1))
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         # Greedy action on the mean of the critics: the same rule in predict, evaluation and exploration
@@ -172,6 +201,7 @@ class TwinQNetwork(BasePolicy):
                 activation_fn=self.activation_fn,
                 features_extractors=[self.features_extractor, *self.extra_features_extractors],
                 n_critics=self.n_critics,
+                heading_key=self.heading_key,
             )
         )
         return data
@@ -201,6 +231,12 @@ class DCQNPolicy(BasePolicy):
     :param n_critics: Number of critics (2 for DCQN)
     :param share_features_extractor: Whether the critics share one features extractor. Extractors without
         parameters are always shared, since separate copies would compute the same features.
+    :param heading_key: For actions relative to a heading given in the observation as a one-hot vector under this
+        key (CampusNav: ``"heading"``, actions forward/right/back/left). The critics then score the absolute
+        directions from the other keys only and the policy rotates the scores into the heading's frame: action ``a``
+        at heading ``h`` gets the score of direction ``(h + a) % n``. What the agent learns at one heading holds at
+        every heading (a road found closed is closed whichever way the agent faces). ``None`` (default, the paper's
+        critic): the heading is one more input
     """
 
     q_net: TwinQNetwork
@@ -220,7 +256,9 @@ class DCQNPolicy(BasePolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         n_critics: int = 2,
         share_features_extractor: bool = False,
+        heading_key: str | None = None,
     ) -> None:
+        _check_heading_key(observation_space, action_space, heading_key)
         super().__init__(
             observation_space,
             action_space,
@@ -238,6 +276,7 @@ class DCQNPolicy(BasePolicy):
         self.activation_fn = activation_fn
         self.n_critics = n_critics
         self.share_features_extractor = share_features_extractor
+        self.heading_key = heading_key
         self.net_args = {
             "observation_space": self.observation_space,
             "action_space": self.action_space,
@@ -245,6 +284,7 @@ class DCQNPolicy(BasePolicy):
             "activation_fn": self.activation_fn,
             "normalize_images": normalize_images,
             "n_critics": n_critics,
+            "heading_key": heading_key,
         }
         self._build(lr_schedule)
 
@@ -265,6 +305,14 @@ class DCQNPolicy(BasePolicy):
             lr=lr_schedule(1),
             **self.optimizer_kwargs,
         )
+
+    def make_features_extractor(self) -> BaseFeaturesExtractor:
+        """A features extractor of the observation, without the heading when the actions are relative to it."""
+        if self.heading_key is None:
+            return super().make_features_extractor()
+        assert isinstance(self.observation_space, spaces.Dict)
+        seen = spaces.Dict({k: v for k, v in self.observation_space.spaces.items() if k != self.heading_key})
+        return self.features_extractor_class(seen, **self.features_extractor_kwargs)
 
     def make_q_net(self) -> TwinQNetwork:
         # Always fresh extractors, so that online and target critics share no parameters
@@ -296,6 +344,7 @@ class DCQNPolicy(BasePolicy):
                 features_extractor_kwargs=self.features_extractor_kwargs,
                 n_critics=self.n_critics,
                 share_features_extractor=self.share_features_extractor,
+                heading_key=self.heading_key,
             )
         )
         return data
