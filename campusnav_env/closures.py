@@ -274,4 +274,3 @@ def first_road_on_route(graph: NavigationGraph, route: Sequence[int], protect: S
         if u != v and _closable(graph, road_key(u, v), protect):
             return road_key(u, v)
     return None
-

@@ -116,9 +116,7 @@ class FeatureTransform:
     projection: ViewProjection | None = None
 
     @classmethod
-    def fit(
-        cls, node_views: np.ndarray, mode: str, normalize_features: bool, view_dim: int | None
-    ) -> FeatureTransform:
+    def fit(cls, node_views: np.ndarray, mode: str, normalize_features: bool, view_dim: int | None) -> FeatureTransform:
         if mode != "features":
             return cls(mode)
         views = node_views.astype(np.float32)

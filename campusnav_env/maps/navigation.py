@@ -337,4 +337,3 @@ class NavigationGraph:
 
     def __repr__(self) -> str:
         return f"NavigationGraph({self.map!r}, closed={sorted(self.closed_roads)})"
-
