@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from report import command_line, write_results  # benchmarks/report.py, beside this script
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -32,19 +31,6 @@ HYPERPARAMS = Path(__file__).resolve().parents[1] / "sb3_dcqn" / "hyperparams" /
 ALGOS = ("DQN", "DCQN")
 # RL Zoo's published DQN scores (rl-baselines3-zoo benchmark table), for reference
 ZOO_DQN_REFERENCE = {"CartPole-v1": "500 +- 0 (50k steps)", "Acrobot-v1": "about -75 (100k steps)"}
-
-
-def load_hyperparams(env_id: str, path: Path = HYPERPARAMS) -> tuple[int, dict[str, Any]]:
-    """The env's entry of the zoo-format YAML as (n_timesteps, algorithm kwargs)."""
-    with open(path) as file:
-        table = yaml.safe_load(file)
-    if env_id not in table:
-        raise KeyError(f"{path}: no entry for env {env_id!r} (entries: {sorted(table)})")
-    entry = dict(table[env_id])
-    n_timesteps = int(entry.pop("n_timesteps"))
-    if isinstance(entry.get("policy_kwargs"), str):
-        entry["policy_kwargs"] = eval(entry["policy_kwargs"], {"dict": dict})  # zoo convention: a Python expression
-    return n_timesteps, entry
 
 
 def run_one(algo_name: str, env_id: str, seed: int, n_eval_episodes: int = 20) -> dict[str, Any]:
@@ -56,9 +42,11 @@ def run_one(algo_name: str, env_id: str, seed: int, n_eval_episodes: int = 20) -
     from stable_baselines3.common.monitor import Monitor
 
     from sb3_dcqn import DCQN
+    from sb3_dcqn.zoo import load_zoo_entry
 
     th.set_num_threads(1)
-    n_timesteps, kwargs = load_hyperparams(env_id)
+    entry = load_zoo_entry(HYPERPARAMS, env_id)
+    n_timesteps, kwargs = entry.n_timesteps, entry.hyperparams
     algo = {"DQN": DQN, "DCQN": DCQN}[algo_name]
     start = time.perf_counter()
     model = algo(env=gym.make(env_id), seed=seed, device="cpu", **kwargs)

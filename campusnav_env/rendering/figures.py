@@ -27,6 +27,7 @@ import itertools
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -37,6 +38,9 @@ from campusnav_env.maps.road_graph import RoadGraph, road_key
 from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation
 from campusnav_env.rendering.map_view import CLOSED_RGB, TEXT_RGB, draw_map
 from campusnav_env.route_evaluation import Route
+
+if TYPE_CHECKING:
+    import matplotlib.figure
 
 __all__ = ["closure_route_panels", "panel_title", "training_curves", "write_figure"]
 
@@ -321,7 +325,6 @@ def training_curves(
     :raises ValueError: rewards and lengths of different lengths, non-finite values, a bad window or size
     """
     # Imported here: matplotlib is only needed for this figure
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     rewards = _episode_array(episode_rewards, "episode_rewards")
@@ -346,7 +349,6 @@ def training_curves(
 
     dpi = 100
     figure = Figure(figsize=(width / dpi, height / dpi), dpi=dpi, layout="constrained")
-    canvas = FigureCanvasAgg(figure)
     n_panels = 3 if evaluations else 2
     axes = figure.subplots(n_panels, 1, sharex=True)
     episodes = np.arange(1, rewards.size + 1)
@@ -431,8 +433,7 @@ def training_curves(
     if title:
         figure.suptitle(title, fontsize=11)
 
-    canvas.draw()
-    image = np.asarray(canvas.buffer_rgba())[..., :3].copy()
+    image = figure_image(figure)
     if image.shape[:2] != (height, width):  # rounding of the figure size: pad or crop to the size asked for
         out = np.full((height, width, 3), 255, dtype=np.uint8)
         h, w = min(height, image.shape[0]), min(width, image.shape[1])
@@ -442,6 +443,22 @@ def training_curves(
 
 
 # ------------------------------------------------------------------------------------------------ output
+
+
+def figure_image(figure: matplotlib.figure.Figure) -> np.ndarray:
+    """
+    Draw a Matplotlib figure (made with ``Figure``, not ``pyplot``) into an RGB array.
+
+    :param figure: The figure
+    :return: ``(H, W, 3)`` uint8 RGB image
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = figure.canvas if isinstance(figure.canvas, FigureCanvasAgg) else FigureCanvasAgg(figure)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+
+
 def write_figure(path: str | Path, image: np.ndarray) -> Path:
     """
     Write an RGB figure as a PNG, atomically (the folder is created if needed).
