@@ -15,7 +15,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -24,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from report import command_line, write_results  # benchmarks/report.py, beside this script
+from report import append_run, publish, read_runs  # benchmarks/report.py, beside this script
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 HYPERPARAMS = Path(__file__).resolve().parents[1] / "sb3_dcqn" / "hyperparams" / "dcqn.yml"
@@ -66,12 +65,6 @@ def run_one(algo_name: str, env_id: str, seed: int, n_eval_episodes: int = 20) -
     }
 
 
-def read_results(path: Path) -> list[dict[str, Any]]:
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-
-
 def summarise(results: list[dict[str, Any]], envs: list[str]) -> list[str]:
     lines = [
         "| env | algo | seeds | final eval reward (mean +- std over seeds) | train time per run (s) "
@@ -104,7 +97,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
 
     args.runs_file.parent.mkdir(parents=True, exist_ok=True)
-    done = {(r["algo"], r["env"], r["seed"]) for r in read_results(args.runs_file)}
+    done = {(r["algo"], r["env"], r["seed"]) for r in read_runs(args.runs_file)}
     todo = [
         (algo, env_id, seed)
         for env_id in args.envs
@@ -117,8 +110,7 @@ def main(argv: list[str] | None = None) -> None:
         futures = {pool.submit(run_one, *job): job for job in todo}
         for future in as_completed(futures):
             result = future.result()
-            with open(args.runs_file, "a") as file:  # append one line per finished run
-                file.write(json.dumps(result) + "\n")
+            append_run(args.runs_file, result)
             print(
                 f"{result['algo']:>4} {result['env']:<12} seed {result['seed']}: "
                 f"{result['mean_reward']:8.1f} in {result['train_seconds']:.0f} s",
@@ -132,13 +124,9 @@ def main(argv: list[str] | None = None) -> None:
         f"{args.workers} runs in parallel. Final evaluation: 20 deterministic episodes after training.",
         "Hyperparameters: `hyperparams/dcqn.yml` (identical to rl_zoo3's `dqn.yml` entries) for both algorithms.",
         "",
-        *summarise(read_results(args.runs_file), args.envs),
-        "",
-        command_line("classic_control.py", argv),
+        *summarise(read_runs(args.runs_file), args.envs),
     ]
-    print("\n".join(lines))
-    write_results(args.out, "\n".join(lines))
-    print(f"wrote {args.out}")
+    publish(args.out, lines, "classic_control.py", argv)
 
 
 if __name__ == "__main__":

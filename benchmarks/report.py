@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from campusnav_env.atomic_files import write_text_atomic
 
@@ -18,3 +20,25 @@ def write_results(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` atomically, so an interrupted run never leaves half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(path, text if text.endswith("\n") else text + "\n")
+
+
+def publish(path: Path, lines: list[str], script: str, argv: list[str] | None) -> None:
+    """Print a results file's lines, followed by the command that made them, and write them to ``path``."""
+    text = "\n".join([*lines, "", command_line(script, argv)])
+    print(text)
+    write_results(path, text)
+    print(f"wrote {path}")
+
+
+def read_runs(path: Path) -> list[dict[str, Any]]:
+    """The runs recorded so far in a JSON-lines file (none if it does not exist)."""
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def append_run(path: Path, run: dict[str, Any]) -> None:
+    """Record one finished run: one JSON line, appended, so an interrupted benchmark keeps what it finished."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as file:
+        file.write(json.dumps(run) + "\n")

@@ -1,0 +1,292 @@
+"""What the CampusNav benchmarks share: the tasks, the agents compared, and training until the map is solved.
+
+A *task* is a map and its goals (the built-in campus with one or four goals, or a generated campus of a few hundred
+intersections) with the shipped YAML entry that trains on it. A *variant* is an agent: DCQN as shipped, DCQN without
+the heading-relative critics (the network SB3's DQN can have too), SB3's DQN with the same settings, and DCQN with
+the paper's settings. :func:`train_until_solved` trains one agent inside one ``learn()`` call, evaluating the greedy
+routes from every (start, heading) every ``eval_freq`` steps, and stops at the first evaluation at the thresholds or
+when the training-time budget is spent (evaluation time excluded).
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+from stable_baselines3 import DQN
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+
+import campusnav_env  # noqa: F401  (registers the CampusNav ids)
+from campusnav_env.callbacks import RouteEvaluationCallback
+from campusnav_env.env import CampusNavEnv
+from campusnav_env.maps.campus import generate_campus
+from campusnav_env.recovery import RouteEvaluation
+from campusnav_env.rendering.street_view import RenderSettings
+from sb3_dcqn import DCQN
+from sb3_dcqn.zoo import ZooEntry, default_hyperparams_path, load_zoo_entry, paper_hyperparams_path
+
+# The issue's threshold for a solved map
+SUCCESS_THRESHOLD = 0.99
+SPL_THRESHOLD = 0.98
+
+
+@dataclass(frozen=True)
+class Task:
+    """
+    A map, its goals and the shipped YAML entry that trains on it.
+
+    :param name: Short name (command line, results)
+    :param description: What the task is, for tables
+    :param entry_env_id: The YAML entry to train with
+    :param env_id: A registered env id, or ``None`` for a generated campus of ``n_nodes`` intersections
+    :param n_nodes: Intersections of the generated campus
+    :param max_steps: Step cap (a run that reaches it unsolved is reported as a miss)
+    :param budget_seconds: Training-time cap (evaluation excluded)
+    :param goal_seconds: The issue's goal for the time to a solved map
+    :param eval_freq: Route evaluation every this many env steps
+    :param env_kwargs: Extra env arguments (e.g. a cheap encoder for smoke runs)
+    """
+
+    name: str
+    description: str
+    entry_env_id: str
+    env_id: str | None = None
+    n_nodes: int = 101
+    max_steps: int = 100_000
+    budget_seconds: float = 120.0
+    goal_seconds: float = 60.0
+    eval_freq: int = 1_000
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+    def make_env(self, entry: ZooEntry, **env_kwargs: Any) -> gym.Env:
+        """The training env (the evaluation runs on the same env, between episodes' steps)."""
+        kwargs = {**entry.env_kwargs, "progress": False, **self.env_kwargs, **env_kwargs}
+        if self.env_id is not None:
+            return gym.make(self.env_id, **kwargs)
+        # A generated campus keeps the default campus's landmark names; its goal is Dreese Lab
+        return CampusNavEnv(world=generate_campus(self.n_nodes, seed=0), goals="Dreese Lab", **kwargs)
+
+
+TASKS = {
+    task.name: task
+    for task in (
+        Task("campus", "CampusNav-v0 (101 nodes, 1 goal)", "CampusNav-v0", "CampusNav-v0", 101, 60_000, 120, 60),
+        Task("multi", "CampusNavMulti-v0 (101 nodes, 4 goals)", "CampusNavMulti-v0", "CampusNavMulti-v0", 101,
+             max_steps=240_000, budget_seconds=600, goal_seconds=300, eval_freq=2_000),
+        Task("campus200", "generated campus, 200 nodes, 1 goal", "CampusNav-v0", None, 200,
+             max_steps=200_000, budget_seconds=450, goal_seconds=300, eval_freq=2_000),
+        Task("campus500", "generated campus, 500 nodes, 1 goal", "CampusNav-v0", None, 500,
+             max_steps=600_000, budget_seconds=900, goal_seconds=900, eval_freq=5_000),
+        # A smoke run: small street views, a cheap pixel encoder, a few hundred steps (tests and --quick)
+        Task("quick", "smoke run (CampusNav-v0, 64x48 pixel features)", "CampusNav-v0", "CampusNav-v0", 101,
+             max_steps=600, budget_seconds=30, goal_seconds=30, eval_freq=300,
+             env_kwargs={"encoder": "pixels", "render_settings": RenderSettings(width=64, height=48)}),
+    )
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Variant:
+    """
+    An agent: an algorithm, the hyperparameter file it reads, and changes to its entry.
+
+    :param name: Name in tables
+    :param algo: ``"DCQN"`` or ``"DQN"``
+    :param paper: Read ``dcqn_paper.yml`` instead of ``dcqn.yml``
+    :param drop_policy_kwargs: ``policy_kwargs`` keys removed from the entry (what the other policy does not have)
+    :param overrides: Algorithm keyword arguments replaced in the entry
+    :param policy_overrides: ``policy_kwargs`` entries replaced in the entry
+    :param env_overrides: ``env_kwargs`` entries replaced in the entry (``None`` values remove the key)
+    """
+
+    name: str
+    algo: str = "DCQN"
+    paper: bool = False
+    drop_policy_kwargs: tuple[str, ...] = ()
+    overrides: dict[str, Any] = field(default_factory=dict)
+    policy_overrides: dict[str, Any] = field(default_factory=dict)
+    env_overrides: dict[str, Any] = field(default_factory=dict)
+
+    def entry(self, task: Task) -> ZooEntry:
+        path = paper_hyperparams_path() if self.paper else default_hyperparams_path()
+        entry = load_zoo_entry(path, task.entry_env_id)
+        hyperparams = copy.deepcopy(entry.hyperparams)
+        for key in self.drop_policy_kwargs:
+            hyperparams.get("policy_kwargs", {}).pop(key, None)
+        hyperparams.update(self.overrides)
+        if self.policy_overrides:
+            hyperparams["policy_kwargs"] = {**hyperparams.get("policy_kwargs", {}), **self.policy_overrides}
+        env_kwargs = {**entry.env_kwargs, **self.env_overrides}
+        env_kwargs = {key: value for key, value in env_kwargs.items() if value is not None}
+        # Exploration is set in steps by the YAML's n_timesteps; keep that many steps whatever the step cap
+        explore_steps = hyperparams.get("exploration_fraction", 0.1) * entry.n_timesteps
+        hyperparams["exploration_fraction"] = min(explore_steps / task.max_steps, 1.0)
+        return ZooEntry(task.max_steps, hyperparams, env_kwargs, entry.n_envs)
+
+    def make_model(self, env: gym.Env, entry: ZooEntry, seed: int, **kwargs: Any) -> BaseAlgorithm:
+        algo = {"DCQN": DCQN, "DQN": DQN}[self.algo]
+        return algo(env=env, seed=seed, device="cpu", **{**entry.hyperparams, **kwargs})
+
+
+VARIANTS = {
+    variant.name: variant
+    for variant in (
+        Variant("DCQN"),
+        # The critics read the heading like any other input: the network SB3's DQN can have too
+        Variant("DCQN, no heading_key", drop_policy_kwargs=("heading_key",)),
+        Variant("DQN", algo="DQN", drop_policy_kwargs=("heading_key", "share_features_extractor")),
+        Variant("DCQN, paper settings", paper=True),
+        # The CampusNav-v0 entry before the learning-speed work: full 1280-d features, width 256, lr 1e-4
+        Variant(
+            "DCQN, previous settings",
+            drop_policy_kwargs=("heading_key",),
+            overrides={"learning_rate": 1e-4},
+            policy_overrides={"features_extractor_kwargs": {"embed_dim": 256, "features_dim": 256}, "net_arch": [256]},
+            env_overrides={"view_dim": None},
+        ),
+    )
+}
+
+
+class TrainingBudget(BaseCallback):
+    """Stops training once ``evaluation`` has counted ``seconds`` of training (its evaluations excluded)."""
+
+    def __init__(self, evaluation: RouteEvaluationCallback, seconds: float) -> None:
+        super().__init__()
+        self.evaluation = evaluation
+        self.seconds = seconds
+
+    def _on_step(self) -> bool:
+        return self.evaluation.train_seconds < self.seconds
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    """
+    One training run to the threshold.
+
+    :param solved_at: The first evaluation at the thresholds, or ``None`` (a miss)
+    :param evaluations: Every evaluation of the run
+    :param wall_seconds: Wall time of ``learn()``, evaluations included
+    """
+
+    solved_at: RouteEvaluation | None
+    evaluations: list[RouteEvaluation]
+    wall_seconds: float
+
+    def curve(self) -> list[dict[str, float]]:
+        return [
+            {"step": e.step, "episode": e.episode, "seconds": e.train_seconds, "success": e.success_rate, "spl": e.spl}
+            for e in self.evaluations
+        ]
+
+
+def train_until_solved(
+    model: BaseAlgorithm,
+    max_steps: int,
+    budget_seconds: float,
+    eval_freq: int,
+    evaluation: RouteEvaluationCallback | None = None,
+    **learn_kwargs: Any,
+) -> SolveResult:
+    """
+    Train until the greedy routes from every start meet the thresholds, the step cap or the time budget.
+
+    :param model: The agent (its env is evaluated: the first training env)
+    :param max_steps: Step cap
+    :param budget_seconds: Training-time cap, evaluations excluded
+    :param eval_freq: Evaluate every this many env steps
+    :param evaluation: An evaluation callback of your own (default: one at the issue's thresholds)
+    :return: the first evaluation at the thresholds (or ``None``) and all evaluations
+    """
+    if evaluation is None:
+        evaluation = RouteEvaluationCallback(
+            eval_freq=eval_freq,
+            success_threshold=SUCCESS_THRESHOLD,
+            spl_threshold=SPL_THRESHOLD,
+            stop_when_solved=True,
+        )
+    start = time.perf_counter()
+    model.learn(
+        max_steps, callback=CallbackList([evaluation, TrainingBudget(evaluation, budget_seconds)]), **learn_kwargs
+    )
+    wall = time.perf_counter() - start
+    solved = next(
+        (e for e in evaluation.evaluations if e.meets(evaluation.success_threshold, evaluation.spl_threshold)), None
+    )
+    return SolveResult(solved, list(evaluation.evaluations), wall)
+
+
+# ------------------------------------------------------------------------------------------------ closure experiments
+@dataclass(frozen=True)
+class Lever:
+    """
+    A re-adaptation lever of DCQN (``benchmarks/closures_*.py``): algorithm options and env options on top of the
+    shipped entry.
+
+    :param name: Name in tables
+    :param overrides: DCQN keyword arguments added to (or replacing) the entry's
+    :param env_kwargs: Env keyword arguments added to the entry's (e.g. ``visible_closures=True``)
+    """
+
+    name: str
+    overrides: dict[str, Any] = field(default_factory=dict)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+    def entry(self, task: Task) -> ZooEntry:
+        """The shipped DCQN entry for ``task`` with this lever's options."""
+        entry = Variant(self.name, overrides=self.overrides).entry(task)
+        return ZooEntry(entry.n_timesteps, entry.hyperparams, {**entry.env_kwargs, **self.env_kwargs}, entry.n_envs)
+
+
+_ALL_LEVERS = {
+    "experience_revision": True,
+    "prioritized_replay": True,
+    "adaptation_boost": {"trigger": "revision"},
+}
+LEVERS = {
+    "baseline": Lever("baseline (DCQN as shipped)"),
+    "revision": Lever("experience revision", {"experience_revision": True}),
+    "per": Lever("prioritised replay", {"prioritized_replay": True}),
+    # Alone, the boost cannot be triggered by revisions: longer episodes are the sign that the world changed
+    "boost": Lever("boost (episode-length trigger)", {"adaptation_boost": {"trigger": "episode_length"}}),
+    "boost_td": Lever("boost (TD-error trigger)", {"adaptation_boost": {"trigger": "td_error"}}),
+    "visible": Lever("visible closures", env_kwargs={"visible_closures": True}),
+    "revision_boost": Lever(
+        "revision + boost (revision trigger)",
+        {"experience_revision": True, "adaptation_boost": {"trigger": "revision"}},
+    ),
+    "all": Lever("all levers (revision, PER, boost on revision, visible)", _ALL_LEVERS, {"visible_closures": True}),
+}
+
+
+def quick_env_kwargs() -> dict[str, Any]:
+    """Cheap env settings for smoke runs: pixel features of 64x48 views (no CNN, views rendered in seconds)."""
+    from campusnav_env.rendering.street_view import RenderSettings
+
+    return {"encoder": "pixels", "render_settings": RenderSettings(width=64, height=48)}
+
+
+def machine_line(runs: str = "runs one after another in one process") -> str:
+    """The Markdown line describing the machine a results file was measured on."""
+    import os
+    import platform
+
+    return (
+        f"Machine: {platform.platform()}, {platform.machine()}, {os.cpu_count()} cores (shared: another benchmark may "
+        f"run on the other core), 1 torch thread; {runs}."
+    )
+
+
+def figure_rgb(figure: Any) -> Any:
+    """Draw a matplotlib ``Figure`` on an Agg canvas and return it as an ``(H, W, 3)`` uint8 RGB array."""
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(figure)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()

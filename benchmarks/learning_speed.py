@@ -1,0 +1,289 @@
+"""Learning speed: training time to a solved map, DCQN against SB3's DQN in the same run, several seeds and maps.
+
+A map is *solved* at the first route evaluation (the greedy policy from every (start, heading) pair to every goal,
+run every ``eval_freq`` env steps inside one ``learn()`` call) with success >= 0.99 and SPL >= 0.98. The figure is the
+training wall time to that evaluation, evaluation time excluded, with the env steps and episodes it took. A run that
+spends its step cap or time budget unsolved is a miss and is reported as one.
+
+Tasks (``--tasks``): ``campus`` (CampusNav-v0: 101 intersections, goal Dreese Lab), ``multi`` (CampusNavMulti-v0: the
+four goals), ``campus200`` and ``campus500`` (generated campuses of 200 and 500 intersections, goal Dreese Lab). All
+use EfficientNet-Lite0 features projected to 64 dimensions per view (the shipped ``env_kwargs``). Agents
+(``--variants``): ``DCQN`` as shipped (``hyperparams/dcqn.yml``), ``DCQN, no heading_key`` (the critics read the
+heading as an input: the network DQN has), ``DQN`` (SB3's DQN, same settings and network), ``DCQN, paper settings``
+(``hyperparams/dcqn_paper.yml``: lr 1e-4, buffer 412, full 1280-d features).
+
+Runs go one after another in this process (one torch thread), each finished run appended to a JSON-lines file, so
+an interrupted benchmark keeps its results and a rerun skips what is done. Writes ``results/learning_speed.md`` and
+``results/learning_speed.png`` (success vs training seconds, one line per run).
+
+Usage::
+
+    python benchmarks/learning_speed.py                                    # campus and multi, seeds 0 1 2
+    python benchmarks/learning_speed.py --tasks campus200 campus500 --variants DCQN DQN --seeds 0 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from campusnav_runs import TASKS, VARIANTS, train_until_solved  # beside this script
+from matplotlib.figure import Figure
+from report import append_run, publish, read_runs, write_results
+
+from campusnav_env.rendering.figures import figure_image, write_figure
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+DEFAULT_VARIANTS = ("DCQN", "DCQN, no heading_key", "DQN")
+
+
+def run_one(
+    task_name: str, variant_name: str, seed: int, budget_seconds: float | None = None, max_steps: int | None = None
+) -> dict[str, Any]:
+    """Train one agent on one task to the threshold (or its caps) and return the run's record."""
+    task, variant = TASKS[task_name], VARIANTS[variant_name]
+    task = replace(
+        task,
+        budget_seconds=budget_seconds or task.budget_seconds,
+        max_steps=max_steps or task.max_steps,
+    )
+    entry = variant.entry(task)
+    env = task.make_env(entry)
+    model = variant.make_model(env, entry, seed)
+    result = train_until_solved(model, task.max_steps, task.budget_seconds, task.eval_freq)
+    last = result.evaluations[-1]
+    solved = result.solved_at
+    return {
+        "task": task_name,
+        "variant": variant_name,
+        "seed": seed,
+        "solved": solved is not None,
+        "seconds": solved.train_seconds if solved else last.train_seconds,
+        "steps": solved.step if solved else last.step,
+        "episodes": solved.episode if solved else last.episode,
+        "final_success": last.success_rate,
+        "final_spl": last.spl,
+        "wall_seconds": result.wall_seconds,
+        "budget_seconds": task.budget_seconds,
+        "max_steps": task.max_steps,
+        "curve": result.curve(),
+    }
+
+
+def profile_costs(task_name: str, variant_name: str, repeats: int = 300) -> dict[str, float]:
+    """
+    Milliseconds per env step, action selection, replay sample and gradient step (its sample included) of one agent,
+    measured after 2,000 steps of training so that the buffer holds real transitions, and what one training env step
+    costs from them: an env step and an action, plus ``gradient_steps`` gradient steps every ``train_freq`` steps.
+    """
+    task, variant = TASKS[task_name], VARIANTS[variant_name]
+    entry = variant.entry(task)
+    env = task.make_env(entry)
+    model = variant.make_model(env, entry, seed=0)
+    model.learn(2_000)
+    rng = np.random.default_rng(0)
+    observation, _ = env.reset(seed=0)
+
+    def env_step() -> None:
+        _, _, terminated, truncated, _ = env.step(int(rng.integers(4)))
+        if terminated or truncated:
+            env.reset()
+
+    def per_call(function: Any) -> float:
+        function()  # warm up
+        start = time.perf_counter()
+        for _ in range(repeats):
+            function()
+        return 1e3 * (time.perf_counter() - start) / repeats
+
+    costs = {
+        "env step": per_call(env_step),
+        "action selection": per_call(lambda: model.predict(observation, deterministic=True)),
+        "replay sample": per_call(lambda: model.replay_buffer.sample(model.batch_size)),
+        "gradient step": per_call(lambda: model.train(gradient_steps=1, batch_size=model.batch_size)),
+    }
+    updates_per_step = max(model.gradient_steps, 1) / model.train_freq.frequency
+    costs["training env step"] = (
+        costs["env step"] + costs["action selection"] + updates_per_step * costs["gradient step"]
+    )
+    return costs
+
+
+PROFILE_COLUMNS = ("env step", "action selection", "replay sample", "gradient step", "training env step")
+
+
+def profile_table(profiles: dict[str, dict[str, float]]) -> list[str]:
+    """Where the training time goes, per agent (milliseconds)."""
+    lines = [f"| agent | {' | '.join(PROFILE_COLUMNS)} |", "|---|" + "---|" * len(PROFILE_COLUMNS)]
+    for variant, costs in profiles.items():
+        lines.append(f"| {variant} | " + " | ".join(f"{costs[name]:.2f}" for name in PROFILE_COLUMNS) + " |")
+    return lines
+
+
+def _seconds(run: dict[str, Any]) -> str:
+    return f"{run['seconds']:.0f}" if run["solved"] else f"miss ({run['seconds']:.0f} s: {run['final_success']:.3f})"
+
+
+def _median(value: float) -> str:
+    return f"{value:.0f}" if np.isfinite(value) else "not solved"
+
+
+def summary_table(runs: list[dict[str, Any]], tasks: list[str], variants: list[str]) -> list[str]:
+    """One row per (task, variant): seeds solved, median and per-seed time, steps and episodes to the threshold."""
+    lines = [
+        "| task | agent | solved | median time to solved (s) | per seed: time (s) | median env steps | "
+        "median episodes | goal | vs DQN (median time) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for task_name in tasks:
+        task = TASKS[task_name]
+        medians: dict[str, float] = {}
+        for variant in variants:
+            group = sorted(
+                (r for r in runs if r["task"] == task_name and r["variant"] == variant), key=lambda r: r["seed"]
+            )
+            if not group:
+                continue
+            # A miss counts as infinitely slow, so that the median never hides it
+            times = [r["seconds"] if r["solved"] else np.inf for r in group]
+            medians[variant] = float(np.median(times))
+            steps = np.median([r["steps"] if r["solved"] else np.inf for r in group])
+            episodes = np.median([r["episodes"] if r["solved"] else np.inf for r in group])
+            per_seed = ", ".join(f"{r['seed']}: {_seconds(r)}" for r in group)
+            n_solved = sum(r["solved"] for r in group)
+            hit = "hit" if medians[variant] <= task.goal_seconds else "miss"
+            lines.append(
+                f"| {task.description} | {variant} | {n_solved}/{len(group)} | {_median(medians[variant])} | "
+                f"{per_seed} | {_median(steps)} | {_median(episodes)} | <= {task.goal_seconds:.0f} s: {hit} | "
+                f"{{ratio:{variant}}} |"
+            )
+        dqn = medians.get("DQN")
+        for index, line in enumerate(lines):
+            for variant, median in medians.items():
+                marker = f"{{ratio:{variant}}}"
+                if marker in line:
+                    ratio = "" if dqn is None or not np.isfinite([dqn, median]).all() else f"{median / dqn:.2f}x"
+                    lines[index] = line.replace(marker, ratio)
+    return lines
+
+
+def plot_curves(runs: list[dict[str, Any]], tasks: list[str], path: Path) -> None:
+    """Success rate vs training seconds, one panel per task, one line per run (colour: agent)."""
+    tasks = [t for t in tasks if any(r["task"] == t for r in runs)]
+    if not tasks:
+        return
+    figure = Figure(figsize=(5.5 * len(tasks), 4), dpi=100, layout="constrained")
+    axes = figure.subplots(1, len(tasks), squeeze=False)
+    variants = sorted({r["variant"] for r in runs})
+    colours = {variant: f"C{index}" for index, variant in enumerate(variants)}
+    for axis, task_name in zip(axes[0], tasks, strict=True):
+        labelled: set[str] = set()
+        for run in (r for r in runs if r["task"] == task_name):
+            curve = run["curve"]
+            label = None if run["variant"] in labelled else run["variant"]
+            labelled.add(run["variant"])
+            axis.plot(
+                [p["seconds"] for p in curve],
+                [p["success"] for p in curve],
+                color=colours[run["variant"]],
+                label=label,
+                alpha=0.8,
+            )
+        axis.axhline(0.99, color="grey", linestyle=":", linewidth=1)
+        axis.axvline(TASKS[task_name].goal_seconds, color="grey", linestyle="--", linewidth=1)
+        axis.set_title(TASKS[task_name].description)
+        axis.set_xlabel("training seconds (evaluation excluded)")
+        axis.set_ylabel("greedy success from every (start, heading)")
+        axis.set_ylim(0, 1.02)
+        axis.legend(loc="lower right", fontsize=8)
+    write_figure(path, figure_image(figure))
+
+
+def _profile_section(path: Path) -> list[str]:
+    if not path.exists():
+        return []
+    return [
+        "",
+        "## Where the time goes (CampusNav-v0, milliseconds per call, `--profile`)",
+        "",
+        "A gradient step includes its replay sample; a training env step is an env step and an action selection plus "
+        "`gradient_steps / train_freq` gradient steps.",
+        "",
+        *profile_table(json.loads(path.read_text())),
+    ]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--tasks", nargs="+", default=["campus", "multi"], choices=sorted(TASKS))
+    parser.add_argument("--variants", nargs="+", default=list(DEFAULT_VARIANTS), choices=sorted(VARIANTS))
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--budget-seconds", type=float, help="training-time cap per run (default: the task's)")
+    parser.add_argument("--max-steps", type=int, help="env-step cap per run (default: the task's)")
+    parser.add_argument(
+        "--profile", action="store_true", help="measure where the training time goes (CampusNav-v0, each --variants)"
+    )
+    parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "learning_speed_runs.jsonl")
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR / "learning_speed.md")
+    args = parser.parse_args(argv)
+    th.set_num_threads(1)
+
+    args.runs_file.parent.mkdir(parents=True, exist_ok=True)
+    profile_file = args.runs_file.with_name("learning_speed_profile.json")
+    if args.profile:
+        profiles = {variant: profile_costs("campus", variant) for variant in args.variants}
+        write_results(profile_file, json.dumps(profiles, indent=2))
+        print("\n".join(profile_table(profiles)), flush=True)
+    done = {(r["task"], r["variant"], r["seed"]) for r in read_runs(args.runs_file)}
+    todo = [
+        (task, variant, seed)
+        for task in args.tasks
+        for seed in args.seeds
+        for variant in args.variants
+        if (task, variant, seed) not in done
+    ]
+    print(f"{len(done)} runs already in {args.runs_file}, {len(todo)} to do", flush=True)
+    for job in todo:
+        run = run_one(*job, budget_seconds=args.budget_seconds, max_steps=args.max_steps)
+        append_run(args.runs_file, run)
+        print(
+            f"{run['task']:<10} {run['variant']:<22} seed {run['seed']}: {_seconds(run)} s, {run['steps']} steps, "
+            f"{run['episodes']} episodes (wall {run['wall_seconds']:.0f} s)",
+            flush=True,
+        )
+
+    runs = read_runs(args.runs_file)
+    all_tasks = [t for t in TASKS if any(r["task"] == t for r in runs)]
+    all_variants = [v for v in VARIANTS if any(r["variant"] == v for r in runs)]
+    picture = args.out.with_suffix(".png")
+    plot_curves(runs, all_tasks, picture)
+    lines = [
+        "# Learning speed: training time to a solved map",
+        "",
+        "Solved: the greedy policy from every (start, heading) pair to every goal reaches it with success >= 0.99 and "
+        "SPL >= 0.98, evaluated every few thousand env steps inside one `learn()` call (resolution: one evaluation "
+        "interval). Time: training wall time to that evaluation, evaluation excluded. A miss counts as infinitely "
+        "slow in the median. Features: EfficientNet-Lite0 (1280-d), projected to 64 per view (shipped `env_kwargs`), "
+        "except the paper-settings variant (full 1280-d).",
+        "",
+        f"Machine: {platform.machine()} ({platform.processor() or 'cpu'}), {os.cpu_count()} cores, shared with other "
+        "work (timings are noisy), 1 torch thread, one run at a time, no GPU.",
+        "",
+        *summary_table(runs, all_tasks, all_variants),
+        "",
+        f"![success vs training time]({picture.name})",
+        *_profile_section(profile_file),
+    ]
+    publish(args.out, lines, "learning_speed.py", argv)
+
+
+if __name__ == "__main__":
+    main()
