@@ -1,258 +1,1145 @@
-"""The main job: train DCQN on CampusNav, close a road, re-train, and report routes before and after.
+"""
+The ``dcqn-campusnav`` command line: train DCQN on CampusNav, close roads, measure how fast it re-routes.
 
-Run as ``dcqn-campusnav`` (or ``python -m sb3_dcqn.campusnav_job``). Steps:
+Subcommands (``dcqn-campusnav SUBCOMMAND --help`` lists the options of each)::
 
-1. Train DCQN on ``CampusNav-v0`` (the built-in campus, goal Dreese Lab) with the env's entry of
-   ``hyperparams/dcqn.yml`` (zoo format), logging to TensorBoard.
-2. Evaluate the greedy policy from every (start intersection, heading) and print success rate, SPL, coverage and
-   mean steps against the shortest path.
-3. Close the road that the learned routes use most (among those whose closure keeps the goal reachable), evaluate
-   again, continue training for ``--retrain-timesteps`` and evaluate once more: the re-adaptation.
-4. Write route pictures (original route vs re-routed, closure marked), the model, and a summary (JSON and Markdown).
-   Route scores also go to TensorBoard under ``routes/``.
+    dcqn-campusnav                          # = dcqn-campusnav demo
+    dcqn-campusnav demo --out runs/campusnav
+    dcqn-campusnav train --env CampusNavMulti-v0 --close-on-route busiest --out runs/multi
+    dcqn-campusnav evaluate runs/campusnav/dcqn_campusnav.zip --close 81 82 --picture routes.png
+    dcqn-campusnav readapt runs/multi/dcqn_campusnav.zip --close-random 3 --timesteps 20000
+    dcqn-campusnav draw --model runs/campusnav/dcqn_campusnav.zip --start 17 --close 81 82 --picture map.png
+
+- ``demo``: train on ``CampusNav-v0`` with its entry of the shipped ``hyperparams/dcqn.yml`` until the map is solved
+  (success rate >= 0.99 and SPL >= 0.98 from every (start, heading); route evaluation every ``--eval-freq`` steps; at
+  most the entry's ``n_timesteps``), then close the road that the learned routes use most, ``--n-closures`` times (2),
+  one at a time while training goes on, each once the agent has recovered from the previous one (success rate >= 0.99
+  and SPL >= 0.95, the thresholds of :mod:`campusnav_env.recovery`) or after ``--recovery-budget`` steps. Shows a
+  progress bar (stderr), then prints the routes before and after each closure, the recovery table (episodes, env
+  steps and training seconds per closure) and where the files are.
+- ``train``: the same for any env and zoo-format hyperparameter file, with closures from a YAML schedule
+  (``--closures``, see :mod:`campusnav_env.closures`) or from flags (``--close``, ``--close-random``,
+  ``--close-on-route``; at step ``--close-at``, or, without it, one at a time once the map is solved as in ``demo``).
+  Saves the model and its replay buffer, so that ``readapt`` can continue.
+- ``evaluate MODEL.zip``: success rate, SPL, coverage, mean steps and optimality gap of the greedy routes from every
+  (start, heading), overall and per goal, optionally under closures (``--close``); ``--picture`` draws one route.
+- ``readapt MODEL.zip``: load a model and its replay buffer (when saved next to it), close roads (flags as in
+  ``train``; without ``--close-at`` right away, one at a time), train on until recovered or ``--timesteps`` steps per
+  closure, print the recovery table and save the re-adapted model (never over the input unless ``--in-place``).
+- ``draw``: the map with its closures, the goal and a route: the greedy route of ``--model`` from ``--start``, or the
+  shortest path.
+
+Files written by ``demo``, ``train`` and ``readapt`` (to ``--out``, each atomically): TensorBoard logs in
+``tb/DCQN_<n>`` (training, ``eval/...`` route evaluations, ``closure/...`` events and recoveries, and the two figures
+as images under ``figures/``), ``routes.png`` (one panel per closure with the route learned before it and the route
+after recovery, as the paper's Fig. 7 and 9; one route when nothing closed), ``curves.png`` (episode reward and length
+with the closures and the route scores, Fig. 8), the model ``dcqn_campusnav.zip`` with ``dcqn_campusnav.env.json``
+(the env it was trained on, which ``evaluate``, ``readapt`` and ``draw`` take as their defaults),
+``dcqn_campusnav_replay_buffer.pkl`` (``train`` and ``readapt``), ``summary.json`` and ``summary.md``.
+
+Every subcommand starts from the open map plus the closures it is given. :func:`build_parser` and :func:`run` are
+the in-process API (``run(build_parser().parse_args([...]))``); bad input raises :class:`CommandError`, whose message
+names the flag, file or road, and :func:`main` prints it and exits with status 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import json
+import math
+import sys
 import time
-from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch as th
-import yaml
+from gymnasium.envs.registration import load_env_creator
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.monitor import Monitor
-from torch import nn
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import Image, configure
+from stable_baselines3.common.utils import get_latest_run_id
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 import campusnav_env  # noqa: F401  (registers the CampusNav ids)
-from campusnav_env import RoadClosureError, road_key
-from campusnav_env.atomic_files import write_png, write_text_atomic
+from campusnav_env import CampusNavEnv, RoadClosureError, RouteReport, evaluate_routes
+from campusnav_env.atomic_files import write_bytes_atomic, write_text_atomic
+from campusnav_env.callbacks import RoadClosureCallback, RouteEvaluationCallback
+from campusnav_env.closures import ClosureEvent, ClosureSchedule
+from campusnav_env.features.encoders import ENCODER_NAMES
+from campusnav_env.recovery import (
+    DEFAULT_SPL_THRESHOLD,
+    DEFAULT_SUCCESS_THRESHOLD,
+    Recovery,
+    RouteEvaluation,
+    recovery_table,
+)
+from campusnav_env.rendering.figures import closure_route_panels, training_curves, write_figure
 from campusnav_env.rendering.map_view import draw_map
-from campusnav_env.route_evaluation import RouteReport, evaluate_routes
+from campusnav_env.rendering.street_view import RenderSettings
+from campusnav_env.route_evaluation import Route
+from sb3_dcqn.cli_progress import TqdmProgress
 from sb3_dcqn.dcqn import DCQN
-from sb3_dcqn.fusion import EmbeddingFusionExtractor
-from sb3_dcqn.zoo import default_hyperparams_path
+from sb3_dcqn.zoo import ZooEntry, default_hyperparams_path, load_zoo_entry
 
-# Names that policy_kwargs strings in the YAML may use, as in the RL Zoo
-_YAML_NAMESPACE = {"dict": dict, "nn": nn, "EmbeddingFusionExtractor": EmbeddingFusionExtractor}
-# Keys of a zoo entry that configure the zoo's env/wrappers rather than the algorithm
-_ZOO_ONLY_KEYS = ("n_envs", "normalize", "env_wrapper", "frame_stack", "callback", "vec_env_wrapper")
+__all__ = [
+    "ClosurePlan",
+    "CommandError",
+    "EnvSettings",
+    "TrainingOutcome",
+    "build_parser",
+    "main",
+    "route_table",
+    "run",
+    "score_table",
+    "train_with_closures",
+]
+
+PROG = "dcqn-campusnav"
+DEFAULT_ENV = "CampusNav-v0"
+DEFAULT_ENCODER = "efficientnet-lite0"
+MODEL_NAME = "dcqn_campusnav"
+TB_NAME = "DCQN"
+# The map counts as solved (training stops) at these; recovery after a closure uses recovery.py's thresholds
+SOLVED_SUCCESS = 0.99
+SOLVED_SPL = 0.98
+COMPASS_LETTERS = ("N", "E", "S", "W")
+_IMAGE_ONLY_TO_TENSORBOARD = ("stdout", "log", "json", "csv")
 
 
-def load_zoo_entry(path: str | Path, env_id: str) -> tuple[int, dict[str, Any]]:
+class CommandError(Exception):
+    """Bad input to the command line (a flag, a file, a road); the message names it."""
+
+
+# ------------------------------------------------------------------------------------------------ env settings
+@dataclass(frozen=True)
+class EnvSettings:
     """
-    Read one env's entry of a zoo-format hyperparameter file.
+    The env a model is trained on, as the command line builds it (and as ``<model>.env.json`` stores it).
 
-    :param path: The YAML file
-    :param env_id: The env id (top-level key)
-    :return: ``(n_timesteps, algorithm keyword arguments)``; ``policy_kwargs`` strings are evaluated
+    :param env_id: Gymnasium id (``CampusNav-v0``, ``CampusNavMulti-v0``)
+    :param env_kwargs: ``env_kwargs`` of the hyperparameter entry (e.g. ``view_dim``)
+    :param encoder: View encoder name
+    :param encoder_weights: Weights file of the encoder (ResNet-50), if any
+    :param render_size: Street-view size ``(width, height)``; ``None``: the renderer's default (640 x 480)
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"hyperparameter file not found: {path}")
-    with open(path) as file:
-        table = yaml.safe_load(file) or {}
-    if env_id not in table:
-        raise KeyError(f"{path}: no entry for {env_id!r} (entries: {sorted(table)})")
-    entry = dict(table[env_id])
-    if "n_timesteps" not in entry:
-        raise KeyError(f"{path}: entry {env_id!r} has no 'n_timesteps'")
-    n_timesteps = int(entry.pop("n_timesteps"))
-    for key in _ZOO_ONLY_KEYS:
-        entry.pop(key, None)
-    if isinstance(entry.get("policy_kwargs"), str):
+
+    env_id: str
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    encoder: str = DEFAULT_ENCODER
+    encoder_weights: str | None = None
+    render_size: tuple[int, int] | None = None
+
+    def make_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for ``gym.make``."""
+        kwargs: dict[str, Any] = {**self.env_kwargs, "encoder": self.encoder}
+        if self.encoder_weights is not None:
+            kwargs["encoder_kwargs"] = {"weights_path": self.encoder_weights}
+        if self.render_size is not None:
+            kwargs["render_settings"] = RenderSettings(width=self.render_size[0], height=self.render_size[1])
+        return kwargs
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "env": self.env_id,
+            "env_kwargs": self.env_kwargs,
+            "encoder": self.encoder,
+            "encoder_weights": self.encoder_weights,
+            "render_size": None if self.render_size is None else list(self.render_size),
+        }
+
+    @classmethod
+    def from_json(cls, document: dict[str, Any]) -> EnvSettings:
+        size = document.get("render_size")
+        return cls(
+            env_id=str(document["env"]),
+            env_kwargs=dict(document.get("env_kwargs") or {}),
+            encoder=str(document.get("encoder", DEFAULT_ENCODER)),
+            encoder_weights=document.get("encoder_weights"),
+            render_size=None if size is None else (int(size[0]), int(size[1])),
+        )
+
+    def describe(self) -> str:
+        """E.g. ``"CampusNav-v0, encoder pixels, views 64x48"``."""
+        size = "640x480" if self.render_size is None else f"{self.render_size[0]}x{self.render_size[1]}"
+        return f"{self.env_id}, encoder {self.encoder}, views {size}"
+
+
+def _zoo_entry(conf: str | None, env_id: str) -> ZooEntry:
+    path = default_hyperparams_path() if conf is None else Path(conf)
+    try:
+        return load_zoo_entry(path, env_id)
+    except (FileNotFoundError, ValueError) as error:
+        raise CommandError(f"--conf: {error}") from None
+    except KeyError as error:
+        raise CommandError(f"--conf: {error.args[0]} (choose another --env or --conf)") from None
+
+
+def _env_settings(
+    args: argparse.Namespace, saved: EnvSettings | None = None, entry: ZooEntry | None = None
+) -> EnvSettings:
+    """The env to build: the flags given, else what the model was saved with, else the defaults."""
+    env_id = args.env or (saved.env_id if saved else DEFAULT_ENV)
+    _check_env_id(env_id)
+    if entry is not None:
+        env_kwargs = entry.env_kwargs
+    elif saved is not None and env_id == saved.env_id and args.conf is None:
+        env_kwargs = saved.env_kwargs
+    else:
+        env_kwargs = _zoo_entry(args.conf, env_id).env_kwargs
+    encoder = args.encoder or (saved.encoder if saved else DEFAULT_ENCODER)
+    weights = args.encoder_weights
+    if weights is None and saved is not None and saved.encoder == encoder:
+        weights = saved.encoder_weights
+    if weights is not None and not Path(weights).is_file():
+        raise CommandError(f"--encoder-weights: file not found: {weights}")
+    size = tuple(args.render_size) if args.render_size else (saved.render_size if saved else None)
+    if size is not None and min(size) < 16:
+        raise CommandError(f"--render-size: width and height must be at least 16 pixels, got {size[0]} {size[1]}")
+    settings = EnvSettings(env_id, dict(env_kwargs), encoder, weights, size)  # type: ignore[arg-type]
+    if saved is not None and settings != saved:
+        print(
+            f"{PROG}: warning: the model was trained on {saved.describe()}; now {settings.describe()}",
+            file=sys.stderr,
+        )
+    return settings
+
+
+def _check_env_id(env_id: str) -> None:
+    """A registered id of a CampusNav env (before building it: other envs take none of the view arguments)."""
+    try:
+        spec = gym.spec(env_id)
+    except gym.error.Error as error:
+        raise CommandError(f"--env {env_id}: {error}") from None
+    creator = spec.entry_point
+    if isinstance(creator, str):
         try:
-            entry["policy_kwargs"] = eval(entry["policy_kwargs"], dict(_YAML_NAMESPACE))
-        except Exception as error:
-            raise ValueError(f"{path}: {env_id!r}: cannot evaluate policy_kwargs {entry['policy_kwargs']!r}") from error
-    return n_timesteps, entry
+            creator = load_env_creator(creator)
+        except (ImportError, AttributeError) as error:
+            raise CommandError(f"--env {env_id}: cannot load {spec.entry_point!r} ({error})") from None
+    if isinstance(creator, type) and not issubclass(creator, CampusNavEnv):
+        raise CommandError(f"--env {env_id}: not a CampusNav env ({creator.__name__})")
 
 
-class ProgressPrinter(BaseCallback):
-    """Prints steps, episodes, recent success rate and elapsed time every ``every`` steps."""
+def _campus(env: gym.Env, env_id: str) -> CampusNavEnv:
+    nav = env.unwrapped
+    if not isinstance(nav, CampusNavEnv):
+        raise CommandError(f"--env {env_id}: not a CampusNav env ({type(nav).__name__})")
+    return nav
 
-    def __init__(self, phase: str, every: int = 5_000) -> None:
+
+def _make_env(settings: EnvSettings) -> CampusNavEnv:
+    """One env, for evaluating and drawing."""
+    return _campus(gym.make(settings.env_id, **settings.make_kwargs()), settings.env_id)
+
+
+def _make_vec_env(settings: EnvSettings, n_envs: int, seed: int) -> DummyVecEnv:
+    """Training envs (each in a ``Monitor``); the route evaluation shares the first one."""
+    venv = make_vec_env(settings.env_id, n_envs=n_envs, seed=seed, env_kwargs=settings.make_kwargs())
+    assert isinstance(venv, DummyVecEnv)
+    _campus(venv.envs[0], settings.env_id)
+    return venv
+
+
+def _close_roads(nav: CampusNavEnv, roads: Sequence[Sequence[int]]) -> None:
+    """Close ``--close`` roads in an env (evaluate, draw)."""
+    for u, v in roads:
+        try:
+            nav.close_road(int(u), int(v))
+        except KeyError as error:
+            raise CommandError(f"--close {u} {v}: {error.args[0]}") from None
+        except (RoadClosureError, ValueError) as error:
+            raise CommandError(f"--close {u} {v}: {error}") from None
+
+
+# ------------------------------------------------------------------------------------------------ model files
+def _model_paths(model: Path) -> tuple[Path, Path, Path]:
+    """The model zip and the files kept next to it: replay buffer and env settings."""
+    stem = model.with_suffix("") if model.suffix == ".zip" else model
+    return stem.with_suffix(".zip"), Path(f"{stem}_replay_buffer.pkl"), Path(f"{stem}.env.json")
+
+
+def _find_model(path: str) -> Path:
+    model = _model_paths(Path(path))[0]
+    if not model.is_file():
+        raise CommandError(f"model file not found: {path}")
+    return model
+
+
+def _saved(model: Path) -> tuple[EnvSettings | None, int]:
+    """The env settings and number of training envs saved next to a model (``None, 1`` without the file)."""
+    sidecar = _model_paths(model)[2]
+    if not sidecar.is_file():
+        return None, 1
+    try:
+        document = json.loads(sidecar.read_text())
+        return EnvSettings.from_json(document["settings"]), int(document.get("n_envs", 1))
+    except (ValueError, KeyError, TypeError) as error:
+        raise CommandError(f"{sidecar}: not a model settings file ({error})") from None
+
+
+def _load_model(path: Path, settings: EnvSettings, nav: CampusNavEnv, venv: DummyVecEnv | None = None) -> DCQN:
+    """Load a model for ``nav``'s observations (and onto ``venv`` to train on)."""
+    hint = "pass the --env, --encoder and --render-size it was trained with"
+    try:
+        model = DCQN.load(path, env=venv)
+    except (ValueError, KeyError) as error:
+        raise CommandError(f"{path}: cannot load the model on {settings.describe()} ({error}); {hint}") from None
+    if model.observation_space != nav.observation_space:
+        raise CommandError(f"{path}: the model's observations do not match those of {settings.describe()}; {hint}")
+    return model
+
+
+def _save_model(
+    model: DCQN, path: Path, settings: EnvSettings, closed_roads: Sequence[tuple[int, int]], replay_buffer: bool
+) -> list[Path]:
+    """Save the model (and its replay buffer and env settings), each file atomically; returns the paths."""
+    zip_path, buffer_path, sidecar = _model_paths(path)
+    zip_path.parent.mkdir(parents=True, exist_ok=True)
+    data = io.BytesIO()
+    model.save(data)
+    written = [write_bytes_atomic(zip_path, data.getvalue())]
+    if replay_buffer:
+        data = io.BytesIO()
+        model.save_replay_buffer(data)
+        written.append(write_bytes_atomic(buffer_path, data.getvalue()))
+    document = {
+        "settings": settings.to_json(),
+        "num_timesteps": model.num_timesteps,
+        "n_envs": model.n_envs,
+        "closed_roads_at_save": [list(road) for road in closed_roads],
+    }
+    written.append(write_text_atomic(sidecar, json.dumps(document, indent=2) + "\n"))
+    return written
+
+
+def _new_logger(model: DCQN, out: Path, verbose: int) -> Path:
+    """Log this run to ``out/tb/DCQN_<n>`` (a new folder), one logger for every ``learn`` call."""
+    folder = out / "tb" / f"{TB_NAME}_{get_latest_run_id(str(out / 'tb'), TB_NAME) + 1}"
+    model.set_logger(configure(str(folder), ["tensorboard", *(["stdout"] if verbose >= 2 else [])]))
+    return folder
+
+
+# ------------------------------------------------------------------------------------------------ closure plans
+@dataclass
+class ClosurePlan:
+    """
+    The closures of a run: those at fixed times (``--closures`` file or ``--close-at``) and those made one at a time
+    once the map is solved (or right away in ``readapt``), each after the previous one recovered or its budget ran out.
+
+    :param scheduled: Events the closure callback fires when due
+    :param later: Events applied between ``learn`` calls, one at a time
+    """
+
+    scheduled: ClosureSchedule = field(default_factory=ClosureSchedule)
+    later: list[ClosureEvent] = field(default_factory=list)
+
+    @property
+    def empty(self) -> bool:
+        return not self.scheduled.events and not self.later
+
+
+def _close_on_route(value: str) -> str | int:
+    if value == "busiest":
+        return value
+    try:
+        return int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'busiest' or a start node id, got {value!r}") from None
+
+
+def _closure_plan(args: argparse.Namespace) -> ClosurePlan:
+    """The closures asked for by ``--closures`` or by the closure flags."""
+    flags = bool(args.close or args.close_random or args.close_on_route)
+    if args.closures is not None:
+        if flags or args.close_at is not None:
+            raise CommandError(
+                "--closures: a schedule file cannot be combined with --close, --close-random, --close-on-route or "
+                "--close-at"
+            )
+        try:
+            return ClosurePlan(scheduled=ClosureSchedule.from_yaml(args.closures))
+        except (FileNotFoundError, ValueError) as error:
+            raise CommandError(f"--closures: {error}") from None
+    events: list[dict[str, Any]] = []
+    if args.close:
+        events.append({"close": [tuple(road) for road in args.close]})
+    if args.close_random:
+        events.append({"close_random": args.close_random, "seed": args.seed})
+    events += [{"close_on_route": where} for where in args.close_on_route or []]
+    if args.close_at is not None:
+        if not events:
+            raise CommandError("--close-at: give the roads to close (--close, --close-random or --close-on-route)")
+        return ClosurePlan(
+            scheduled=ClosureSchedule([ClosureEvent(at=args.close_at, unit="step", **e) for e in events])
+        )
+    return ClosurePlan(later=[ClosureEvent(at=0, unit="step", **e) for e in events])
+
+
+def _check_plan(plan: ClosurePlan, nav: CampusNavEnv, source: str) -> None:
+    """Check the closures against the map before training; errors name the flag or file."""
+    events = plan.scheduled.events or plan.later
+    for event in events:
+        for u, v in event.close:
+            try:
+                nav.graph.map.road_id(u, v)
+            except KeyError as error:
+                raise CommandError(f"{source}: road {u}-{v}: {error.args[0]}") from None
+    try:
+        ClosureSchedule(list(events)).validate(nav.graph, nav.goal_nodes)
+    except KeyError as error:
+        raise CommandError(f"{source}: {error.args[0]}") from None
+    except ValueError as error:  # RoadClosureError included
+        raise CommandError(f"{source}: {error}") from None
+
+
+def _plan_source(args: argparse.Namespace) -> str:
+    if args.closures is not None:
+        return f"--closures {args.closures}"
+    names = [("--close", args.close), ("--close-random", args.close_random), ("--close-on-route", args.close_on_route)]
+    return "/".join(name for name, given in names if given) or "closures"
+
+
+# ------------------------------------------------------------------------------------------------ training
+class _StopWhenDone(BaseCallback):
+    """
+    Stop training once every scheduled closure has fired and the latest route evaluation is good: at the solved
+    thresholds while no road has changed yet, else recovered from the latest change (the evaluation's thresholds).
+    """
+
+    def __init__(self, closures: RoadClosureCallback, expected_records: int) -> None:
         super().__init__()
-        self.phase = phase
-        self.every = every
-        self._start = time.perf_counter()
+        self.closures = closures
+        self.expected_records = expected_records
+        self._seen = -1
 
     def _on_step(self) -> bool:
-        if self.n_calls % self.every == 0:
-            successes = [float(success) for success in self.model.ep_success_buffer]
-            rate = f"{np.mean(successes):.2f}" if successes else "-"
-            print(
-                f"[{self.phase}] {self.num_timesteps} steps, {self.model._episode_num} episodes, "
-                f"success (last {len(successes)} episodes) {rate}, {time.perf_counter() - self._start:.0f} s",
-                flush=True,
-            )
-        return True
+        evaluation = self.closures.evaluation
+        assert evaluation is not None
+        if len(self.closures.records) < self.expected_records or len(evaluation.evaluations) == self._seen:
+            return True
+        self._seen = len(evaluation.evaluations)
+        if not self._seen:
+            return True
+        if any(record.changed for record in self.closures.records):
+            return not self.closures.recoveries[-1].recovered
+        return not evaluation.evaluations[-1].meets(SOLVED_SUCCESS, SOLVED_SPL)
 
 
-def most_used_closable_road(env: Any, report: RouteReport) -> tuple[int, int]:
-    """The road most traversed by the report's routes whose closure keeps the goals reachable everywhere."""
-    usage: Counter[tuple[int, int]] = Counter()
-    for route in report.routes:
-        for u, v in zip(route.nodes[:-1], route.nodes[1:], strict=True):
-            usage[road_key(u, v)] += 1
-    for road, _ in usage.most_common():
-        try:
-            env.close_road(*road)
-        except RoadClosureError:
-            continue
-        env.reopen_road(*road)
-        return road
-    raise RuntimeError("no road on the learned routes can be closed without cutting a goal off")
+@dataclass
+class TrainingOutcome:
+    """
+    What a run of :func:`train_with_closures` produced.
 
+    :param evaluation: The route evaluation (``evaluations``: every evaluation in order)
+    :param closures: The closure callback (``records``, ``recoveries``)
+    :param progress: The progress bar (``episode_rewards``, ``episode_lengths``)
+    :param steps: Env steps trained in this run
+    :param seconds: Wall seconds of this run (training and evaluations)
+    :param unfired: Scheduled events that did not fire within the budget
+    """
 
-def _log_routes(model: DCQN, tag: str, report: RouteReport) -> None:
-    for name, value in report.summary().items():
-        model.logger.record(f"routes/{tag}_{name}", value)
-    model.logger.dump(model.num_timesteps)
+    evaluation: RouteEvaluationCallback
+    closures: RoadClosureCallback
+    progress: TqdmProgress
+    steps: int
+    seconds: float
+    unfired: list[ClosureEvent]
 
+    @property
+    def recoveries(self) -> list[Recovery]:
+        return self.closures.recoveries
 
-def _table(rows: dict[str, RouteReport]) -> str:
-    lines = [
-        "| phase | success rate | SPL | coverage (start nodes) | mean steps | mean shortest path | routes |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for phase, report in rows.items():
-        s = report.summary()
-        lines.append(
-            f"| {phase} | {s['success_rate']:.3f} | {s['spl']:.3f} | {s['coverage']:.3f} | {s['mean_steps']:.2f} | "
-            f"{s['mean_shortest']:.2f} | {int(s['n_routes'])} |"
+    def solved_at(self) -> RouteEvaluation | None:
+        """The first evaluation at the solved thresholds before any road changed."""
+        changes = [r for r in self.closures.records if r.changed]
+        end = changes[0].evaluation_index if changes else len(self.evaluation.evaluations)
+        return next(
+            (e for e in self.evaluation.evaluations[:end] if e.meets(SOLVED_SUCCESS, SOLVED_SPL)),
+            None,
         )
+
+    def before_closures(self) -> RouteEvaluation | None:
+        """The last evaluation before the first change of the road network (or the last one if none)."""
+        changes = [r for r in self.closures.records if r.changed]
+        end = changes[0].evaluation_index if changes else len(self.evaluation.evaluations)
+        return self.evaluation.evaluations[end - 1] if end > 0 else None
+
+
+def train_with_closures(
+    model: DCQN,
+    plan: ClosurePlan,
+    *,
+    budget: int,
+    recovery_budget: int,
+    eval_freq: int,
+    recovery_eval_freq: int = 5,
+    keep_training: bool = False,
+    verbose: int = 0,
+    progress: bool = True,
+) -> TrainingOutcome:
+    """
+    Train with route evaluations and closures: first up to ``budget`` steps (scheduled closures fire on the way; stop
+    once solved and recovered from them), then each of ``plan.later`` in turn, training on up to ``recovery_budget``
+    steps after each (stop once recovered).
+
+    :param model: The model, with its training env (a ``DummyVecEnv``) and logger set
+    :param plan: The closures
+    :param budget: Steps of the first phase (0: none)
+    :param recovery_budget: Steps after each closure of ``plan.later`` at most
+    :param eval_freq: Route evaluation every this many env steps
+    :param recovery_eval_freq: While recovering, a route evaluation every this many episodes
+    :param keep_training: Train every budget out, even when solved or recovered
+    :param verbose: 1: a line per route evaluation and closure event
+    :param progress: Show a progress bar on stderr
+    :return: the callbacks, with everything they recorded
+    """
+    start, start_steps = time.perf_counter(), model.num_timesteps
+    evaluation = RouteEvaluationCallback(
+        eval_freq=eval_freq,
+        unit="step",
+        success_threshold=DEFAULT_SUCCESS_THRESHOLD,
+        spl_threshold=DEFAULT_SPL_THRESHOLD,
+        verbose=int(verbose >= 1),
+    )
+    closures = RoadClosureCallback(
+        plan.scheduled, evaluation=evaluation, recovery_eval_freq=recovery_eval_freq, verbose=int(verbose >= 1)
+    )
+    bar = TqdmProgress(evaluation, disable=not progress)
+    closures.init_callback(model)  # learns the map, so that closures can be applied before any training
+
+    def learn(steps: int, phase: str, expected_events: int = 0) -> None:
+        callbacks: list[BaseCallback] = [closures, bar]
+        if not keep_training:
+            callbacks.append(_StopWhenDone(closures, len(closures.records) + expected_events))
+        bar.phase = phase
+        model.learn(steps, callback=callbacks, reset_num_timesteps=False)
+
+    if budget > 0:
+        learn(budget, "train", len(plan.scheduled.events))
+    fired = len(closures.records)
+    if plan.later and not evaluation.evaluations:
+        evaluation.evaluate()  # the routes before the first closure
+    for event in plan.later:
+        record = closures.apply(replace(event, at=model.num_timesteps))  # described as "step N: ..."
+        if not record.changed:
+            for what, why in record.refused:
+                print(f"closure refused: {what}: {why}", file=sys.stderr)
+            continue
+        roads = ", ".join(f"{u}-{v}" for u, v in record.closed)
+        if recovery_budget > 0:
+            learn(recovery_budget, f"closed {roads}")
+    return TrainingOutcome(
+        evaluation=evaluation,
+        closures=closures,
+        progress=bar,
+        steps=model.num_timesteps - start_steps,
+        seconds=time.perf_counter() - start,
+        unfired=plan.scheduled.ordered()[fired:],
+    )
+
+
+# ------------------------------------------------------------------------------------------------ reports
+def _cell(value: float, digits: int = 3) -> str:
+    return "-" if math.isnan(value) else f"{value:.{digits}f}"
+
+
+def _score_cells(report: RouteReport) -> str:
+    s = report.summary()
+    return (
+        f"{_cell(s['success_rate'])} | {_cell(s['spl'])} | {_cell(s['coverage'])} | {_cell(s['mean_steps'], 2)} | "
+        f"{_cell(s['mean_shortest'], 2)} | {_cell(s['optimality_gap'], 2)} | {int(s['n_routes'])}"
+    )
+
+
+def score_table(report: RouteReport) -> str:
+    """Markdown table of a route report: all goals, then each goal."""
+    lines = [
+        "| goal | success rate | SPL | coverage | mean steps | mean shortest | optimality gap | routes |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    lines.append(f"| all | {_score_cells(report)} |")
+    for goal in sorted({route.goal for route in report.routes}):
+        lines.append(f"| {goal} | {_score_cells(report.for_goal(goal))} |")
     return "\n".join(lines)
 
 
-def run(args: argparse.Namespace) -> dict[str, Any]:
-    th.set_num_threads(args.threads)
+def _phases(outcome: TrainingOutcome) -> list[tuple[str, RouteEvaluation]]:
+    """The evaluations worth a row: before the closures, then right after each and at its recovery (or end)."""
+    rows: list[tuple[str, RouteEvaluation]] = []
+    before = outcome.before_closures()
+    if before is not None:
+        rows.append(("trained", before))
+    for number, recovery in enumerate(outcome.recoveries, start=1):
+        roads = ", ".join(f"{u}-{v}" for u, v in recovery.closure.closed) or "reopened " + ", ".join(
+            f"{u}-{v}" for u, v in recovery.closure.reopened
+        )
+        if recovery.right_after is not None:
+            rows.append((f"closure {number} ({roads}): right after", recovery.right_after))
+        if recovery.recovered_at is not None:
+            rows.append((f"closure {number}: recovered", recovery.recovered_at))
+        elif recovery.last is not None and recovery.last is not recovery.right_after:
+            rows.append((f"closure {number}: not recovered, at the end", recovery.last))
+    return rows
+
+
+def route_table(outcome: TrainingOutcome) -> str:
+    """Markdown table: the greedy routes' scores before the closures, right after each and once recovered."""
+    lines = [
+        "| phase | env step | episode | success rate | SPL | coverage | mean steps | mean shortest | optimality gap | "
+        "routes |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, evaluation in _phases(outcome):
+        lines.append(f"| {name} | {evaluation.step} | {evaluation.episode} | {_score_cells(evaluation.report)} |")
+    return "\n".join(lines)
+
+
+def _finite(value: float) -> float | None:
+    return None if math.isinf(value) or math.isnan(value) else value
+
+
+def _evaluation_json(evaluation: RouteEvaluation | None) -> dict[str, Any] | None:
+    if evaluation is None:
+        return None
+    summary = {key: _finite(value) for key, value in evaluation.report.summary().items()}
+    return {
+        "step": evaluation.step,
+        "episode": evaluation.episode,
+        "train_seconds": evaluation.train_seconds,
+        **summary,
+    }
+
+
+def _outcome_json(outcome: TrainingOutcome) -> dict[str, Any]:
+    return {
+        "steps": outcome.steps,
+        "seconds": outcome.seconds,
+        "episodes": len(outcome.progress.episode_rewards),
+        "solved_at": _evaluation_json(outcome.solved_at()),
+        "trained": _evaluation_json(outcome.before_closures()),
+        "closures": [
+            {
+                "description": r.closure.description,
+                "closed": [list(road) for road in r.closure.closed],
+                "reopened": [list(road) for road in r.closure.reopened],
+                "refused": [list(pair) for pair in r.closure.refused],
+                "routes_affected": r.closure.routes_affected,
+                "recovered": r.recovered,
+                "recovery_episodes": _finite(r.episodes),
+                "recovery_steps": _finite(r.steps),
+                "recovery_seconds": _finite(r.seconds),
+                "right_after": _evaluation_json(r.right_after),
+                "recovered_at": _evaluation_json(r.recovered_at),
+                "last": _evaluation_json(r.last),
+            }
+            for r in outcome.recoveries
+        ],
+        "refused": [list(pair) for record in outcome.closures.records for pair in record.refused],
+        "unfired": [event.describe() for event in outcome.unfired],
+    }
+
+
+def _pick_route(report: RouteReport, goal: str, start: int | None, heading: int | None) -> Route | None:
+    """The route from ``start``/``heading`` if given, else a failed one from the farthest start, else the longest."""
+    routes = [
+        r
+        for r in report.routes
+        if r.goal == goal and (start is None or r.start == start) and (heading is None or r.heading == heading)
+    ]
+    if not routes:
+        return None
+    failed = [r for r in routes if not r.success]
+    return max(failed or routes, key=lambda r: (r.shortest, len(r.nodes), -r.start, -r.heading))
+
+
+def _route_picture(nav: CampusNavEnv, goal: str, route: Route | None, start: int | None, size: int) -> np.ndarray:
+    """The map (closures in red), the goal, the shortest path from the start and the route, if any."""
+    goal_node = nav.goal_nodes[nav.goal_names.index(goal)]
+    routes: dict[str, list[int]] = {}
+    origin = route.start if route is not None else start
+    if origin is not None and origin != goal_node and nav.node_distances(goal_node)[origin] > 0:
+        routes["shortest path"] = nav.graph.shortest_path(origin, goal_node)
+    if route is not None:
+        outcome = f"{route.steps} steps" if route.success else "fails"
+        routes[f"greedy route ({outcome})"] = list(route.nodes)
+    return draw_map(
+        nav.graph,
+        size=size,
+        goal=goal_node,
+        agent=origin,
+        heading=None if route is None else route.heading,
+        routes=routes or None,
+    )
+
+
+def _check_goal(nav: CampusNavEnv, goal: str | None) -> str:
+    if goal is None:
+        return nav.goal_names[0]
+    if goal not in nav.goal_names:
+        raise CommandError(f"--goal {goal!r}: not a goal of this env (goals: {', '.join(nav.goal_names)})")
+    return goal
+
+
+def _check_start(nav: CampusNavEnv, start: int | None, goal: str) -> None:
+    if start is None:
+        return
+    try:
+        nav.graph.map.check_node(start, "start")
+    except ValueError as error:
+        raise CommandError(f"--start: {error}") from None
+    if nav.node_distances(nav.goal_nodes[nav.goal_names.index(goal)])[start] <= 0:
+        raise CommandError(f"--start {start}: the goal {goal!r} cannot be reached from it (or it is the goal)")
+
+
+def _finish_training(
+    args: argparse.Namespace,
+    model: DCQN,
+    outcome: TrainingOutcome,
+    nav: CampusNavEnv,
+    settings: EnvSettings,
+    out: Path,
+    tb_folder: Path,
+    model_path: Path,
+    replay_buffer: bool,
+    title: str,
+) -> dict[str, Any]:
+    """Figures (files and TensorBoard images), model, summary; print the tables and where the files are."""
+    evaluations = outcome.evaluation.evaluations
+    recoveries = outcome.recoveries
+    files: dict[str, str] = {"tensorboard": str(tb_folder)}
+    figures: dict[str, np.ndarray] = {}
+    if recoveries:
+        figures["routes"] = closure_route_panels(nav.graph, evaluations, recoveries)
+    elif evaluations:
+        goal = nav.goal_names[0]
+        figures["routes"] = _route_picture(nav, goal, _pick_route(evaluations[-1].report, goal, None, None), None, 800)
+    figures["curves"] = training_curves(
+        outcome.progress.episode_rewards,
+        outcome.progress.episode_lengths,
+        recoveries or outcome.closures.records,
+        evaluations,
+        title=f"DCQN on {settings.describe()}",
+    )
+    for name, image in figures.items():
+        files[name] = str(write_figure(out / f"{name}.png", image))
+        model.logger.record(f"figures/{name}", Image(image, "HWC"), exclude=_IMAGE_ONLY_TO_TENSORBOARD)
+    model.logger.dump(model.num_timesteps)
+    model.logger.close()
+
+    saved = _save_model(model, model_path, settings, sorted(nav.closed_roads), replay_buffer)
+    files["model"] = str(saved[0])
+    if replay_buffer:
+        files["replay_buffer"] = str(saved[1])
+    files["env_settings"] = str(saved[-1])
+    files["summary"] = str(out / "summary.md")
+
+    solved = outcome.solved_at()
+    solved_text = (
+        f"solved (success >= {SOLVED_SUCCESS}, SPL >= {SOLVED_SPL}) at step {solved.step}, episode {solved.episode}, "
+        f"after {solved.train_seconds:.1f} s of training"
+        if solved is not None
+        else "not solved before the first closure"
+        if recoveries
+        else "not solved"
+    )
+    table = route_table(outcome)
+    lines = [
+        f"# {title}",
+        "",
+        f"{settings.describe()}; {outcome.steps} env steps, {len(outcome.progress.episode_rewards)} episodes, "
+        f"{outcome.seconds:.0f} s in all; {solved_text}.",
+        "",
+        "Routes of the greedy policy from every (start, heading):",
+        "",
+        table,
+    ]
+    if outcome.closures.records:
+        lines += [
+            "",
+            f"Recovery (success >= {DEFAULT_SUCCESS_THRESHOLD}, SPL >= {DEFAULT_SPL_THRESHOLD}; seconds of training, "
+            "evaluations excluded):",
+            "",
+            recovery_table(recoveries),
+        ]
+    refused = [f"{what}: {why}" for record in outcome.closures.records for what, why in record.refused]
+    if refused:
+        lines += ["", "Refused: " + "; ".join(refused)]
+    if outcome.unfired:
+        lines += ["", "Not reached within the budget: " + "; ".join(e.describe() for e in outcome.unfired)]
+    lines += ["", "Files:", "", *(f"- {name}: {path}" for name, path in files.items())]
+    text = "\n".join(lines) + "\n"
+    summary = {
+        "command": args.command,
+        "title": title,
+        "settings": settings.to_json(),
+        "seed": args.seed,
+        "num_timesteps": model.num_timesteps,
+        **_outcome_json(outcome),
+        "files": files,
+    }
+    write_text_atomic(out / "summary.md", text)
+    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    print(text, end="", flush=True)
+    print(f"\nTensorBoard: tensorboard --logdir {out / 'tb'}", flush=True)
+    return summary
+
+
+# ------------------------------------------------------------------------------------------------ subcommands
+def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, title: str) -> dict[str, Any]:
+    """``train`` and ``demo``: a new model, trained with ``plan``'s closures."""
+    _check_env_id(args.env or DEFAULT_ENV)
+    entry = _zoo_entry(args.conf, args.env or DEFAULT_ENV)
+    settings = _env_settings(args, entry=entry)
+    budget = entry.n_timesteps if args.timesteps is None else args.timesteps
+    recovery_budget = max(1, budget // 2) if args.recovery_budget is None else args.recovery_budget
+    n_envs = entry.n_envs if getattr(args, "n_envs", None) is None else args.n_envs
+    venv = _make_vec_env(settings, n_envs, args.seed)
+    nav = _campus(venv.envs[0], settings.env_id)
+    _check_plan(plan, nav, _plan_source(args) if args.command == "train" else "closures")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    n_timesteps, kwargs = load_zoo_entry(args.conf, args.env)
-    if args.timesteps is not None:
-        n_timesteps = args.timesteps
-    retrain_timesteps = args.retrain_timesteps if args.retrain_timesteps is not None else n_timesteps // 3
-    env_kwargs: dict[str, Any] = {"encoder": args.encoder}
-    if args.encoder_weights is not None:
-        env_kwargs["encoder_kwargs"] = {"weights_path": args.encoder_weights}
-    if args.render_size is not None:
-        from campusnav_env.rendering.street_view import RenderSettings
+    model = DCQN(env=venv, seed=args.seed, verbose=int(args.verbose >= 2), **entry.hyperparams)
+    tb_folder = _new_logger(model, out, args.verbose)
+    print(f"training DCQN on {settings.describe()}: up to {budget} steps, {n_envs} env(s)", file=sys.stderr)
+    outcome = train_with_closures(
+        model,
+        plan,
+        budget=budget,
+        recovery_budget=recovery_budget,
+        eval_freq=args.eval_freq,
+        recovery_eval_freq=args.recovery_eval_freq,
+        keep_training=args.keep_training,
+        verbose=args.verbose,
+        progress=not args.no_progress,
+    )
+    model_path = out / f"{MODEL_NAME}.zip"
+    return _finish_training(args, model, outcome, nav, settings, out, tb_folder, model_path, replay_buffer, title)
 
-        env_kwargs["render_settings"] = RenderSettings(width=args.render_size[0], height=args.render_size[1])
-    env = Monitor(gym.make(args.env, **env_kwargs))
-    nav = env.unwrapped
+
+def _cmd_demo(args: argparse.Namespace) -> dict[str, Any]:
+    if args.n_closures < 0:
+        raise CommandError(f"--n-closures must be >= 0, got {args.n_closures}")
+    plan = ClosurePlan(later=[ClosureEvent(at=0, unit="step", close_on_route="busiest")] * args.n_closures)
+    title = f"DCQN on {args.env or DEFAULT_ENV}: {args.n_closures} closures of the busiest road, one at a time"
+    return _train(args, plan, replay_buffer=False, title=title)
+
+
+def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
+    return _train(args, _closure_plan(args), replay_buffer=not args.no_replay_buffer, title="DCQN training")
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
+    path = _find_model(args.model)
+    settings = _env_settings(args, _saved(path)[0])
+    nav = _make_env(settings)
+    _close_roads(nav, args.close or [])
+    goal = _check_goal(nav, args.goal)
+    _check_start(nav, args.start, goal)
+    model = _load_model(path, settings, nav)
 
     def policy(observations: Any) -> np.ndarray:
         return model.predict(observations, deterministic=True)[0]
 
-    model = DCQN(env=env, tensorboard_log=str(out / "tb"), seed=args.seed, verbose=args.verbose, **kwargs)
-
-    def train(steps: int, phase: str) -> float:
-        """Train (continuing the same TensorBoard run after the first phase); returns the seconds it took."""
-        start = time.perf_counter()
-        model.learn(
-            steps,
-            callback=ProgressPrinter(phase, args.report_every),
-            tb_log_name="DCQN",
-            reset_num_timesteps=phase == "train",
-            progress_bar=args.progress,
-        )
-        return time.perf_counter() - start
-
-    print(f"training DCQN on {args.env} for {n_timesteps} steps", flush=True)
-    train_seconds = train(n_timesteps, "train")
-    trained = evaluate_routes(nav, policy)
-    _log_routes(model, "trained", trained)
-
-    road = tuple(args.close_road) if args.close_road else most_used_closable_road(nav, trained)
-    nav.close_road(*road)
-    closed = evaluate_routes(nav, policy)
-    _log_routes(model, "after_closure", closed)
-    print(f"road {road[0]}-{road[1]} closed; training {retrain_timesteps} more steps", flush=True)
-    retrain_seconds = train(retrain_timesteps, "re-train")
-    readapted = evaluate_routes(nav, policy)
-    _log_routes(model, "readapted", readapted)
-
-    # Route picture: the longest learned route that used the closed road, before and after re-training
-    road_set = {road}
-    affected = [
-        r
-        for r in trained.routes
-        if any(road_key(u, v) in road_set for u, v in zip(r.nodes[:-1], r.nodes[1:], strict=True))
-    ]
-    example = max(affected, key=lambda r: len(r.nodes)) if affected else trained.routes[0]
-    rerouted = next(r for r in readapted.routes if (r.start, r.heading) == (example.start, example.heading))
-    picture = draw_map(
-        nav.graph,
-        goal=nav.goal_nodes[0],
-        agent=example.start,
-        heading=example.heading,
-        # Drawn in this order: the agent's route after re-training ends on top
-        routes={
-            "shortest path after closure": nav.graph.shortest_path(example.start, nav.goal_nodes[0]),
-            "learned route": list(example.nodes),
-            "re-routed after closure": list(rerouted.nodes),
+    start = time.perf_counter()
+    report = evaluate_routes(nav, policy)
+    seconds = time.perf_counter() - start
+    closed = ", ".join(f"{u}-{v}" for u, v in sorted(nav.closed_roads)) or "none"
+    print(f"{path} on {settings.describe()}; roads closed: {closed}; {seconds:.2f} s\n")
+    print(score_table(report), flush=True)
+    summary: dict[str, Any] = {
+        "model": str(path),
+        "settings": settings.to_json(),
+        "closed_roads": [list(road) for road in sorted(nav.closed_roads)],
+        "all": {key: _finite(value) for key, value in report.summary().items()},
+        "goals": {
+            goal_name: {key: _finite(value) for key, value in report.for_goal(goal_name).summary().items()}
+            for goal_name in nav.goal_names
         },
-    )
-    write_png(out / "routes.png", picture)
-    model.save(out / "dcqn_campusnav")
-
-    phases = {"trained": trained, "road closed": closed, "re-trained": readapted}
-    summary = {
-        "env": args.env,
-        "encoder": args.encoder,
-        "n_timesteps": n_timesteps,
-        "retrain_timesteps": retrain_timesteps,
-        "train_seconds": train_seconds,
-        "retrain_seconds": retrain_seconds,
-        "episodes": len(env.get_episode_rewards()),
-        "closed_road": list(road),
-        "routes_using_closed_road": len(affected),
-        "example_start": [example.start, example.heading],
-        **{f"{phase}": report.summary() for phase, report in phases.items()},
     }
-    table = _table(phases)
-    text = (
-        f"# DCQN on {args.env}\n\n{n_timesteps} steps ({train_seconds:.0f} s), then road {road[0]}-{road[1]} closed "
-        f"({len(affected)} learned routes used it) and {retrain_timesteps} more steps ({retrain_seconds:.0f} s).\n\n"
-        f"{table}\n"
-    )
-    write_text_atomic(out / "summary.md", text)
-    write_text_atomic(out / "summary.json", json.dumps(summary, indent=2))
-    print(text)
-    print(f"TensorBoard: tensorboard --logdir {out / 'tb'}   route picture: {out / 'routes.png'}")
+    if args.picture is not None:
+        route = _pick_route(report, goal, args.start, args.heading)
+        picture = write_figure(args.picture, _route_picture(nav, goal, route, args.start, args.size))
+        summary["picture"] = str(picture)
+        print(f"\npicture: {picture}")
     return summary
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env", default="CampusNav-v0", help="env id (default: %(default)s)")
-    parser.add_argument("--conf", default=str(default_hyperparams_path()), help="zoo-format hyperparameter YAML")
-    parser.add_argument("--timesteps", type=int, default=None, help="override the YAML's n_timesteps")
-    parser.add_argument("--retrain-timesteps", type=int, default=None, help="steps after the closure (default: 1/3)")
-    parser.add_argument("--close-road", type=int, nargs=2, metavar=("U", "V"), help="road to close (default: busiest)")
-    parser.add_argument("--encoder", default="efficientnet-lite0", help="view encoder (default: %(default)s)")
-    parser.add_argument("--encoder-weights", help="weights file for the encoder (e.g. torchvision's ResNet-50)")
-    parser.add_argument("--render-size", type=int, nargs=2, metavar=("W", "H"), help="street-view size (640 480)")
-    parser.add_argument("--out", default="runs/campusnav", help="output directory (default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default: %(default)s)")
-    parser.add_argument("--report-every", type=int, default=5_000, help="print progress every N steps")
-    parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (1 prints its training tables)")
-    parser.add_argument(
-        "--progress", action="store_true", help="show SB3's training progress bar (needs the rich package)"
+def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
+    path = _find_model(args.model)
+    plan = _closure_plan(args)
+    if plan.empty:
+        raise CommandError("readapt: give the roads to close (--close, --close-random, --close-on-route or --closures)")
+    out = Path(args.out) if args.out is not None else path.parent / "readapt"
+    target = path if args.in_place else out / path.name
+    if target.resolve() == path.resolve() and not args.in_place:
+        raise CommandError(
+            f"--out {out}: the re-adapted model would overwrite {path}; pass --in-place or another --out"
+        )
+    saved, n_envs = _saved(path)
+    settings = _env_settings(args, saved)
+    buffer_path = Path(args.replay_buffer) if args.replay_buffer is not None else _model_paths(path)[1]
+    if args.replay_buffer is not None and not buffer_path.is_file():
+        raise CommandError(f"--replay-buffer: file not found: {buffer_path}")
+    venv = _make_vec_env(settings, n_envs, args.seed)
+    nav = _campus(venv.envs[0], settings.env_id)
+    _check_plan(plan, nav, _plan_source(args))
+    model = _load_model(path, settings, nav, venv)
+    out.mkdir(parents=True, exist_ok=True)
+    model.set_random_seed(args.seed)
+    if buffer_path.is_file():
+        model.load_replay_buffer(buffer_path)
+        assert model.replay_buffer is not None
+        if model.replay_buffer.n_envs != model.n_envs:
+            raise CommandError(
+                f"{buffer_path}: saved with {model.replay_buffer.n_envs} envs, the model trains on {model.n_envs}"
+            )
+        print(f"replay buffer: {buffer_path} ({model.replay_buffer.size()} transitions)", file=sys.stderr)
+    else:
+        print(f"no replay buffer at {buffer_path}: starting with an empty one", file=sys.stderr)
+    tb_folder = _new_logger(model, out, args.verbose)
+    outcome = train_with_closures(
+        model,
+        plan,
+        budget=args.timesteps if plan.scheduled.events else 0,
+        recovery_budget=args.timesteps,
+        eval_freq=args.eval_freq,
+        recovery_eval_freq=args.recovery_eval_freq,
+        keep_training=args.keep_training,
+        verbose=args.verbose,
+        progress=not args.no_progress,
+    )
+    title = f"DCQN re-adapted: {path}"
+    return _finish_training(
+        args, model, outcome, nav, settings, out, tb_folder, target, not args.no_replay_buffer, title
+    )
+
+
+def _cmd_draw(args: argparse.Namespace) -> dict[str, Any]:
+    path = None if args.model is None else _find_model(args.model)
+    settings = _env_settings(args, None if path is None else _saved(path)[0])
+    nav = _make_env(settings)
+    _close_roads(nav, args.close or [])
+    goal = _check_goal(nav, args.goal)
+    _check_start(nav, args.start, goal)
+    route = None
+    if path is not None:
+        model = _load_model(path, settings, nav)
+
+        def policy(observations: Any) -> np.ndarray:
+            return model.predict(observations, deterministic=True)[0]
+
+        report = evaluate_routes(nav, policy, goals=[goal])
+        route = _pick_route(report, goal, args.start, args.heading)
+    picture = write_figure(args.picture, _route_picture(nav, goal, route, args.start, args.size))
+    described = "" if route is None else f"; route from node {route.start} facing {COMPASS_LETTERS[route.heading]}"
+    print(f"map of {settings.env_id} (goal {goal}){described}: {picture}")
+    return {
+        "picture": str(picture),
+        "route": None if route is None else {"start": route.start, "heading": route.heading, "nodes": route.nodes},
+    }
+
+
+# ------------------------------------------------------------------------------------------------ parser
+def _positive(value: str) -> int:
+    try:
+        number = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value!r}") from None
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value!r}")
+    return number
+
+
+def _common_flags() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(add_help=False)
+    group = parser.add_argument_group("env and machine")
+    group.add_argument("--env", help=f"env id (default: {DEFAULT_ENV}, or the model's)")
+    group.add_argument("--conf", help="zoo-format hyperparameter YAML (default: the shipped hyperparams/dcqn.yml)")
+    group.add_argument(
+        "--encoder", choices=ENCODER_NAMES, help=f"view encoder (default: {DEFAULT_ENCODER}, or the model's)"
+    )
+    group.add_argument("--encoder-weights", help="weights file of the encoder (resnet50: torchvision's ResNet-50)")
+    group.add_argument("--render-size", type=_positive, nargs=2, metavar=("W", "H"), help="street-view size (640 480)")
+    group.add_argument("--threads", type=_positive, default=1, help="torch threads (default: %(default)s)")
+    group.add_argument(
+        "--verbose", action="count", default=0, help="a line per route evaluation and closure; twice: SB3's tables"
     )
     return parser
 
 
+def _training_flags() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(add_help=False)
+    group = parser.add_argument_group("training")
+    group.add_argument("--seed", type=int, default=0, help="seed (default: %(default)s)")
+    group.add_argument("--eval-freq", type=_positive, default=1_000, help="route evaluation every N steps (1000)")
+    group.add_argument(
+        "--recovery-eval-freq", type=_positive, default=5, help="after a closure, evaluate every N episodes (5)"
+    )
+    group.add_argument(
+        "--keep-training",
+        action="store_true",
+        help="train every budget out (default: stop once solved and recovered from every closure)",
+    )
+    group.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def _closure_flags() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(add_help=False)
+    group = parser.add_argument_group("closures (a schedule file, or flags)")
+    group.add_argument("--closures", metavar="SCHEDULE.yml", help="closure schedule (campusnav_env.closures format)")
+    group.add_argument(
+        "--close", type=int, nargs=2, action="append", metavar=("U", "V"), help="close road U-V (repeatable: at once)"
+    )
+    group.add_argument("--close-random", type=_positive, metavar="K", help="close K random roads at once (--seed)")
+    group.add_argument(
+        "--close-on-route",
+        type=_close_on_route,
+        action="append",
+        metavar="busiest|NODE",
+        help="close the busiest road of the greedy routes, or the first on the route from NODE (repeatable: one "
+        "at a time)",
+    )
+    group.add_argument(
+        "--close-at",
+        type=int,
+        metavar="STEP",
+        help="close at this env step of the run (default: one at a time, once solved / right away in readapt)",
+    )
+    return parser
+
+
+def _picture_flags(parser: argparse.ArgumentParser, default: str | None) -> None:
+    group = parser.add_argument_group("closures, goal and picture")
+    group.add_argument("--close", type=int, nargs=2, action="append", metavar=("U", "V"), help="close road U-V first")
+    group.add_argument("--goal", help="goal of the route (default: the env's first goal)")
+    group.add_argument(
+        "--start", type=int, metavar="NODE", help="start of the route (default: a failed or the longest)"
+    )
+    group.add_argument("--heading", type=int, choices=(0, 1, 2, 3), help="start heading, 0 N 1 E 2 S 3 W")
+    group.add_argument(
+        "--picture",
+        metavar="PATH",
+        default=default,
+        help="PNG to write" + (" (default: %(default)s)" if default else ""),
+    )
+    group.add_argument("--size", type=_positive, default=1000, help="longer side of the picture in pixels (1000)")
+
+
+class _DemoByDefaultParser(argparse.ArgumentParser):
+    """A parser that reads a command line without a subcommand (nothing, or options only) as ``demo``."""
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        argv = list(sys.argv[1:] if args is None else args)
+        if not argv or (argv[0].startswith("-") and argv[0] not in ("-h", "--help")):
+            argv = ["demo", *argv]
+        return super().parse_known_args(argv, namespace)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """
+    The ``dcqn-campusnav`` parser: subcommands ``demo``, ``train``, ``evaluate``, ``readapt`` and ``draw``; a command
+    line without a subcommand (nothing, or options only) is read as ``demo``.
+    """
+    parser = _DemoByDefaultParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = parser.add_subparsers(dest="command", metavar="SUBCOMMAND", parser_class=argparse.ArgumentParser)
+    common, training, closures = _common_flags(), _training_flags(), _closure_flags()
+
+    demo = commands.add_parser(
+        "demo",
+        parents=[common, training],
+        help="train on CampusNav-v0, close the busiest road twice, report the recovery (the default)",
+        description="Train DCQN until the map is solved, then close the busiest road of the learned routes, one at a "
+        "time, each once the agent has recovered from the previous one; print the routes and the recovery table.",
+    )
+    demo.add_argument("--timesteps", type=_positive, help="most steps before the closures (default: the YAML's)")
+    demo.add_argument("--recovery-budget", type=_positive, help="most steps after each closure (default: half)")
+    demo.add_argument("--n-closures", type=int, default=2, help="closures, one at a time (default: %(default)s)")
+    demo.add_argument("--out", default="runs/campusnav", help="output folder (default: %(default)s)")
+    demo.set_defaults(func=_cmd_demo)
+
+    train = commands.add_parser(
+        "train",
+        parents=[common, training, closures],
+        help="train a model, with closures from a schedule file or flags",
+        description="Train DCQN with route evaluations and closures; save the model and its replay buffer.",
+    )
+    train.add_argument("--timesteps", type=_positive, help="most steps before one-at-a-time closures (default: YAML)")
+    train.add_argument("--recovery-budget", type=_positive, help="most steps after each one-at-a-time closure (half)")
+    train.add_argument("--n-envs", type=_positive, help="training envs (default: the YAML's n_envs, else 1)")
+    train.add_argument("--no-replay-buffer", action="store_true", help="do not save the replay buffer")
+    train.add_argument("--out", default="runs/campusnav", help="output folder (default: %(default)s)")
+    train.set_defaults(func=_cmd_train)
+
+    evaluate = commands.add_parser(
+        "evaluate",
+        parents=[common],
+        help="score a model's greedy routes from every start (optionally under closures)",
+        description="Success rate, SPL, coverage, mean steps and optimality gap of the greedy routes from every "
+        "(start, heading), overall and per goal.",
+    )
+    evaluate.add_argument("model", metavar="MODEL.zip", help="a model saved by train, demo or readapt")
+    _picture_flags(evaluate, None)
+    evaluate.set_defaults(func=_cmd_evaluate)
+
+    readapt = commands.add_parser(
+        "readapt",
+        parents=[common, training, closures],
+        help="close roads on a saved model and train on until it has recovered",
+        description="Load a model (and the replay buffer saved next to it), close roads, train on until recovered or "
+        "--timesteps per closure, save the re-adapted model.",
+    )
+    readapt.add_argument("model", metavar="MODEL.zip", help="a model saved by train, demo or readapt")
+    readapt.add_argument(
+        "--timesteps", type=_positive, default=20_000, help="most steps per closure (default: %(default)s)"
+    )
+    readapt.add_argument("--replay-buffer", metavar="PATH", help="replay buffer (default: <model>_replay_buffer.pkl)")
+    readapt.add_argument("--no-replay-buffer", action="store_true", help="do not save the replay buffer")
+    readapt.add_argument("--out", help="output folder (default: readapt/ next to the model)")
+    readapt.add_argument("--in-place", action="store_true", help="save the re-adapted model over the input model")
+    readapt.set_defaults(func=_cmd_readapt)
+
+    draw = commands.add_parser(
+        "draw",
+        parents=[common],
+        help="draw the map, its closures and a model's greedy route (or the shortest path)",
+        description="Draw the map with closures, the goal, and a model's greedy route from --start (or the shortest "
+        "path) to a PNG.",
+    )
+    draw.add_argument("--model", metavar="MODEL.zip", help="draw this model's greedy route")
+    _picture_flags(draw, "campusnav_map.png")
+    draw.set_defaults(func=_cmd_draw)
+    return parser
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    """
+    Run a parsed command line (``run(build_parser().parse_args([...]))``).
+
+    :param args: From :func:`build_parser`
+    :return: a JSON-able summary of what the subcommand did (``summary.json`` for the training subcommands; their
+        ``"trained"`` entry scores the routes learned before the first closure)
+    :raises CommandError: bad input (a flag, a file, a road), with a message that names it
+    """
+    th.set_num_threads(args.threads)
+    return args.func(args)
+
+
 def main(argv: list[str] | None = None) -> None:
-    run(build_parser().parse_args(argv))
+    """Entry point of ``dcqn-campusnav``; no subcommand (or only options) means ``demo``."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        run(args)
+    except CommandError as error:
+        parser.exit(2, f"{PROG} {args.command}: error: {error}\n")
 
 
 if __name__ == "__main__":

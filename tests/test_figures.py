@@ -197,3 +197,13 @@ def test_write_figure_writes_a_png_atomically(tmp_path: Path) -> None:
     assert [p.name for p in path.parent.iterdir()] == ["panels.png"]  # no temporary file left
     with pytest.raises(ValueError, match="uint8 RGB"):
         write_figure(tmp_path / "bad.png", image.astype(np.float32))
+
+
+def test_result_files_get_the_permissions_of_a_plain_open(tmp_path: Path) -> None:
+    import campusnav_env.atomic_files as atomic_files
+
+    written = atomic_files.write_text_atomic(tmp_path / "summary.md", "x")
+    plain = tmp_path / "plain.md"
+    plain.write_text("x")
+    # Not mkstemp's private 0600: what open() gives under this process's umask
+    assert written.stat().st_mode & 0o777 == plain.stat().st_mode & 0o777 == 0o666 & ~atomic_files._UMASK
