@@ -49,8 +49,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
 
     - ``"views"``: ``Box(4 * D,)`` float32, features of the current intersection's views in compass-slot order N, E,
       S, W (four blocks of D);
-    - ``"goal_views"``: ``Box(4 * D,)`` float32, features of the goal's views in the same order (equal to ``"views"``
-      at the goal, which makes "am I there" easy to see);
+    - ``"goal_views"``: ``Box(4 * D,)`` float32, features of the goal's views in the same order, as pictured on the
+      open map (equal to ``"views"`` at the goal, which makes "am I there" easy to see);
     - ``"heading"``: ``Box(0, 1, (4,))`` float32, one-hot compass heading (N, E, S, W); the actions are relative to
       it, so without it the state would not be Markov.
 
@@ -68,11 +68,12 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     boards, "ROAD CLOSED" sign, cones) a few metres into the road at both ends, straight ahead in the view of the
     road's slot at either end intersection: :meth:`close_road` and :meth:`reopen_road` re-render and re-encode the
     four views of the road's two end nodes (with the barriers of every closed road at that node), in both observation
-    modes and for the goal views too. The new features go through the standardisation and projection fit on the open
-    map (never refit), and reopening restores the open map's features exactly. Re-encodings are cached in memory and
-    on disk (``cache_dir``), so closing a road again costs nothing; the first time costs rendering and encoding eight
-    views. The ``"views"``/``"goal_views"`` boxes then span the float32 range, since new views may fall outside the
-    open map's range.
+    modes. The goal views stay the open map's: they are the pictures the agent was given of its target, and a
+    barrier at the goal must not change what every observation says the target is. The new features go through the
+    standardisation and projection fit on the open map (never refit), and reopening restores the open map's features
+    exactly. Re-encodings are cached in memory and on disk (``cache_dir``), so closing a road again costs nothing;
+    the first time costs rendering and encoding eight views. The ``"views"``/``"goal_views"`` boxes then span the
+    float32 range, since new views may fall outside the open map's range.
 
     ## Rewards
     ``goal_reward`` (+1.0) on reaching the goal; ``collision_penalty`` (-0.01) for an action with no open road that
@@ -447,14 +448,14 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         if self.observation_mode == "features":
             return {
                 "views": self._node_views[nodes],
-                "goal_views": np.repeat(self._node_views[goal_node][None], nodes.size, axis=0),
+                "goal_views": np.repeat(self._open_views[goal_node][None], nodes.size, axis=0),
                 "heading": np.eye(4, dtype=np.float32)[headings],
             }
         # Current views rolled to front, right, back, left: the order itself tells the heading
         order = (headings[:, None] + np.arange(4)[None, :]) % 4
         current = self._node_views[nodes[:, None], order]  # (B, 4, C, h, w)
         top = np.concatenate([current[:, d] for d in range(4)], axis=3)  # (B, C, h, 4w)
-        goal_row = np.concatenate(list(self._node_views[goal_node]), axis=2)  # (C, h, 4w), compass order
+        goal_row = np.concatenate(list(self._open_views[goal_node]), axis=2)  # (C, h, 4w), compass order
         return np.concatenate([top, np.broadcast_to(goal_row, top.shape)], axis=2)
 
     def _observation(self) -> dict[str, np.ndarray] | np.ndarray:
