@@ -28,6 +28,36 @@ _BOOST_TRIGGERS = ("revision", "episode_length", "td_error")
 _BOOST_DEFAULTS = {"exploration": 0.3, "replay_ratio": 4, "steps": 2000, "factor": 2.0}
 
 
+def blocked_actions(
+    observations: th.Tensor | dict[str, th.Tensor],
+    next_observations: th.Tensor | dict[str, th.Tensor],
+    actions: th.Tensor,
+    n_actions: int,
+) -> th.Tensor:
+    """
+    The actions that left the observation unchanged, as a mask for :func:`dcqn_td_target`.
+
+    In a deterministic world an action after which the agent observes exactly what it observed before (a collision:
+    no road that way, or a closed one) will do the same again, so its value is the step's reward plus the value of
+    the best *other* action: ``Q(s, a) = r + gamma * max_{a' != a} Q(s, a')``.
+
+    :param observations: Observations of a batch (a tensor or a dict of tensors)
+    :param next_observations: The next observations
+    :param actions: Actions taken, shape ``(batch, 1)``
+    :param n_actions: Number of discrete actions
+    :return: Boolean mask ``(batch, n_actions)``: the taken action of each row whose observation did not change
+    """
+    if isinstance(observations, dict):
+        pairs = [(observations[key], next_observations[key]) for key in observations]  # type: ignore[index]
+    else:
+        pairs = [(observations, next_observations)]
+    unchanged = th.ones(actions.shape[0], dtype=th.bool, device=actions.device)
+    for before, after in pairs:
+        unchanged &= (before == after).reshape(before.shape[0], -1).all(dim=1)
+    taken = F.one_hot(actions.reshape(-1).long(), n_actions).bool()
+    return taken & unchanged[:, None]
+
+
 def _check_boost(boost: dict[str, Any] | None, experience_revision: bool) -> dict[str, Any] | None:
     """Fill in the defaults of an ``adaptation_boost`` and check it, naming the key that is wrong."""
     if boost is None:
@@ -51,6 +81,7 @@ def dcqn_td_target(
     rewards: th.Tensor,
     dones: th.Tensor,
     discounts: th.Tensor | float,
+    excluded_actions: th.Tensor | None = None,
 ) -> th.Tensor:
     """
     The DCQN temporal-difference target ``y = r + gamma * (1 - done) * max_a' min_i Q'_i(s', a')``.
@@ -62,9 +93,13 @@ def dcqn_td_target(
     :param rewards: Shape ``(batch, 1)``
     :param dones: Episode-termination flags, shape ``(batch, 1)`` (timeouts are already handled by the buffer)
     :param discounts: ``gamma`` (or ``gamma ** n`` per row for n-step returns, shape ``(batch, 1)``)
+    :param excluded_actions: Boolean mask ``(batch, n_actions)`` of actions left out of the max (at least one action
+        of each row must stay in)
     :return: The TD target, shape ``(batch, 1)``
     """
     pessimistic_q = next_q_values.min(dim=0).values
+    if excluded_actions is not None:
+        pessimistic_q = pessimistic_q.masked_fill(excluded_actions, -th.inf)
     next_value = pessimistic_q.max(dim=1).values.reshape(-1, 1)
     return rewards + (1 - dones) * discounts * next_value
 
@@ -119,6 +154,10 @@ class DCQN(OffPolicyAlgorithm):
         buffer revised contradicted experience; needs ``experience_revision``), ``"episode_length"`` (the mean length
         of the last 5 episodes exceeds ``factor`` (default 2) times that of the last 100) or ``"td_error"`` (a
         training loss above ``factor`` times its running mean). ``None`` (default): no boost
+    :param blocked_action_target: For a transition after which the observation did not change (a collision), leave
+        the taken action out of the target's max (see :func:`blocked_actions`): a blocked action's value falls below
+        the open roads' in one update instead of shrinking by ``gamma`` per target update. Off by default (the
+        paper's target)
     :param stats_window_size: Window size for the rollout logging, specifying the number of episodes to average
         the reported success rate, mean episode length, and mean reward over
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
@@ -167,6 +206,7 @@ class DCQN(OffPolicyAlgorithm):
         experience_revision: bool = False,
         prioritized_replay: bool = False,
         adaptation_boost: dict[str, Any] | None = None,
+        blocked_action_target: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -214,6 +254,12 @@ class DCQN(OffPolicyAlgorithm):
         self.experience_revision = experience_revision
         self.prioritized_replay = prioritized_replay
         self.adaptation_boost = _check_boost(adaptation_boost, experience_revision)
+        self.blocked_action_target = blocked_action_target
+        if blocked_action_target and n_steps > 1:
+            raise ValueError(
+                "blocked_action_target needs one-step transitions (n_steps=1): with n_steps > 1 an "
+                "unchanged observation after n steps does not mean the first action was blocked"
+            )
         self._boost_until = 0  # boosted while num_timesteps < _boost_until
         self._revised_seen = 0
         self._loss_average: float | None = None
@@ -327,7 +373,17 @@ class DCQN(OffPolicyAlgorithm):
 
             with th.no_grad():
                 next_q_values = self.q_net_target(replay_data.next_observations)
-                target_q_values = dcqn_td_target(next_q_values, replay_data.rewards, replay_data.dones, discounts)
+                excluded = None
+                if self.blocked_action_target:
+                    excluded = blocked_actions(
+                        replay_data.observations,
+                        replay_data.next_observations,
+                        replay_data.actions,
+                        int(self.action_space.n),  # type: ignore[attr-defined]
+                    )
+                target_q_values = dcqn_td_target(
+                    next_q_values, replay_data.rewards, replay_data.dones, discounts, excluded
+                )
 
             # Q-values of the taken actions for every critic: (n_critics, batch, 1)
             current_q_values = self.q_net(replay_data.observations)
