@@ -778,6 +778,7 @@ def _finish_training(
         "title": title,
         "settings": settings.to_json(),
         "seed": args.seed,
+        "levers": list(getattr(args, "levers", [])),
         "num_timesteps": model.num_timesteps,
         **_outcome_json(outcome),
         "files": files,
@@ -793,7 +794,7 @@ def _finish_training(
 def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, title: str) -> dict[str, Any]:
     """``train`` and ``demo``: a new model, trained with ``plan``'s closures."""
     _check_env_id(args.env or DEFAULT_ENV)
-    entry = _zoo_entry(args.conf, args.env or DEFAULT_ENV)
+    entry = _with_levers(_zoo_entry(args.conf, args.env or DEFAULT_ENV), args.levers)
     settings = _env_settings(args, entry=entry)
     budget = entry.n_timesteps if args.timesteps is None else args.timesteps
     recovery_budget = max(1, budget // 2) if args.recovery_budget is None else args.recovery_budget
@@ -805,7 +806,8 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     out.mkdir(parents=True, exist_ok=True)
     model = DCQN(env=venv, seed=args.seed, verbose=int(args.verbose >= 2), **entry.hyperparams)
     tb_folder = _new_logger(model, out, args.verbose)
-    print(f"training DCQN on {settings.describe()}: up to {budget} steps, {n_envs} env(s)", file=sys.stderr)
+    levers = f", levers: {' '.join(args.levers)}" if args.levers else ""
+    print(f"training DCQN on {settings.describe()}: up to {budget} steps, {n_envs} env(s){levers}", file=sys.stderr)
     outcome = train_with_closures(
         model,
         plan,
@@ -826,6 +828,8 @@ def _cmd_demo(args: argparse.Namespace) -> dict[str, Any]:
         raise CommandError(f"--n-closures must be >= 0, got {args.n_closures}")
     plan = ClosurePlan(later=[ClosureEvent(at=0, unit="step", close_on_route="busiest")] * args.n_closures)
     title = f"DCQN on {args.env or DEFAULT_ENV}: {args.n_closures} closures of the busiest road, one at a time"
+    if args.levers:
+        title += f" (re-adaptation levers: {', '.join(args.levers)})"
     return _train(args, plan, replay_buffer=False, title=title)
 
 
@@ -972,6 +976,28 @@ def _common_flags() -> argparse.ArgumentParser:
     return parser
 
 
+# Re-adaptation levers a training run may switch on: DCQN options and env options (all off in DCQN's defaults)
+LEVERS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
+    "revision": ({"experience_revision": True}, {}),
+    "blocked": ({"blocked_action_target": True}, {}),
+    "per": ({"prioritized_replay": True}, {}),
+    "boost": ({"adaptation_boost": {"trigger": "episode_length"}}, {}),
+    "visible": ({}, {"visible_closures": True}),
+}
+# The demo's: the pair that re-adapted fastest in benchmarks/closures_one_at_a_time.py
+DEMO_LEVERS = ("revision", "blocked")
+
+
+def _with_levers(entry: ZooEntry, levers: Sequence[str]) -> ZooEntry:
+    """The entry with the levers' DCQN options and env options added."""
+    hyperparams, env_kwargs = dict(entry.hyperparams), dict(entry.env_kwargs)
+    for lever in levers:
+        options, env_options = LEVERS[lever]
+        hyperparams.update(options)
+        env_kwargs.update(env_options)
+    return replace(entry, hyperparams=hyperparams, env_kwargs=env_kwargs)
+
+
 def _training_flags() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(add_help=False)
     group = parser.add_argument_group("training")
@@ -1031,6 +1057,18 @@ def _picture_flags(parser: argparse.ArgumentParser, default: str | None) -> None
     group.add_argument("--size", type=_positive, default=1000, help="longer side of the picture in pixels (1000)")
 
 
+def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str]) -> None:
+    parser.add_argument(
+        "--levers",
+        nargs="*",
+        choices=sorted(LEVERS),
+        default=list(default),
+        help="re-adaptation levers: revision (experience revision), blocked (blocked-action target), per "
+        "(prioritised replay), boost (exploration/replay boost on longer episodes), visible (barriers in the views); "
+        f"default: {' '.join(default) or 'none'}; --levers alone: none",
+    )
+
+
 class _DemoByDefaultParser(argparse.ArgumentParser):
     """A parser that reads a command line without a subcommand (nothing, or options only) as ``demo``."""
 
@@ -1063,6 +1101,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--recovery-budget", type=_positive, help="most steps after each closure (default: half)")
     demo.add_argument("--n-closures", type=int, default=2, help="closures, one at a time (default: %(default)s)")
     demo.add_argument("--out", default="runs/campusnav", help="output folder (default: %(default)s)")
+    _lever_flag(demo, DEMO_LEVERS)
     demo.set_defaults(func=_cmd_demo)
 
     train = commands.add_parser(
@@ -1076,6 +1115,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--n-envs", type=_positive, help="training envs (default: the YAML's n_envs, else 1)")
     train.add_argument("--no-replay-buffer", action="store_true", help="do not save the replay buffer")
     train.add_argument("--out", default="runs/campusnav", help="output folder (default: %(default)s)")
+    _lever_flag(train, ())
     train.set_defaults(func=_cmd_train)
 
     evaluate = commands.add_parser(

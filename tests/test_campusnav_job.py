@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav_job import CommandError, build_parser, main, run
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
 from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
@@ -111,6 +112,7 @@ def test_demo_is_the_default_and_closes_the_busiest_road_twice(
     assert not (out / "dcqn_campusnav_replay_buffer.pkl").exists()  # demo keeps no replay buffer
     summary = json.loads((out / "summary.json").read_text())
     assert summary["command"] == "demo" and summary["settings"]["env_kwargs"] == {"view_dim": 64}
+    assert summary["levers"] == ["revision", "blocked"]  # the demo re-adapts with its two fastest levers
     assert summary["trained"]["step"] == summary["closures"][0]["right_after"]["step"]
     assert len(summary["closures"]) == 2 and all(len(c["closed"]) == 1 for c in summary["closures"])
     assert summary["closures"][0]["closed"] != summary["closures"][1]["closed"]
@@ -177,7 +179,13 @@ def test_train_with_closure_flags_and_two_envs(tmp_path: Path, tiny_conf: Path) 
     summary = cli(
         "train", *FAST, "--conf", str(tiny_conf), "--n-envs", "2", "--close", *ROAD, "--close-at", "200",
         *("--timesteps", "400", "--eval-freq", "200", "--no-replay-buffer", "--out", str(out), "--no-progress"),
+        *("--levers", "revision", "blocked", "visible"),
     )  # fmt: skip
+    # The levers reach DCQN and the env, and are saved with the model
+    model = DCQN.load(out / "dcqn_campusnav.zip")
+    assert model.experience_revision and model.blocked_action_target and not model.prioritized_replay
+    assert summary["levers"] == ["revision", "blocked", "visible"]
+    assert summary["settings"]["env_kwargs"]["visible_closures"] is True
     (closure,) = summary["closures"]
     assert closure["description"] == f"step 200: close {ROAD[0]}-{ROAD[1]}"
     assert not (out / "dcqn_campusnav_replay_buffer.pkl").exists()
@@ -222,3 +230,6 @@ def test_main_prints_errors_and_exits_with_status_2(tmp_path: Path, capsys: pyte
     with pytest.raises(SystemExit):
         main(["train", "--close-on-route", "nowhere"])
     assert "expected 'busiest' or a start node id, got 'nowhere'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["train", "--levers", "telepathy"])
+    assert "--levers: invalid choice: 'telepathy'" in capsys.readouterr().err
