@@ -261,6 +261,19 @@ LEVERS = {
         {"experience_revision": True, "adaptation_boost": {"trigger": "revision"}},
     ),
     "all": Lever("all levers (revision, PER, boost on revision, visible)", _ALL_LEVERS, {"visible_closures": True}),
+    "blocked": Lever("blocked-action target", {"blocked_action_target": True}),
+    "revision_blocked": Lever(
+        "revision + blocked-action target", {"experience_revision": True, "blocked_action_target": True}
+    ),
+    "revision_blocked_visible": Lever(
+        "revision + blocked-action target + visible closures",
+        {"experience_revision": True, "blocked_action_target": True},
+        {"visible_closures": True},
+    ),
+    "revision_blocked_per": Lever(
+        "revision + blocked-action target + prioritised replay",
+        {"experience_revision": True, "blocked_action_target": True, "prioritized_replay": True},
+    ),
 }
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 import sys
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ from campusnav_env.atomic_files import write_text_atomic
 def command_line(script: str, argv: list[str] | None) -> str:
     """The Markdown line naming the command that produced a results file."""
     words = ["python", f"benchmarks/{script}", *(sys.argv[1:] if argv is None else argv)]
-    return f"Command: `{' '.join(words)}`"
+    return f"Command: `{shlex.join(words)}`"
 
 
 def write_results(path: Path, text: str) -> None:

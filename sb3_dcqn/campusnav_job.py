@@ -984,8 +984,8 @@ LEVERS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "boost": ({"adaptation_boost": {"trigger": "episode_length"}}, {}),
     "visible": ({}, {"visible_closures": True}),
 }
-# The demo's: the pair that re-adapted fastest in benchmarks/closures_one_at_a_time.py
-DEMO_LEVERS = ("revision", "blocked")
+# The demo's: the levers that re-adapted fastest together in benchmarks/closures_one_at_a_time.py
+DEMO_LEVERS = ("revision", "blocked", "per")
 
 
 def _with_levers(entry: ZooEntry, levers: Sequence[str]) -> ZooEntry:

@@ -168,4 +168,3 @@ class DictCartPole(gym.ObservationWrapper):
 
     def observation(self, observation: np.ndarray) -> dict[str, np.ndarray]:
         return {"state": observation}
-

@@ -266,5 +266,3 @@ def test_invalid_geometries_and_landmarks_are_rejected() -> None:
     # A geometry given from v to u is stored from the lower node id to the higher
     graph = RoadGraph(positions, [(1, 0)], geometries=[np.array([[10.0, 0.0], [5.0, 3.0], [0.0, 0.0]])])
     np.testing.assert_allclose(graph.geometries[0], [[0, 0], [5, 3], [10, 0]])
-
-

@@ -1,0 +1,275 @@
+"""Eleven roads closing at once: how fast DCQN recovers, with and without its re-adaptation levers (the paper's 11).
+
+For every seed and lever (``campusnav_runs.LEVERS``) an agent trains on CampusNav-v0 until the map is solved
+(``campusnav_runs.train_until_solved``), then keeps training (same model, ``reset_num_timesteps=False``) for
+``--window`` env steps after 11 random roads close at once. The roads are drawn once per seed from the open map
+(:meth:`~campusnav_env.maps.navigation.NavigationGraph.sample_closures` with ``numpy.random.default_rng(seed)``, the
+draw of ``ClosureEvent(close_random=11, seed=seed)``), keeping the goal reachable from every node, and every lever
+faces the same roads. A :class:`~campusnav_env.callbacks.RoadClosureCallback` closes them and drives a
+:class:`~campusnav_env.callbacks.RouteEvaluationCallback`: the greedy routes from every (start, heading) are evaluated
+right after the closure, then every ``--recovery-eval-freq`` training episodes until success and SPL are back at
+0.99 and 0.95 (:mod:`campusnav_env.recovery`); the recovery is counted in training episodes, env steps and training
+seconds (evaluations excluded) from the closure.
+
+Every finished run is appended to a JSON-lines file (a rerun skips what is done). The tables (the levers asked for
+and any other lever already in the runs file) are printed and written to ``benchmarks/results/closures_eleven.md``,
+with PNGs beside it: the route panel and training curves of the first seed's baseline run (named by lever; the first
+lever's when the baseline does not run), and the recovery curves (success rate against training episodes after the
+closure) of every run.
+
+Usage::
+
+    python benchmarks/closures_eleven.py                          # 6 levers, seeds 0 and 1
+    python benchmarks/closures_eleven.py --levers baseline all --seeds 0 1 2 --window 20000
+    python benchmarks/closures_eleven.py --quick                  # smoke run: pixel features, tiny budgets
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from campusnav_runs import LEVERS, SPL_THRESHOLD, SUCCESS_THRESHOLD, TASKS, figure_rgb, machine_line, quick_env_kwargs
+from closures_one_at_a_time import (
+    DEFAULT_LEVERS,
+    append_run,
+    figure_lever,
+    lever_options,
+    medians,
+    number,
+    read_runs,
+    roads_text,
+    run_figures,
+    run_record,
+    shown_levers,
+    solve_text,
+    train_then_close,
+)
+from report import command_line, write_results  # benchmarks/report.py, beside this script
+
+from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD
+from campusnav_env.rendering.figures import write_figure
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+SCRIPT = "closures_eleven.py"
+N_ROADS = 11
+# The issue's goal, and the paper's result
+GOAL_EPISODES = 150
+PAPER_EPISODES = 500
+Road = tuple[int, int]
+
+
+def eleven_roads(graph: NavigationGraph, goal: int, seed: int, n_roads: int = N_ROADS) -> list[Road]:
+    """
+    The roads closed at once for a seed: ``n_roads`` open roads drawn with ``default_rng(seed)`` that keep the goal
+    reachable from every node that reaches it now (the draw of ``ClosureEvent(close_random=n_roads, seed=seed)``).
+    """
+    return graph.sample_closures(n_roads, np.random.default_rng(seed), protect=[goal])
+
+
+def recovery_curves(runs: Sequence[dict[str, Any]], levers: Sequence[str], title: str) -> np.ndarray:
+    """
+    Success rate and SPL of the greedy routes against training episodes after the closure, one line per run.
+
+    :param runs: Records of the runs file
+    :param levers: Lever keys (one colour each)
+    :param title: Title of the figure
+    :return: ``(H, W, 3)`` uint8 RGB image
+    """
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(11, 6.5), dpi=100, layout="constrained")
+    axes = figure.subplots(2, 1, sharex=True)
+    colours = ["black", "tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:red", "tab:brown", "tab:olive"]
+    styles = ["-", "--", ":", "-."]
+    seeds = sorted({r["seed"] for r in runs})
+    for i, lever in enumerate(levers):
+        for run in (r for r in runs if r["lever"] == lever):
+            curve = np.asarray(run["recoveries"][0]["curve"], dtype=float) if run["recoveries"] else np.empty((0, 4))
+            if not len(curve):
+                continue
+            style = styles[seeds.index(run["seed"]) % len(styles)]
+            label = f"{LEVERS[lever].name}, seed {run['seed']}"
+            for ax, column in zip(axes, (2, 3), strict=True):
+                ax.plot(curve[:, 0], curve[:, column], style, color=colours[i % len(colours)], lw=1.3, label=label)
+    for ax, name, threshold in zip(
+        axes, ("success rate", "SPL"), (DEFAULT_SUCCESS_THRESHOLD, DEFAULT_SPL_THRESHOLD), strict=True
+    ):
+        ax.axhline(threshold, color="0.4", ls=":", lw=1)
+        ax.axvline(GOAL_EPISODES, color="tab:red", ls="--", lw=1)
+        ax.set_ylabel(f"{name} (every (start, heading))")
+        ax.set_ylim(-0.03, 1.03)
+        ax.grid(True, alpha=0.3)
+    axes[0].set_title(title, fontsize=10)
+    axes[-1].set_xlabel(f"training episodes after the closure (red: the goal, {GOAL_EPISODES}; dotted: the threshold)")
+    figure.legend(*axes[0].get_legend_handles_labels(), loc="outside right upper", fontsize=8, frameon=False)
+    return figure_rgb(figure)
+
+
+def summary_table(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list[str]:
+    lines = [
+        "| lever | seeds | solved before the closure at (per seed) | recovered | median episodes | median env steps | "
+        f"median training s | goal (median <= {GOAL_EPISODES} ep) | paper (< {PAPER_EPISODES} ep) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for lever in levers:
+        mine = [r for r in runs if r["lever"] == lever]
+        if not mine:
+            continue
+        closures = [c for r in mine for c in r["recoveries"]]
+        episodes, steps, seconds = medians(closures)
+        lines.append(
+            f"| {LEVERS[lever].name} | {len(mine)} | {'; '.join(solve_text(r) for r in mine)} | "
+            f"{sum(c['recovered'] for c in closures)} / {len(closures)} | {number(episodes)} | {number(steps)} | "
+            f"{number(seconds, 1)} | {'met' if episodes <= GOAL_EPISODES else '**missed**'} | "
+            f"{'met' if episodes < PAPER_EPISODES else '**missed**'} |"
+        )
+    return lines
+
+
+def run_table(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list[str]:
+    lines = [
+        "| lever | seed | routes affected | success / SPL right after | recovery episodes | env steps | training s | "
+        "success / SPL at the end of the window (episodes in it) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for lever in levers:
+        for run in sorted((r for r in runs if r["lever"] == lever), key=lambda r: r["seed"]):
+            for c in run["recoveries"]:
+                after = "-" if c["success_after"] is None else f"{c['success_after']:.3f} / {c['spl_after']:.3f}"
+                end = "-" if c["success_end"] is None else f"{c['success_end']:.3f} / {c['spl_end']:.3f}"
+                affected = "-" if c["routes_affected"] is None else str(c["routes_affected"])
+                lines.append(
+                    f"| {LEVERS[lever].name} | {run['seed']} | {affected} | {after} | {number(c['episodes'])} | "
+                    f"{number(c['steps'])} | {number(c['seconds'], 1)} | {end} ({c['window_episodes']}) |"
+                )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
+    parser.add_argument(
+        "--levers", nargs="+", choices=sorted(LEVERS), default=None, help="default: " + " ".join(DEFAULT_LEVERS)
+    )
+    parser.add_argument("--window", type=int, default=15_000, help="env steps of training after the closure")
+    parser.add_argument(
+        "--recovery-eval-freq", type=int, default=2, help="episodes between evaluations while recovering"
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="smoke run: pixel features, tiny budgets, 2 levers, 1 seed"
+    )
+    parser.add_argument("--out", type=Path, default=None, help="results file (default results/closures_eleven.md)")
+    parser.add_argument("--runs-file", type=Path, default=None)
+    args = parser.parse_args(argv)
+    th.set_num_threads(1)
+
+    stem = "closures_eleven" + ("_quick" if args.quick else "")
+    out: Path = args.out or RESULTS_DIR / f"{stem}.md"
+    runs_file: Path = args.runs_file or out.with_name(f"{out.stem}_runs.jsonl")
+    levers = args.levers or (["baseline", "all"] if args.quick else list(DEFAULT_LEVERS))
+    task = TASKS["campus"]
+    env_kwargs: dict[str, Any] = {}
+    window = args.window
+    seeds = args.seeds
+    if args.quick:
+        task = dataclasses.replace(task, max_steps=1_500, budget_seconds=20, eval_freq=500)
+        env_kwargs = quick_env_kwargs()
+        window = min(window, 300)
+        seeds = seeds[:1]
+    settings = {"window": window, "recovery_eval_freq": args.recovery_eval_freq, "quick": args.quick}
+
+    probe = task.make_env(LEVERS["baseline"].entry(task), **env_kwargs).unwrapped
+    goal_node = probe.goal_nodes[0]  # type: ignore[attr-defined]
+    roads = {seed: eleven_roads(probe.graph, goal_node, seed) for seed in seeds}  # type: ignore[attr-defined]
+    for seed, drawn in roads.items():
+        print(f"seed {seed}: closes {roads_text(drawn)} (same for every lever)", flush=True)
+
+    stored = [r for r in read_runs(runs_file) if all(r.get(k) == v for k, v in settings.items())]
+    done = {(r["lever"], r["seed"]) for r in stored}
+    todo = [(lever, seed) for seed in seeds for lever in levers if (lever, seed) not in done]
+    print(f"{len(done)} runs already in {runs_file}, {len(todo)} to do", flush=True)
+    figures: list[Path] = []
+    prefix = out.with_name(out.stem)
+    started = time.perf_counter()
+    for lever, seed in todo:
+        begin = time.perf_counter()
+        run = train_then_close(task, LEVERS[lever], seed, [roads[seed]], window, args.recovery_eval_freq, env_kwargs)
+        record = run_record(run, lever=lever, seed=seed, **settings, wall_seconds=round(time.perf_counter() - begin, 1))
+        append_run(runs_file, record)
+        stored.append(record)
+        print(
+            f"{LEVERS[lever].name}, seed {seed}: solved {solve_text(record)}; recovery after "
+            f"{number(record['recoveries'][0]['episodes'])} episodes; {record['wall_seconds']:.0f} s",
+            flush=True,
+        )
+        if (lever, seed) == (figure_lever(levers), seeds[0]):
+            title = f"CampusNav-v0, {LEVERS[lever].name}, seed {seed}: {N_ROADS} roads closed at once"
+            figures += run_figures(run, prefix, lever, title)
+    total = time.perf_counter() - started
+
+    levers = shown_levers(levers, stored, seeds)
+    runs = [r for r in stored if r["lever"] in levers and r["seed"] in seeds]
+    if runs:
+        curves = recovery_curves(runs, levers, f"After {N_ROADS} roads closed at once, CampusNav-v0, seeds {seeds}")
+        figures.append(write_figure(prefix.with_name(prefix.name + "_recovery.png"), curves))
+    pictures = sorted({p.name for p in figures} | {p.name for p in out.parent.glob(f"{out.stem}_*.png")})
+    wall = [r["wall_seconds"] for r in runs]
+    lines = [
+        f"# {N_ROADS} roads closing at once: recovery per re-adaptation lever (the paper's 11 random closures)",
+        "",
+        machine_line(),
+        "",
+        f"Setup: {task.description}{' (smoke run: pixel features of 64x48 views, tiny budgets)' if args.quick else ''},"
+        f" DCQN's shipped entry (`hyperparams/dcqn.yml`) plus each lever's options. Each (lever, seed) trains from "
+        f"scratch until solved (success >= {SUCCESS_THRESHOLD}, SPL >= {SPL_THRESHOLD} from every (start, heading), "
+        f"evaluated every {task.eval_freq} steps; cap {task.max_steps} steps / {task.budget_seconds:.0f} s of "
+        f"training), then keeps training (same model) for {window} env steps after {N_ROADS} roads close at once.",
+        "",
+        "Closures (drawn once per seed from the open map, `sample_closures(11, default_rng(seed), protect=[goal])`, "
+        "i.e. `ClosureEvent(close_random=11, seed=seed)`; the goal stays reachable; the same for every lever): "
+        + "; ".join(f"seed {seed}: {roads_text(drawn)}" for seed, drawn in roads.items())
+        + ".",
+        "",
+        f"Recovery: the first route evaluation (right after the closure, then every {args.recovery_eval_freq} training "
+        f"episodes) with success >= {DEFAULT_SUCCESS_THRESHOLD} and SPL >= {DEFAULT_SPL_THRESHOLD}; counted in "
+        f"training episodes, env steps and training seconds (evaluations excluded) from the closure. Not recovered "
+        f"within the window: *not recovered* (infinitely slow in the medians). Goal: <= {GOAL_EPISODES} episodes "
+        f"(the paper: < {PAPER_EPISODES} episodes).",
+        "",
+        "Levers: " + "; ".join(f"{LEVERS[k].name}: `{lever_options(LEVERS[k])}`" for k in levers) + ".",
+        "",
+        "## Per lever (median over seeds)",
+        "",
+        *summary_table(runs, levers),
+        "",
+        "## Per run",
+        "",
+        *run_table(runs, levers),
+        "",
+        "Routes affected: greedy routes (of all (start, heading) pairs) of the last evaluation before the closure that "
+        "used a closed road.",
+        "",
+        f"Figures: {', '.join(f'`{name}`' for name in pictures)} (route panel and training curves `_<lever>`: the "
+        "first seed's run of that lever; recovery curves: every run).",
+        "",
+        f"Time: {len(runs)} runs, {np.sum(wall):.0f} s in all (per run {min(wall, default=0):.0f}-"
+        f"{max(wall, default=0):.0f} s, evaluations and the visible closures' rendering included); "
+        + (f"this invocation ran {len(todo)} of them in {total:.0f} s." if todo else "all read from the runs file."),
+        "",
+        command_line(SCRIPT, argv),
+    ]
+    print("\n".join(lines))
+    write_results(out, "\n".join(lines))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,561 @@
+"""Roads closing one at a time: how fast DCQN recovers, with and without its re-adaptation levers (paper Fig. 7b/9).
+
+For every seed and lever (``campusnav_runs.LEVERS``: DCQN as shipped, experience revision, prioritised replay, the
+adaptation boost, visible closures, all of them together) an agent trains on CampusNav-v0 until the map is solved
+(``campusnav_runs.train_until_solved``), then keeps training (same model, ``reset_num_timesteps=False``) while roads
+close one at a time, cumulatively: a closure, then ``--window`` env steps in which the recovery is measured, then the
+next closure. A :class:`~campusnav_env.callbacks.RoadClosureCallback` closes the roads and drives a
+:class:`~campusnav_env.callbacks.RouteEvaluationCallback`: the greedy routes from every (start, heading) are evaluated
+right after each closure, then every ``--recovery-eval-freq`` training episodes until success and SPL are back at
+0.99 and 0.95 (:mod:`campusnav_env.recovery`); the recovery is counted in training episodes, env steps and training
+seconds (evaluations excluded) from the closure.
+
+Every lever faces the same closures: the roads are chosen from the map, never from an agent's routes: the road most
+used by the shortest paths from every intersection to the goal, then the busiest on the shortest paths with that one
+closed, and so on, skipping roads whose closure would cut the goal off.
+
+Every finished run is appended to a JSON-lines file, so an interrupted benchmark keeps its runs and a rerun skips
+them. The tables are printed and written to ``benchmarks/results/closures_one_at_a_time.md``, with PNGs beside it:
+the route panels and training curves of the first seed's baseline run (``_routes_<lever>.png``,
+``_training_<lever>.png``; the first lever's when the baseline does not run), and a bar chart of the recovery per
+lever. The tables show the levers asked for and any other lever already in the runs file.
+
+Usage::
+
+    python benchmarks/closures_one_at_a_time.py                        # 6 levers, seeds 0 and 1, 3 closures
+    python benchmarks/closures_one_at_a_time.py --levers baseline all --seeds 0 1 2 --window 8000
+    python benchmarks/closures_one_at_a_time.py --quick                # smoke run: pixel features, tiny budgets
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from campusnav_runs import (
+    LEVERS,
+    SPL_THRESHOLD,
+    SUCCESS_THRESHOLD,
+    TASKS,
+    VARIANTS,
+    Lever,
+    SolveResult,
+    Task,
+    figure_rgb,
+    machine_line,
+    quick_env_kwargs,
+    train_until_solved,
+)
+from report import command_line, write_results  # benchmarks/report.py, beside this script
+
+from campusnav_env.callbacks import RoadClosureCallback, RouteEvaluationCallback
+from campusnav_env.closures import ClosureEvent, busiest_road
+from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD, Recovery, median_recovery
+from campusnav_env.rendering.figures import closure_route_panels, training_curves, write_figure
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+SCRIPT = "closures_one_at_a_time.py"
+DEFAULT_LEVERS = ("baseline", "revision", "per", "boost", "visible", "all")
+# The issue's goal per closure, and the paper's result
+GOAL_EPISODES = 50
+GOAL_SECONDS = 10.0
+PAPER_EPISODES = 300
+Road = tuple[int, int]
+
+
+# ------------------------------------------------------------------------------- shared with closures_eleven.py
+def busiest_closures(graph: NavigationGraph, goal: int, n_closures: int) -> list[Road]:
+    """
+    Roads to close one after another, chosen from the map alone (so every agent faces the same ones).
+
+    The first is the road used by the most shortest paths from every intersection to the goal; each next one the
+    busiest on the shortest paths with the roads before it closed. Roads whose closure would cut the goal off from a
+    node that reaches it are skipped (:func:`~campusnav_env.closures.busiest_road`).
+
+    :param graph: The map (not changed)
+    :param goal: The goal node
+    :param n_closures: Number of roads
+    :return: the roads, in the order they close (fewer if no more can be closed)
+    """
+    trial = graph.copy()
+    roads: list[Road] = []
+    for _ in range(n_closures):
+        routes = [trial.shortest_path(start, goal) for start in range(trial.n_nodes) if start != goal]
+        road = busiest_road(trial, routes, [goal])
+        if road is None:
+            break
+        trial.close_road(*road, protect=[goal])
+        roads.append(road)
+    return roads
+
+
+@dataclass
+class ClosureRun:
+    """
+    One agent trained until solved, then trained on while roads close.
+
+    :param solve: The training to the solved map
+    :param evaluation: The route evaluations of the whole run (solving and closures)
+    :param closures: The closure callback (``records``, ``recoveries``)
+    :param graph: The training env's navigation graph (the map of the route panels)
+    :param episode_rewards: Return of every training episode (the ``Monitor``'s)
+    :param episode_lengths: Length of every training episode
+    :param closure_wall_seconds: Wall time of the training with closures, evaluations included
+    """
+
+    solve: SolveResult
+    evaluation: RouteEvaluationCallback
+    closures: RoadClosureCallback
+    graph: NavigationGraph
+    episode_rewards: list[float]
+    episode_lengths: list[float]
+    closure_wall_seconds: float
+
+    @property
+    def recoveries(self) -> list[Recovery]:
+        return self.closures.recoveries
+
+
+def train_then_close(
+    task: Task,
+    lever: Lever,
+    seed: int,
+    closures: Sequence[Sequence[Road]],
+    window: int,
+    recovery_eval_freq: int,
+    env_kwargs: dict[str, Any] | None = None,
+) -> ClosureRun:
+    """
+    Train one agent until the map is solved, then keep training while ``closures`` close one event after another.
+
+    :param task: The map, goal, step cap and time budget of the training to the solved map
+    :param lever: DCQN's options (and the env's) for this run
+    :param seed: Seed of the agent
+    :param closures: The roads of each closure event (one event every ``window`` env steps, the first right away)
+    :param window: Env steps of training after each closure
+    :param recovery_eval_freq: While recovering, evaluate the routes every this many training episodes
+    :param env_kwargs: Env keyword arguments on top of the entry's (e.g. the cheap settings of a smoke run)
+    :return: the run
+    """
+    entry = lever.entry(task)
+    env = task.make_env(entry, **(env_kwargs or {}))
+    model = VARIANTS["DCQN"].make_model(env, entry, seed)
+    evaluation = RouteEvaluationCallback(
+        eval_freq=task.eval_freq,
+        success_threshold=SUCCESS_THRESHOLD,
+        spl_threshold=SPL_THRESHOLD,
+        stop_when_solved=True,
+    )
+    solve = train_until_solved(model, task.max_steps, task.budget_seconds, task.eval_freq, evaluation=evaluation)
+    # The same evaluation goes on (its episodes, steps and seconds count from the start, like the Monitor's), now at
+    # the recovery thresholds and without stopping
+    evaluation.stop_when_solved = False
+    evaluation.success_threshold = DEFAULT_SUCCESS_THRESHOLD
+    evaluation.spl_threshold = DEFAULT_SPL_THRESHOLD
+    offset = evaluation.steps
+    events = [ClosureEvent(at=offset + k * window, unit="step", close=tuple(roads)) for k, roads in enumerate(closures)]
+    callback = RoadClosureCallback(events, evaluation=evaluation, recovery_eval_freq=recovery_eval_freq)
+    start = time.perf_counter()
+    model.learn(window * len(events), callback=callback, reset_num_timesteps=False)
+    closure_wall = time.perf_counter() - start
+    vec_env = model.get_env()
+    assert vec_env is not None
+    return ClosureRun(
+        solve=solve,
+        evaluation=evaluation,
+        closures=callback,
+        graph=env.unwrapped.graph,  # type: ignore[attr-defined]
+        episode_rewards=list(vec_env.env_method("get_episode_rewards")[0]),
+        episode_lengths=list(vec_env.env_method("get_episode_lengths")[0]),
+        closure_wall_seconds=closure_wall,
+    )
+
+
+def _finite(value: float, digits: int = 3) -> float | None:
+    return None if math.isinf(value) else round(float(value), digits)
+
+
+def recovery_record(number: int, recovery: Recovery, run: ClosureRun) -> dict[str, Any]:
+    """What the runs file keeps of one closure: the roads, the recovery and the evaluations of its window."""
+    closure = recovery.closure
+    evaluations = run.evaluation.evaluations
+    later = [r.closure for r in run.recoveries if r.closure.step > closure.step]
+    window = evaluations[closure.evaluation_index : later[0].evaluation_index if later else len(evaluations)]
+    episodes_in_window = (later[0].episode if later else run.evaluation.episodes) - closure.episode
+    return {
+        "closure": number,
+        "roads": [list(road) for road in closure.closed],
+        "step": closure.step,
+        "episode": closure.episode,
+        "routes_affected": closure.routes_affected,
+        "success_after": None if recovery.right_after is None else recovery.right_after.success_rate,
+        "spl_after": None if recovery.right_after is None else recovery.right_after.spl,
+        "recovered": recovery.recovered,
+        "episodes": _finite(recovery.episodes, 0),
+        "steps": _finite(recovery.steps, 0),
+        "seconds": _finite(recovery.seconds),
+        "success_end": None if recovery.last is None else recovery.last.success_rate,
+        "spl_end": None if recovery.last is None else recovery.last.spl,
+        "window_episodes": episodes_in_window,
+        # success and SPL against episodes and steps since the closure (the recovery curve)
+        "curve": [
+            [e.episode - closure.episode, e.step - closure.step, round(e.success_rate, 4), round(e.spl, 4)]
+            for e in window
+        ],
+    }
+
+
+def run_record(run: ClosureRun, **fields: Any) -> dict[str, Any]:
+    """What the runs file keeps of one run: ``fields`` (lever, seed, settings), the solve and the recoveries."""
+    solved = run.solve.solved_at
+    last = run.solve.evaluations[-1] if run.solve.evaluations else None
+    reached = solved or last
+    return {
+        **fields,
+        "solved": solved is not None,
+        "solve_steps": None if reached is None else reached.step,
+        "solve_episodes": None if reached is None else reached.episode,
+        "solve_seconds": None if reached is None else round(reached.train_seconds, 3),
+        "solve_wall_seconds": round(run.solve.wall_seconds, 3),
+        "closure_wall_seconds": round(run.closure_wall_seconds, 3),
+        "recoveries": [recovery_record(k, r, run) for k, r in enumerate(run.recoveries, start=1)],
+    }
+
+
+def read_runs(path: Path) -> list[dict[str, Any]]:
+    """The runs of a JSON-lines file (none if it does not exist)."""
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def append_run(path: Path, record: dict[str, Any]) -> None:
+    """Append one finished run to the JSON-lines file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as file:
+        file.write(json.dumps(record) + "\n")
+
+
+@dataclass(frozen=True)
+class _Stored:
+    """A recovery read back from the runs file (what :func:`median_recovery` reads)."""
+
+    episodes: float
+    steps: float
+    seconds: float
+
+
+def stored_recoveries(records: Sequence[dict[str, Any]]) -> list[_Stored]:
+    """The recoveries of the runs file's closure records, never-recovered as ``inf``."""
+    return [
+        _Stored(*(math.inf if r[key] is None else float(r[key]) for key in ("episodes", "steps", "seconds")))
+        for r in records
+    ]
+
+
+def _stored_episodes(values: Sequence[float]) -> list[_Stored]:
+    return [_Stored(value, 0.0, 0.0) for value in values]
+
+
+def medians(records: Sequence[dict[str, Any]]) -> tuple[float, float, float]:
+    """Median episodes, env steps and training seconds over closure records (unrecovered count as ``inf``)."""
+    stored: Any = stored_recoveries(records)  # duck-typed Recovery: median_recovery reads these three attributes
+    return tuple(median_recovery(stored, measure) for measure in ("episodes", "steps", "seconds"))  # type: ignore
+
+
+def number(value: float | None, digits: int = 0) -> str:
+    """A table cell: the value, or "not recovered" for a recovery that never came."""
+    if value is None or math.isinf(value):
+        return "not recovered"
+    if math.isnan(value):
+        return "-"
+    return f"{value:.{digits}f}"
+
+
+def roads_text(roads: Sequence[Sequence[int]]) -> str:
+    return ", ".join(f"{u}-{v}" for u, v in roads)
+
+
+def lever_options(lever: Lever) -> str:
+    """A lever's options as written in the results (``"as shipped"`` for none)."""
+    options = {**lever.overrides, **lever.env_kwargs}
+    return ", ".join(f"{key}={value}" for key, value in options.items()) or "as shipped"
+
+
+def solve_text(run: dict[str, Any]) -> str:
+    steps, seconds = run["solve_steps"], run["solve_seconds"]
+    where = f"{steps} steps, {seconds:.1f} s" if steps is not None else "-"
+    return where if run["solved"] else f"**not solved** (stopped at {where})"
+
+
+def recovery_bars(
+    runs: Sequence[dict[str, Any]], levers: Sequence[str], title: str, goal: float | None = GOAL_EPISODES
+) -> np.ndarray:
+    """
+    A bar chart of the recovery episodes per lever and closure: the bar is the median over seeds, a dot each seed;
+    a closure never recovered from is a hatched bar (or an x) at the top of the chart.
+
+    :param runs: Records of the runs file
+    :param levers: Lever keys, in the order of the bars
+    :param title: Title of the chart
+    :param goal: The goal in episodes, drawn as a dashed line (``None``: none)
+    :return: ``(H, W, 3)`` uint8 RGB image
+    """
+    from matplotlib.figure import Figure
+
+    n_closures = max((len(r["recoveries"]) for r in runs), default=0)
+    finite = [c["episodes"] for r in runs for c in r["recoveries"] if c["episodes"] is not None]
+    top = 1.15 * max([*finite, goal or 0, 1])
+    figure = Figure(figsize=(max(9.0, 1.5 * len(levers) + 4), 4.6), dpi=100, layout="constrained")
+    ax = figure.subplots()
+    width = 0.8 / max(n_closures, 1)
+    colours = ["tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:olive"]
+    for k in range(n_closures):
+        for i, lever in enumerate(levers):
+            values = [
+                math.inf if r["recoveries"][k]["episodes"] is None else r["recoveries"][k]["episodes"]
+                for r in runs
+                if r["lever"] == lever and len(r["recoveries"]) > k
+            ]
+            if not values:
+                continue
+            x = i + (k - (n_closures - 1) / 2) * width
+            median = median_recovery(_stored_episodes(values), "episodes")  # type: ignore[arg-type]
+            colour = colours[k % len(colours)]
+            label = f"closure {k + 1}" if i == 0 else None
+            if math.isinf(median):
+                ax.bar(x, top, width * 0.9, color="white", edgecolor=colour, hatch="//", label=label)
+            else:
+                ax.bar(x, median, width * 0.9, color=colour, alpha=0.8, label=label)
+            for v in values:
+                ax.plot(x, min(v, top * 0.97), "x" if math.isinf(v) else "o", color="black", ms=4)
+    if goal is not None:
+        ax.axhline(goal, color="tab:red", ls="--", lw=1, label=f"goal: {goal:.0f} episodes")
+    ax.plot([], [], "x", color="black", label="a seed never recovered (hatched: the median)")
+    ax.set_xticks(range(len(levers)), [LEVERS[lever].name for lever in levers], rotation=15, ha="right", fontsize=8)
+    ax.set_ylim(0, top)
+    ax.set_ylabel("training episodes to recovery")
+    ax.set_title(title, fontsize=10)
+    figure.legend(fontsize=8, loc="outside right upper", frameon=False)
+    ax.grid(True, axis="y", alpha=0.3)
+    return figure_rgb(figure)
+
+
+def run_figures(run: ClosureRun, prefix: Path, lever: str, title: str) -> list[Path]:
+    """
+    The route panels and the training curves of one run, next to the results file: ``<prefix>_routes_<lever>.png``
+    and ``<prefix>_training_<lever>.png`` (named by lever, so that a run of other levers leaves them alone).
+    """
+    panels = closure_route_panels(run.graph, run.evaluation.evaluations, run.recoveries, size=520)
+    curves = training_curves(
+        run.episode_rewards, run.episode_lengths, run.recoveries, run.evaluation.evaluations, title=title
+    )
+    return [
+        write_figure(prefix.with_name(f"{prefix.name}_routes_{lever}.png"), panels),
+        write_figure(prefix.with_name(f"{prefix.name}_training_{lever}.png"), curves),
+    ]
+
+
+def figure_lever(levers: Sequence[str]) -> str:
+    """The lever whose first seed's run gets route panels and training curves: the baseline if it runs."""
+    return "baseline" if "baseline" in levers else levers[0]
+
+
+def shown_levers(levers: Sequence[str], stored: Sequence[dict[str, Any]], seeds: Sequence[int]) -> list[str]:
+    """
+    The levers of the tables: those asked for, then any other lever whose runs (same settings and seeds) are in the
+    runs file, so that an invocation with other levers adds rows instead of replacing the tables.
+    """
+    others = {r["lever"] for r in stored if r["seed"] in seeds and r["lever"] in LEVERS and r["lever"] not in levers}
+    return [*levers, *(lever for lever in LEVERS if lever in others)]
+
+
+# ------------------------------------------------------------------------------------------------ this benchmark
+def summary_table(runs: Sequence[dict[str, Any]], levers: Sequence[str], goal_episodes: float) -> list[str]:
+    lines = [
+        f"| lever | seeds | solved before the closures at (per seed) | closures recovered | median episodes | "
+        f"median env steps | median training s | closures within the goal | goal (median <= {goal_episodes:.0f} ep "
+        f"and <= {GOAL_SECONDS:.0f} s) | paper (< {PAPER_EPISODES} ep) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for lever in levers:
+        mine = [r for r in runs if r["lever"] == lever]
+        if not mine:
+            continue
+        closures = [c for r in mine for c in r["recoveries"]]
+        episodes, steps, seconds = medians(closures)
+        within = sum(
+            c["episodes"] is not None and c["episodes"] <= goal_episodes and c["seconds"] <= GOAL_SECONDS
+            for c in closures
+        )
+        met = episodes <= goal_episodes and seconds <= GOAL_SECONDS
+        paper = episodes < PAPER_EPISODES
+        lines.append(
+            f"| {LEVERS[lever].name} | {len(mine)} | {'; '.join(solve_text(r) for r in mine)} | "
+            f"{sum(c['recovered'] for c in closures)} / {len(closures)} | {number(episodes)} | {number(steps)} | "
+            f"{number(seconds, 1)} | {within} / {len(closures)} | {'met' if met else '**missed**'} | "
+            f"{'met' if paper else '**missed**'} |"
+        )
+    return lines
+
+
+def closure_table(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list[str]:
+    lines = [
+        "| lever | seed | closure | road | routes affected | success right after | recovery episodes | env steps | "
+        "training s | success / SPL at the end of the window (episodes in it) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for lever in levers:
+        for run in sorted((r for r in runs if r["lever"] == lever), key=lambda r: r["seed"]):
+            for c in run["recoveries"]:
+                after = "-" if c["success_after"] is None else f"{c['success_after']:.3f}"
+                end = "-" if c["success_end"] is None else f"{c['success_end']:.3f} / {c['spl_end']:.3f}"
+                affected = "-" if c["routes_affected"] is None else str(c["routes_affected"])
+                lines.append(
+                    f"| {LEVERS[lever].name} | {run['seed']} | {c['closure']} | {roads_text(c['roads'])} | "
+                    f"{affected} | {after} | {number(c['episodes'])} | {number(c['steps'])} | "
+                    f"{number(c['seconds'], 1)} | {end} ({c['window_episodes']}) |"
+                )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
+    parser.add_argument(
+        "--levers", nargs="+", choices=sorted(LEVERS), default=None, help="default: " + " ".join(DEFAULT_LEVERS)
+    )
+    parser.add_argument("--closures", type=int, default=3, help="roads closed one after another")
+    parser.add_argument("--window", type=int, default=6_000, help="env steps of training after each closure")
+    parser.add_argument(
+        "--recovery-eval-freq", type=int, default=2, help="episodes between evaluations while recovering"
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="smoke run: pixel features, tiny budgets, 2 levers, 1 seed"
+    )
+    parser.add_argument(
+        "--out", type=Path, default=None, help="results file (default results/closures_one_at_a_time.md)"
+    )
+    parser.add_argument("--runs-file", type=Path, default=None)
+    args = parser.parse_args(argv)
+    th.set_num_threads(1)
+
+    stem = "closures_one_at_a_time" + ("_quick" if args.quick else "")
+    out: Path = args.out or RESULTS_DIR / f"{stem}.md"
+    runs_file: Path = args.runs_file or out.with_name(f"{out.stem}_runs.jsonl")
+    levers = args.levers or (["baseline", "all"] if args.quick else list(DEFAULT_LEVERS))
+    task = TASKS["campus"]
+    env_kwargs: dict[str, Any] = {}
+    window = args.window
+    seeds = args.seeds
+    if args.quick:
+        task = dataclasses.replace(task, max_steps=1_500, budget_seconds=20, eval_freq=500)
+        env_kwargs = quick_env_kwargs()
+        window = min(window, 300)
+        seeds = seeds[:1]
+    settings = {"window": window, "recovery_eval_freq": args.recovery_eval_freq, "quick": args.quick}
+
+    probe = task.make_env(LEVERS["baseline"].entry(task), **env_kwargs).unwrapped
+    goal_node = probe.goal_nodes[0]  # type: ignore[attr-defined]
+    roads = busiest_closures(probe.graph, goal_node, args.closures)  # type: ignore[attr-defined]
+    goal_roads = [r for r in probe.graph.map.roads if goal_node in r]  # type: ignore[attr-defined]
+    print(f"closures (same for every lever and seed): {roads_text(roads)}", flush=True)
+
+    stored = [r for r in read_runs(runs_file) if all(r.get(k) == v for k, v in settings.items())]
+    done = {(r["lever"], r["seed"]) for r in stored}
+    todo = [(lever, seed) for seed in seeds for lever in levers if (lever, seed) not in done]
+    print(f"{len(done)} runs already in {runs_file}, {len(todo)} to do", flush=True)
+    figures: list[Path] = []
+    prefix = out.with_name(out.stem)
+    started = time.perf_counter()
+    for lever, seed in todo:
+        begin = time.perf_counter()
+        run = train_then_close(
+            task, LEVERS[lever], seed, [[road] for road in roads], window, args.recovery_eval_freq, env_kwargs
+        )
+        record = run_record(run, lever=lever, seed=seed, **settings, wall_seconds=round(time.perf_counter() - begin, 1))
+        append_run(runs_file, record)
+        stored.append(record)
+        recovered = ", ".join(number(c["episodes"]) for c in record["recoveries"])
+        print(
+            f"{LEVERS[lever].name}, seed {seed}: solved {solve_text(record)}; recovery episodes per closure: "
+            f"{recovered}; {record['wall_seconds']:.0f} s",
+            flush=True,
+        )
+        if (lever, seed) == (figure_lever(levers), seeds[0]):
+            title = f"CampusNav-v0, {LEVERS[lever].name}, seed {seed}: roads closing one at a time"
+            figures += run_figures(run, prefix, lever, title)
+    total = time.perf_counter() - started
+
+    levers = shown_levers(levers, stored, seeds)
+    runs = [r for r in stored if r["lever"] in levers and r["seed"] in seeds]
+    if runs:
+        bars = recovery_bars(runs, levers, f"Recovery after each closure, CampusNav-v0, seeds {seeds}")
+        figures.append(write_figure(prefix.with_name(prefix.name + "_recovery.png"), bars))
+    pictures = sorted({p.name for p in figures} | {p.name for p in out.parent.glob(f"{out.stem}_*.png")})
+    wall = [r["wall_seconds"] for r in runs]
+    lines = [
+        "# Roads closing one at a time: recovery per re-adaptation lever (the paper's Fig. 7b/9)",
+        "",
+        machine_line(),
+        "",
+        f"Setup: {task.description}{' (smoke run: pixel features of 64x48 views, tiny budgets)' if args.quick else ''},"
+        f" DCQN's shipped entry (`hyperparams/dcqn.yml`) plus each lever's options. Each (lever, seed) trains from "
+        f"scratch until solved (success >= {SUCCESS_THRESHOLD}, SPL >= {SPL_THRESHOLD} from every (start, heading), "
+        f"evaluated every {task.eval_freq} steps; cap {task.max_steps} steps / {task.budget_seconds:.0f} s of "
+        f"training), then keeps training (same model) while {len(roads)} roads close one at a time, cumulatively: "
+        f"one closure, then {window} env steps of training, then the next.",
+        "",
+        f"Closures (the same for every lever and seed, chosen from the map: the road most used by the shortest paths "
+        f"from every intersection to the goal, then the busiest with it closed, ...; roads that would cut the goal off "
+        f"are skipped): {roads_text(roads)}. The goal (node {goal_node}) has the roads {roads_text(goal_roads)}: "
+        f"{sum(r in goal_roads for r in roads)} of the closures are at the goal itself.",
+        "",
+        f"Recovery: the first route evaluation (right after the closure, then every {args.recovery_eval_freq} training "
+        f"episodes) with success >= {DEFAULT_SUCCESS_THRESHOLD} and SPL >= {DEFAULT_SPL_THRESHOLD}; counted in "
+        f"training episodes, env steps and training seconds (evaluations excluded) from the closure. A closure not "
+        f"recovered from within its window is *not recovered* and counts as infinitely slow in the medians. The "
+        "visible closures' rendering and encoding of the new views happens at the closure, outside the training "
+        "seconds. "
+        f"Goal: <= {GOAL_EPISODES} episodes and <= {GOAL_SECONDS:.0f} s per closure (the paper: < {PAPER_EPISODES} "
+        "episodes).",
+        "",
+        "Levers: " + "; ".join(f"{LEVERS[k].name}: `{lever_options(LEVERS[k])}`" for k in levers) + ".",
+        "",
+        "## Per lever (median over closures and seeds)",
+        "",
+        *summary_table(runs, levers, GOAL_EPISODES),
+        "",
+        "## Per closure",
+        "",
+        *closure_table(runs, levers),
+        "",
+        "Routes affected: greedy routes (of all (start, heading) pairs) of the last evaluation before the closure that "
+        "used the closed road.",
+        "",
+        f"Figures: {', '.join(f'`{name}`' for name in pictures)} (route panels and training curves `_<lever>`: the "
+        "first seed's run of that lever; recovery: every run).",
+        "",
+        f"Time: {len(runs)} runs, {np.sum(wall):.0f} s in all (per run {min(wall, default=0):.0f}-"
+        f"{max(wall, default=0):.0f} s, evaluations and the visible closures' rendering included); "
+        + (f"this invocation ran {len(todo)} of them in {total:.0f} s." if todo else "all read from the runs file."),
+        "",
+        command_line(SCRIPT, argv),
+    ]
+    print("\n".join(lines))
+    write_results(out, "\n".join(lines))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
