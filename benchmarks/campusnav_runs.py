@@ -293,13 +293,3 @@ def machine_line(runs: str = "runs one after another in one process") -> str:
         f"Machine: {platform.platform()}, {platform.machine()}, {os.cpu_count()} cores (shared: another benchmark may "
         f"run on the other core), 1 torch thread; {runs}."
     )
-
-
-def figure_rgb(figure: Any) -> Any:
-    """Draw a matplotlib ``Figure`` on an Agg canvas and return it as an ``(H, W, 3)`` uint8 RGB array."""
-    import numpy as np
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    canvas = FigureCanvasAgg(figure)
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba())[..., :3].copy()

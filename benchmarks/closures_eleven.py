@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from campusnav_runs import LEVERS, SPL_THRESHOLD, SUCCESS_THRESHOLD, TASKS, figure_rgb, machine_line, quick_env_kwargs
+from campusnav_runs import LEVERS, SPL_THRESHOLD, SUCCESS_THRESHOLD, TASKS, machine_line, quick_env_kwargs
 from closures_one_at_a_time import (
     DEFAULT_LEVERS,
     append_run,
@@ -55,7 +55,7 @@ from report import command_line, write_results  # benchmarks/report.py, beside t
 
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD
-from campusnav_env.rendering.figures import write_figure
+from campusnav_env.rendering.figures import figure_image, write_figure
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "closures_eleven.py"
@@ -110,7 +110,7 @@ def recovery_curves(runs: Sequence[dict[str, Any]], levers: Sequence[str], title
     axes[0].set_title(title, fontsize=10)
     axes[-1].set_xlabel(f"training episodes after the closure (red: the goal, {GOAL_EPISODES}; dotted: the threshold)")
     figure.legend(*axes[0].get_legend_handles_labels(), loc="outside right upper", fontsize=8, frameon=False)
-    return figure_rgb(figure)
+    return figure_image(figure)
 
 
 def summary_table(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list[str]:

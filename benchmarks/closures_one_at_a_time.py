@@ -50,7 +50,6 @@ from campusnav_runs import (
     Lever,
     SolveResult,
     Task,
-    figure_rgb,
     machine_line,
     quick_env_kwargs,
     train_until_solved,
@@ -61,7 +60,7 @@ from campusnav_env.callbacks import RoadClosureCallback, RouteEvaluationCallback
 from campusnav_env.closures import ClosureEvent, busiest_road
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD, Recovery, median_recovery
-from campusnav_env.rendering.figures import closure_route_panels, training_curves, write_figure
+from campusnav_env.rendering.figures import closure_route_panels, figure_image, training_curves, write_figure
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "closures_one_at_a_time.py"
@@ -348,7 +347,7 @@ def recovery_bars(
     ax.set_title(title, fontsize=10)
     figure.legend(fontsize=8, loc="outside right upper", frameon=False)
     ax.grid(True, axis="y", alpha=0.3)
-    return figure_rgb(figure)
+    return figure_image(figure)
 
 
 def run_figures(run: ClosureRun, prefix: Path, lever: str, title: str) -> list[Path]:

@@ -45,7 +45,6 @@ from campusnav_runs import (
     TASKS,
     VARIANTS,
     Task,
-    figure_rgb,
     machine_line,
     quick_env_kwargs,
     train_until_solved,
@@ -55,7 +54,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.maps.campus import GOALS
-from campusnav_env.rendering.figures import training_curves, write_figure
+from campusnav_env.rendering.figures import figure_image, training_curves, write_figure
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -223,7 +222,7 @@ def comparison_curves(runs: Sequence[dict[str, Any]], window: int = 100) -> np.n
         ax.grid(True, alpha=0.3)
     axes[0].set_title("Training until solved: multi-goal against single-goal agents (CampusNav, DCQN)", fontsize=10)
     figure.legend(*axes[0].get_legend_handles_labels(), loc="outside right upper", fontsize=8, frameon=False)
-    return figure_rgb(figure)
+    return figure_image(figure)
 
 
 def _solve_text(run: dict[str, Any]) -> str:
