@@ -209,6 +209,7 @@ def train_until_solved(
             success_threshold=SUCCESS_THRESHOLD,
             spl_threshold=SPL_THRESHOLD,
             stop_when_solved=True,
+            every_goal=True,
         )
     start = time.perf_counter()
     model.learn(
@@ -216,7 +217,12 @@ def train_until_solved(
     )
     wall = time.perf_counter() - start
     solved = next(
-        (e for e in evaluation.evaluations if e.meets(evaluation.success_threshold, evaluation.spl_threshold)), None
+        (
+            e
+            for e in evaluation.evaluations
+            if e.meets(evaluation.success_threshold, evaluation.spl_threshold, evaluation.every_goal)
+        ),
+        None,
     )
     return SolveResult(solved, list(evaluation.evaluations), wall)
 

@@ -118,6 +118,8 @@ class RouteEvaluationCallback(_TrainingProgress):
     :param success_threshold: Success rate at which the map counts as solved
     :param spl_threshold: SPL at which the map counts as solved
     :param stop_when_solved: Stop training at the first evaluation at both thresholds
+    :param every_goal: The map counts as solved only when each goal is at both thresholds on its own (not only the
+        routes to all goals together)
     :param evaluate_at_end: Evaluate once more when training ends (unless the last evaluation is current)
     :param verbose: 1 prints a line per evaluation
     """
@@ -132,6 +134,7 @@ class RouteEvaluationCallback(_TrainingProgress):
         success_threshold: float = DEFAULT_SUCCESS_THRESHOLD,
         spl_threshold: float = DEFAULT_SPL_THRESHOLD,
         stop_when_solved: bool = False,
+        every_goal: bool = False,
         evaluate_at_end: bool = True,
         verbose: int = 0,
     ) -> None:
@@ -148,6 +151,7 @@ class RouteEvaluationCallback(_TrainingProgress):
         self.success_threshold = success_threshold
         self.spl_threshold = spl_threshold
         self.stop_when_solved = stop_when_solved
+        self.every_goal = every_goal
         self.evaluate_at_end = evaluate_at_end
         self.evaluations: list[RouteEvaluation] = []
         self.shares_training_env = False
@@ -169,7 +173,9 @@ class RouteEvaluationCallback(_TrainingProgress):
     @property
     def solved(self) -> bool:
         """Whether the last evaluation is at both thresholds."""
-        return bool(self.evaluations) and self.evaluations[-1].meets(self.success_threshold, self.spl_threshold)
+        return bool(self.evaluations) and self.evaluations[-1].meets(
+            self.success_threshold, self.spl_threshold, self.every_goal
+        )
 
     def dense(self, every_episodes: int | None) -> None:
         """Also evaluate every ``every_episodes`` training episodes from now on (``None``: stop doing so)."""

@@ -57,9 +57,16 @@ class RouteEvaluation:
     def spl(self) -> float:
         return self.report.spl
 
-    def meets(self, success_threshold: float, spl_threshold: float) -> bool:
-        """Whether success rate and SPL are both at or above the thresholds."""
-        return self.success_rate >= success_threshold and self.spl >= spl_threshold
+    def meets(self, success_threshold: float, spl_threshold: float, every_goal: bool = False) -> bool:
+        """
+        Whether success rate and SPL are both at or above the thresholds.
+
+        :param every_goal: Also for each goal on its own (not only over all routes)
+        """
+        reports = [self.report]
+        if every_goal:
+            reports += [self.report.for_goal(goal) for goal in sorted({route.goal for route in self.report.routes})]
+        return all(r.success_rate >= success_threshold and r.spl >= spl_threshold for r in reports)
 
 
 @dataclass(frozen=True)

@@ -427,7 +427,7 @@ class _StopWhenDone(BaseCallback):
             return True
         if any(record.changed for record in self.closures.records):
             return not self.closures.recoveries[-1].recovered
-        return not evaluation.evaluations[-1].meets(SOLVED_SUCCESS, SOLVED_SPL)
+        return not evaluation.evaluations[-1].meets(SOLVED_SUCCESS, SOLVED_SPL, every_goal=True)
 
 
 @dataclass
@@ -459,7 +459,7 @@ class TrainingOutcome:
         changes = [r for r in self.closures.records if r.changed]
         end = changes[0].evaluation_index if changes else len(self.evaluation.evaluations)
         return next(
-            (e for e in self.evaluation.evaluations[:end] if e.meets(SOLVED_SUCCESS, SOLVED_SPL)),
+            (e for e in self.evaluation.evaluations[:end] if e.meets(SOLVED_SUCCESS, SOLVED_SPL, every_goal=True)),
             None,
         )
 

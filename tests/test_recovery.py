@@ -101,3 +101,13 @@ def test_events_that_changed_nothing_have_no_recovery() -> None:
         "episode 1: close", 10, 1, 0.1, closed=(), reopened=(), refused=(("x", "why"),), evaluation_index=0
     )
     assert measure_recoveries([refused], [evaluation(10, 1, 0.1, 1.0)]) == []
+
+
+def test_every_goal_asks_each_goal_to_meet_the_thresholds_on_its_own() -> None:
+    # Goal a: perfect (9 routes); goal b: one detour (SPL 0.5): over all 10 routes SPL is 0.95, b alone 0.5
+    routes = [Route("a", i, 0, True, steps=10, shortest=10, nodes=(i,)) for i in range(9)]
+    routes.append(Route("b", 0, 0, True, steps=20, shortest=10, nodes=(0,)))
+    evaluation = RouteEvaluation(step=0, episode=0, train_seconds=0.0, report=RouteReport(routes))
+    assert evaluation.meets(0.99, 0.95)
+    assert not evaluation.meets(0.99, 0.95, every_goal=True)
+    assert evaluation.meets(0.99, 0.5, every_goal=True)
