@@ -26,7 +26,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
 from collections.abc import Sequence
@@ -37,8 +36,8 @@ import numpy as np
 import torch as th
 from campusnav_runs import LEVERS, SPL_THRESHOLD, SUCCESS_THRESHOLD, TASKS, machine_line, quick_env_kwargs
 from closures_one_at_a_time import (
-    DEFAULT_LEVERS,
     append_run,
+    closure_benchmark_parser,
     figure_lever,
     lever_options,
     medians,
@@ -64,6 +63,9 @@ N_ROADS = 11
 GOAL_EPISODES = 150
 PAPER_EPISODES = 500
 Road = tuple[int, int]
+
+# The levers of the results file: the single levers, all of them, and the two fastest combinations
+ELEVEN_LEVERS = ("baseline", "revision", "per", "boost", "visible", "all", "revision_blocked", "revision_blocked_per")
 
 
 def eleven_roads(graph: NavigationGraph, goal: int, seed: int, n_roads: int = N_ROADS) -> list[Road]:
@@ -154,27 +156,16 @@ def run_table(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list[str
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
-    parser.add_argument(
-        "--levers", nargs="+", choices=sorted(LEVERS), default=None, help="default: " + " ".join(DEFAULT_LEVERS)
+    parser = closure_benchmark_parser(
+        __doc__, "closures_eleven", 15_000, "env steps of training after the closure", ELEVEN_LEVERS
     )
-    parser.add_argument("--window", type=int, default=15_000, help="env steps of training after the closure")
-    parser.add_argument(
-        "--recovery-eval-freq", type=int, default=2, help="episodes between evaluations while recovering"
-    )
-    parser.add_argument(
-        "--quick", action="store_true", help="smoke run: pixel features, tiny budgets, 2 levers, 1 seed"
-    )
-    parser.add_argument("--out", type=Path, default=None, help="results file (default results/closures_eleven.md)")
-    parser.add_argument("--runs-file", type=Path, default=None)
     args = parser.parse_args(argv)
     th.set_num_threads(1)
 
     stem = "closures_eleven" + ("_quick" if args.quick else "")
     out: Path = args.out or RESULTS_DIR / f"{stem}.md"
     runs_file: Path = args.runs_file or out.with_name(f"{out.stem}_runs.jsonl")
-    levers = args.levers or (["baseline", "all"] if args.quick else list(DEFAULT_LEVERS))
+    levers = ["baseline", "all"] if args.quick and args.levers == list(ELEVEN_LEVERS) else args.levers
     task = TASKS["campus"]
     env_kwargs: dict[str, Any] = {}
     window = args.window

@@ -64,7 +64,18 @@ from campusnav_env.rendering.figures import closure_route_panels, figure_image, 
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "closures_one_at_a_time.py"
-DEFAULT_LEVERS = ("baseline", "revision", "per", "boost", "visible", "all")
+DEFAULT_LEVERS = (
+    "baseline",
+    "revision",
+    "per",
+    "boost",
+    "visible",
+    "all",
+    "blocked",
+    "revision_blocked",
+    "revision_blocked_visible",
+    "revision_blocked_per",
+)
 # The issue's goal per closure, and the paper's result
 GOAL_EPISODES = 50
 GOAL_SECONDS = 10.0
@@ -428,31 +439,39 @@ def closure_table(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list
     return lines
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def closure_benchmark_parser(
+    doc: str | None, name: str, window: int, window_help: str, levers: Sequence[str] = DEFAULT_LEVERS
+) -> argparse.ArgumentParser:
+    """The flags the closure benchmarks share: seeds, levers, the window after a closure, evaluation rhythm, files."""
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     parser.add_argument(
-        "--levers", nargs="+", choices=sorted(LEVERS), default=None, help="default: " + " ".join(DEFAULT_LEVERS)
+        "--levers", nargs="+", choices=sorted(LEVERS), default=list(levers), help="default: " + " ".join(levers)
     )
-    parser.add_argument("--closures", type=int, default=3, help="roads closed one after another")
-    parser.add_argument("--window", type=int, default=6_000, help="env steps of training after each closure")
+    parser.add_argument("--window", type=int, default=window, help=window_help)
     parser.add_argument(
         "--recovery-eval-freq", type=int, default=2, help="episodes between evaluations while recovering"
     )
     parser.add_argument(
         "--quick", action="store_true", help="smoke run: pixel features, tiny budgets, 2 levers, 1 seed"
     )
-    parser.add_argument(
-        "--out", type=Path, default=None, help="results file (default results/closures_one_at_a_time.md)"
-    )
+    parser.add_argument("--out", type=Path, default=None, help=f"results file (default results/{name}.md)")
     parser.add_argument("--runs-file", type=Path, default=None)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = closure_benchmark_parser(
+        __doc__, "closures_one_at_a_time", 6_000, "env steps of training after each closure"
+    )
+    parser.add_argument("--closures", type=int, default=3, help="roads closed one after another")
     args = parser.parse_args(argv)
     th.set_num_threads(1)
 
     stem = "closures_one_at_a_time" + ("_quick" if args.quick else "")
     out: Path = args.out or RESULTS_DIR / f"{stem}.md"
     runs_file: Path = args.runs_file or out.with_name(f"{out.stem}_runs.jsonl")
-    levers = args.levers or (["baseline", "all"] if args.quick else list(DEFAULT_LEVERS))
+    levers = ["baseline", "all"] if args.quick and args.levers == list(DEFAULT_LEVERS) else args.levers
     task = TASKS["campus"]
     env_kwargs: dict[str, Any] = {}
     window = args.window
