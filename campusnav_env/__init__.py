@@ -13,6 +13,7 @@ from campusnav_env.maps.campus import GOALS, default_campus, generate_campus
 from campusnav_env.maps.compass import ACTION_NAMES, BACK, COMPASS, FORWARD, LEFT, RIGHT
 from campusnav_env.maps.navigation import NavigationGraph, RoadClosureError
 from campusnav_env.maps.road_graph import RoadGraph, road_key
+from campusnav_env.optimal_values import optimal_q_values
 from campusnav_env.registration import register_envs
 from campusnav_env.route_evaluation import Route, RouteReport, evaluate_routes
 
@@ -35,6 +36,7 @@ __all__ = [
     "default_campus",
     "evaluate_routes",
     "generate_campus",
+    "optimal_q_values",
     "register_envs",
     "road_key",
 ]
