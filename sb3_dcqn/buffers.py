@@ -77,15 +77,29 @@ class _ReadaptationMixin:
 
     def __init__(
         self,
-        *args: Any,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
         revise_experience: bool = False,
         prioritized: bool = False,
         alpha: float = 0.6,
         beta: float = 0.4,
         priority_eps: float = 1e-3,
-        **kwargs: Any,
     ) -> None:
-        super().__init__(*args, **kwargs)  # type: ignore[call-arg]
+        # The one signature of both buffers: SB3's (ReplayBuffer or DictReplayBuffer, next in the MRO), then the levers
+        super().__init__(  # type: ignore[call-arg]
+            buffer_size,
+            observation_space,
+            action_space,
+            device,
+            n_envs=n_envs,
+            optimize_memory_usage=optimize_memory_usage,
+            handle_timeout_termination=handle_timeout_termination,
+        )
         if getattr(self, "optimize_memory_usage", False):
             raise ValueError(f"{type(self).__name__} stores next observations to revise them: no optimize_memory_usage")
         if not 0.0 <= alpha <= 1.0 or not 0.0 <= beta <= 1.0 or priority_eps <= 0:
@@ -225,36 +239,6 @@ class DCQNReplayBuffer(_ReadaptationMixin, ReplayBuffer):
 
     _prioritized_type = PrioritizedReplayBufferSamples
 
-    def __init__(
-        self,
-        buffer_size: int,
-        observation_space: spaces.Space,
-        action_space: spaces.Space,
-        device: th.device | str = "auto",
-        n_envs: int = 1,
-        optimize_memory_usage: bool = False,
-        handle_timeout_termination: bool = True,
-        revise_experience: bool = False,
-        prioritized: bool = False,
-        alpha: float = 0.6,
-        beta: float = 0.4,
-        priority_eps: float = 1e-3,
-    ) -> None:
-        super().__init__(
-            buffer_size,
-            observation_space,
-            action_space,
-            device,
-            n_envs=n_envs,
-            optimize_memory_usage=optimize_memory_usage,
-            handle_timeout_termination=handle_timeout_termination,
-            revise_experience=revise_experience,
-            prioritized=prioritized,
-            alpha=alpha,
-            beta=beta,
-            priority_eps=priority_eps,
-        )
-
     def _observation_bytes(self, obs: Any, env: int) -> bytes:
         return np.ascontiguousarray(np.asarray(obs)[env], dtype=self.observations.dtype).tobytes()
 
@@ -297,36 +281,6 @@ class DCQNDictReplayBuffer(_ReadaptationMixin, DictReplayBuffer):
     _prioritized_type = PrioritizedDictReplayBufferSamples
     observations: dict[str, np.ndarray]
     next_observations: dict[str, np.ndarray]
-
-    def __init__(
-        self,
-        buffer_size: int,
-        observation_space: spaces.Dict,
-        action_space: spaces.Space,
-        device: th.device | str = "auto",
-        n_envs: int = 1,
-        optimize_memory_usage: bool = False,
-        handle_timeout_termination: bool = True,
-        revise_experience: bool = False,
-        prioritized: bool = False,
-        alpha: float = 0.6,
-        beta: float = 0.4,
-        priority_eps: float = 1e-3,
-    ) -> None:
-        super().__init__(
-            buffer_size,
-            observation_space,
-            action_space,
-            device,
-            n_envs=n_envs,
-            optimize_memory_usage=optimize_memory_usage,
-            handle_timeout_termination=handle_timeout_termination,
-            revise_experience=revise_experience,
-            prioritized=prioritized,
-            alpha=alpha,
-            beta=beta,
-            priority_eps=priority_eps,
-        )
 
     def _observation_bytes(self, obs: Any, env: int) -> bytes:
         return b"".join(
