@@ -136,6 +136,11 @@ def _median(value: float) -> str:
     return f"{value:.0f}" if np.isfinite(value) else "not solved"
 
 
+def _median_of(group: list[dict[str, Any]], key: str) -> float:
+    # A miss counts as infinitely slow, so that the median never hides it
+    return float(np.median([r[key] if r["solved"] else np.inf for r in group]))
+
+
 def summary_table(runs: list[dict[str, Any]], tasks: list[str], variants: list[str]) -> list[str]:
     """One row per (task, variant): seeds solved, median and per-seed time, steps and episodes to the threshold."""
     lines = [
@@ -145,33 +150,19 @@ def summary_table(runs: list[dict[str, Any]], tasks: list[str], variants: list[s
     ]
     for task_name in tasks:
         task = TASKS[task_name]
-        medians: dict[str, float] = {}
-        for variant in variants:
-            group = sorted(
-                (r for r in runs if r["task"] == task_name and r["variant"] == variant), key=lambda r: r["seed"]
-            )
-            if not group:
-                continue
-            # A miss counts as infinitely slow, so that the median never hides it
-            times = [r["seconds"] if r["solved"] else np.inf for r in group]
-            medians[variant] = float(np.median(times))
-            steps = np.median([r["steps"] if r["solved"] else np.inf for r in group])
-            episodes = np.median([r["episodes"] if r["solved"] else np.inf for r in group])
+        mine = sorted((r for r in runs if r["task"] == task_name), key=lambda r: r["seed"])
+        groups = {v: [r for r in mine if r["variant"] == v] for v in variants if any(r["variant"] == v for r in mine)}
+        dqn = _median_of(groups["DQN"], "seconds") if "DQN" in groups else None
+        for variant, group in groups.items():
+            median = _median_of(group, "seconds")
+            ratio = "" if dqn is None or not np.isfinite([dqn, median]).all() else f"{median / dqn:.2f}x"
             per_seed = ", ".join(f"{r['seed']}: {_seconds(r)}" for r in group)
-            n_solved = sum(r["solved"] for r in group)
-            hit = "hit" if medians[variant] <= task.goal_seconds else "miss"
+            hit = "hit" if median <= task.goal_seconds else "miss"
             lines.append(
-                f"| {task.description} | {variant} | {n_solved}/{len(group)} | {_median(medians[variant])} | "
-                f"{per_seed} | {_median(steps)} | {_median(episodes)} | <= {task.goal_seconds:.0f} s: {hit} | "
-                f"{{ratio:{variant}}} |"
+                f"| {task.description} | {variant} | {sum(r['solved'] for r in group)}/{len(group)} | "
+                f"{_median(median)} | {per_seed} | {_median(_median_of(group, 'steps'))} | "
+                f"{_median(_median_of(group, 'episodes'))} | <= {task.goal_seconds:.0f} s: {hit} | {ratio} |"
             )
-        dqn = medians.get("DQN")
-        for index, line in enumerate(lines):
-            for variant, median in medians.items():
-                marker = f"{{ratio:{variant}}}"
-                if marker in line:
-                    ratio = "" if dqn is None or not np.isfinite([dqn, median]).all() else f"{median / dqn:.2f}x"
-                    lines[index] = line.replace(marker, ratio)
     return lines
 
 
