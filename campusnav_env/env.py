@@ -239,6 +239,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         # NavigationGraph passed in are shown too)
         self._shown_closures: frozenset[tuple[int, int]] = frozenset()
         self._shown_version: int | None = None
+        self._node_of_views: dict[bytes, int] = {}
+        self._node_of_views_shows: frozenset[tuple[int, int]] | None = None
         if observation_mode == "features":
             if unbounded:  # the float32 range: infinite bounds draw a warning from Gymnasium's env checker
                 low, high = float(np.finfo(np.float32).min), float(np.finfo(np.float32).max)
@@ -457,6 +459,33 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         top = np.concatenate([current[:, d] for d in range(4)], axis=3)  # (B, C, h, 4w)
         goal_row = np.concatenate(list(self._open_views[goal_node]), axis=2)  # (C, h, 4w), compass order
         return np.concatenate([top, np.broadcast_to(goal_row, top.shape)], axis=2)
+
+    def states_of(self, observations: dict[str, np.ndarray]) -> np.ndarray:
+        """
+        The state indices (rows of ``graph.transition_table``) that a batch of feature observations show: the inverse of
+        :meth:`observations_at`, for tools that need the true state (tabular baselines, the visited pairs of a replay
+        buffer). Observations must come from this env's current views.
+
+        :param observations: A dict batch as returned by :meth:`observations_at` (``"views"`` and ``"heading"`` used)
+        :return: int64 state indices, one per observation
+        :raises ValueError: in image mode, or if some views are not this env's views of any intersection
+        """
+        if self.observation_mode != "features":
+            raise ValueError("states_of needs observation_mode='features'")
+        self._show_closures()
+        # Rows change in place as visible closures come and go: the lookup is rebuilt for each set of shown closures
+        if self._node_of_views_shows != self._shown_closures:
+            rows = self._node_views.reshape(self._node_views.shape[0], -1)
+            self._node_of_views = {row.tobytes(): node for node, row in enumerate(rows)}
+            self._node_of_views_shows = self._shown_closures
+        views = np.asarray(observations["views"], dtype=np.float32)
+        views = views.reshape(-1, self._node_views[0].size)
+        try:
+            nodes = np.array([self._node_of_views[row.tobytes()] for row in views], dtype=np.int64)
+        except KeyError:
+            raise ValueError("states_of: some views are not this env's views of any intersection") from None
+        headings = np.asarray(observations["heading"]).reshape(nodes.size, -1).argmax(axis=1)
+        return self.graph.map.state_of[nodes, headings].astype(np.int64)
 
     def _observation(self) -> dict[str, np.ndarray] | np.ndarray:
         return self.observation_at(self._node, self._heading, self.goal_nodes[self._goal_index])

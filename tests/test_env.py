@@ -261,3 +261,16 @@ def test_package_imports_without_sb3_or_sb3_dcqn_and_registers_the_ids() -> None
         "assert 'CampusNav-v0' in gymnasium.registry and 'CampusNavMulti-v0' in gymnasium.registry"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_states_of_inverts_observations_at() -> None:
+    env = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(width=32, height=24), progress=False)
+    states = np.arange(env.graph.n_states)
+    nodes, headings = env.graph.map.state_nodes[states], env.graph.map.state_headings[states]
+    observations = env.observations_at(nodes, headings, env.goal)
+    np.testing.assert_array_equal(env.states_of(observations), states)
+    observation, info = env.reset(seed=3)
+    single = {key: value[None] for key, value in observation.items()}
+    assert env.states_of(single)[0] == env.graph.map.state_of[info["node"], info["heading"]]
+    with pytest.raises(ValueError, match="not this env's views"):
+        env.states_of({**observations, "views": observations["views"] + 1.0})
