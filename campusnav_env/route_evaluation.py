@@ -97,6 +97,8 @@ def evaluate_routes(
     *,
     goals: Sequence[str] | None = None,
     max_steps: int | None = None,
+    starts: Sequence[int] | np.ndarray | None = None,
+    stop_loops: bool = True,
 ) -> RouteReport:
     """
     Run ``policy`` greedily from every (node, heading) that can reach each goal and collect the routes.
@@ -106,7 +108,12 @@ def evaluate_routes(
         ``lambda obs: model.predict(obs, deterministic=True)[0]``
     :param goals: Goal names (default: all of the env's goals)
     :param max_steps: Step limit per route (default: the env's ``max_steps``)
+    :param starts: Start states (rows of ``graph.transition_table``; repeats allowed, e.g. test episodes from random
+        starts) instead of every state that can reach the goal; each must be able to reach every goal evaluated
+    :param stop_loops: Stop a route that revisits a state, as failed: right for a deterministic policy (it would loop
+        until ``max_steps``, so the scores are the same), wrong for one that samples its actions
     :return: the routes and their scores
+    :raises ValueError: if a start cannot reach a goal
     """
     max_steps = env.max_steps if max_steps is None else max_steps
     graph = env.graph
@@ -115,13 +122,20 @@ def evaluate_routes(
     for goal in goals or env.goal_names:
         goal_node = env.goal_nodes[env.goal_names.index(goal)]
         distances = env.node_distances(goal_node)
-        starts = np.flatnonzero((distances > 0)[state_nodes])  # state indices
-        current = starts.copy()
-        steps = np.zeros(starts.size, dtype=np.int64)
-        active = np.ones(starts.size, dtype=bool)
-        success = np.zeros(starts.size, dtype=bool)
-        visited: list[set[int]] = [{int(s)} for s in starts]
-        paths: list[list[int]] = [[int(state_nodes[s])] for s in starts]
+        if starts is None:
+            goal_starts = np.flatnonzero((distances > 0)[state_nodes])  # state indices
+        else:
+            goal_starts = np.asarray(starts, dtype=np.int64).reshape(-1)
+            unreachable = goal_starts[distances[state_nodes[goal_starts]] <= 0]
+            if unreachable.size:
+                nodes = sorted({int(state_nodes[s]) for s in unreachable})
+                raise ValueError(f"starts at nodes {nodes} cannot reach goal {goal!r} (or are the goal)")
+        current = goal_starts.copy()
+        steps = np.zeros(goal_starts.size, dtype=np.int64)
+        active = np.ones(goal_starts.size, dtype=bool)
+        success = np.zeros(goal_starts.size, dtype=bool)
+        visited: list[set[int]] = [{int(s)} for s in goal_starts]
+        paths: list[list[int]] = [[int(state_nodes[s])] for s in goal_starts]
         for _ in range(max_steps):
             index = np.flatnonzero(active)
             if index.size == 0:
@@ -136,11 +150,11 @@ def evaluate_routes(
                     paths[i].append(int(state_nodes[state]))
                 if state_nodes[state] == goal_node:
                     success[i], active[i] = True, False
-                elif state in visited[i]:
+                elif stop_loops and state in visited[i]:
                     active[i] = False  # a deterministic policy that repeats a state loops forever
-                else:
+                elif stop_loops:
                     visited[i].add(state)
-        for i, start in enumerate(starts):
+        for i, start in enumerate(goal_starts):
             report.routes.append(
                 Route(
                     goal=goal,

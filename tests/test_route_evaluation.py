@@ -85,3 +85,33 @@ def test_closures_change_the_shortest_paths_it_scores_against(env: CampusNavEnv)
         assert after.success_rate == 1.0 and after.mean_shortest > before
     finally:
         env.reopen_road(*road)
+
+
+def test_given_starts_are_routed_once_each_with_the_full_evaluation_scores(env: CampusNavEnv) -> None:
+    full = {(r.start, r.heading): r for r in evaluate_routes(env, oracle(env)).routes}
+    starts = np.array([5, 5, 40, 77])  # repeats allowed: test episodes may draw a start twice
+    report = evaluate_routes(env, oracle(env), starts=starts)
+    assert len(report.routes) == 4
+    for state, route in zip(starts, report.routes, strict=True):
+        assert (route.start, route.heading) == (env.graph.map.state_nodes[state], env.graph.map.state_headings[state])
+        assert route.steps == full[(route.start, route.heading)].steps
+
+
+def test_without_loop_stops_a_looping_policy_runs_to_the_step_limit(env: CampusNavEnv) -> None:
+    def back_and_forth(observations: dict[str, np.ndarray]) -> np.ndarray:
+        return np.full(len(observations["heading"]), 2)
+
+    starts = np.flatnonzero(env.graph.transition_table[:, 2] >= 0)[:5]  # back leads somewhere: a two-state loop
+    stopped = evaluate_routes(env, back_and_forth, starts=starts, max_steps=30)
+    running = evaluate_routes(env, back_and_forth, starts=starts, max_steps=30, stop_loops=False)
+    failed = [(a, b) for a, b in zip(stopped.routes, running.routes, strict=True) if not a.success]
+    assert failed
+    for a, b in failed:
+        assert a.steps == b.steps == 30 and not b.success
+        assert len(b.nodes) == 31 > len(a.nodes)  # it really drove back and forth until the limit
+
+
+def test_a_start_that_cannot_reach_the_goal_is_refused(env: CampusNavEnv) -> None:
+    goal_state = int(env.graph.map.state_of[env.goal_nodes[0]].max())
+    with pytest.raises(ValueError, match="cannot reach goal"):
+        evaluate_routes(env, oracle(env), starts=[goal_state])
