@@ -1,19 +1,40 @@
-"""RL Baselines3 Zoo integration: make ``--algo dcqn`` available to the zoo's ``train``.
+"""RL Baselines3 Zoo integration: make ``--algo dcqn`` available to the zoo's commands.
 
 ``rl_zoo3`` has no plugin hook, so :func:`register_dcqn` adds DCQN to the zoo's algorithm table, its hyperparameter
 sampler and converter tables (for ``-optimize``), and the names used in ``policy_kwargs`` strings of
 ``hyperparams/dcqn.yml`` to the namespace in which the zoo evaluates them. The console script ``dcqn-zoo`` registers
-and then runs the zoo's training CLI::
+and then runs one of the zoo's commands, named as in the zoo's own ``rl_zoo3`` CLI (``train`` when the first argument
+is an option, as before)::
 
-    dcqn-zoo --algo dcqn --env CartPole-v1 -conf hyperparams/dcqn.yml
-    dcqn-zoo --algo dcqn --env CartPole-v1 -conf hyperparams/dcqn.yml -optimize --storage dcqn.log
+    dcqn-zoo train --algo dcqn --env CartPole-v1 -f logs/                  # -conf defaults to the shipped dcqn.yml
+    dcqn-zoo --algo dcqn --env CartPole-v1 -optimize --storage dcqn.log     # train without the command word
+    dcqn-zoo enjoy --algo dcqn --env CartPole-v1 -f logs/ -n 1000 --no-render
+    dcqn-zoo record_video --algo dcqn --env CartPole-v1 -f logs/ -n 500 -o videos/
+    dcqn-zoo plot_train -a dcqn -e CartPole-v1 -f logs/ -w 20 -o curve.png
+    dcqn-zoo all_plots -a dcqn -e CartPole-v1 -f logs/ -o results --no-display
+    dcqn-zoo plot_from_file -i results.pkl -o results.svg
+
+``dcqn-zoo COMMAND -h`` shows the zoo's options of a command, ``dcqn-zoo -h`` the commands and those of ``train``.
+``-o FILE`` of ``plot_train`` is this script's own (the zoo's ``plot_train`` only shows the figure): the figure is
+saved to FILE with matplotlib's Agg backend. The plot commands need seaborn and scipy (in our ``zoo`` extra);
+``all_plots`` reads the evaluations that ``train --eval-freq N`` writes, and ``plot_from_file`` needs two runs or more.
+``enjoy`` renders in a pygame window (``--no-render`` without pygame or a display; CampusNav's ``rgb_array`` frames are
+shown through gymnasium's ``HumanRendering``); ``record_video`` needs an env with ``rgb_array`` rendering (CartPole's
+needs pygame) and writes MP4 files with moviepy.
+
+Two problems of rl_zoo3 2.9 are worked around here: ``enjoy`` imports ``requests`` (for Hub downloads) without
+declaring it, and ``record_video`` ignores the ``env_kwargs`` saved in the run's ``config.yml`` (CampusNav's
+``view_dim``), so the model's observation space would not match the env's.
 
 Requires the ``zoo`` extra: ``pip install "sb3-dcqn[zoo]"``.
 """
 
 from __future__ import annotations
 
+import runpy
 import sys
+import types
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -140,16 +161,196 @@ def register_dcqn() -> None:
     vars(exp_manager).update(policy_kwargs_namespace())
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Entry point of ``dcqn-zoo``: the zoo's ``train`` CLI with DCQN registered (and ``dcqn.yml`` as default conf)."""
-    register_dcqn()
-    from rl_zoo3.train import train
+# The zoo's commands, named as in rl_zoo3/cli.py (which lacks record_video: the zoo runs it as a module)
+COMMANDS: dict[str, str] = {
+    "train": "train (or -optimize) an agent; the default when the first argument is an option",
+    "enjoy": "run a trained agent and print its episode rewards (rl_zoo3.enjoy)",
+    "record_video": "record a video of a trained agent (rl_zoo3.record_video)",
+    "plot_train": "plot the training episode rewards from the monitor logs (rl_zoo3.plots.plot_train; -o FILE saves)",
+    "plot_from_file": "plot results post-processed by all_plots (rl_zoo3.plots.plot_from_file)",
+    "all_plots": "plot the evaluations of runs and tabulate them (rl_zoo3.plots.all_plots)",
+}
+_HELP_FLAGS = ("-h", "--help")
+_PLOT_OUTPUT_FLAGS = ("-o", "--output")
 
+
+def usage() -> str:
+    """The overview of ``dcqn-zoo``'s commands (printed by ``dcqn-zoo -h`` and on an unknown command)."""
+    width = max(map(len, COMMANDS))
+    lines = [
+        "usage: dcqn-zoo [COMMAND] [OPTIONS ...]",
+        "",
+        "Runs a command of the RL Baselines3 Zoo with DCQN registered (--algo dcqn).",
+        "",
+        "commands:",
+        *(f"  {name:<{width}}  {text}" for name, text in COMMANDS.items()),
+        "",
+        "'dcqn-zoo COMMAND -h' shows the options of a command.",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """
+    Entry point of ``dcqn-zoo``: registers DCQN, then runs the zoo command named by the first argument.
+
+    Without a command word (first argument an option) the command is ``train``, whose ``-conf`` defaults to the
+    shipped ``dcqn.yml``.
+
+    :param argv: The arguments (default: ``sys.argv[1:]``)
+    :raises SystemExit: with code 2 on a missing or unknown command, and as the zoo's commands exit (``-h``, errors)
+    """
     args = list(sys.argv[1:] if argv is None else argv)
-    if "-conf" not in args and "--conf-file" not in args:
-        args += ["-conf", str(default_hyperparams_path())]
-    sys.argv = [sys.argv[0] if sys.argv else "dcqn-zoo", *args]
-    train()
+    if not args:
+        print(usage(), file=sys.stderr)
+        raise SystemExit(2)
+    if args[0].startswith("-"):
+        command, prog = "train", "dcqn-zoo"
+        if any(arg in _HELP_FLAGS for arg in args):
+            print(usage(), end="\n\n", flush=True)  # then the zoo's train help
+    else:
+        command, args, prog = args[0], args[1:], f"dcqn-zoo {args[0]}"
+        if command not in COMMANDS:
+            print(usage(), file=sys.stderr)
+            print(
+                f"\ndcqn-zoo: error: unknown command {command!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr
+            )
+            raise SystemExit(2)
+    register_dcqn()
+    runner, args = _prepare(command, args)
+    saved_argv = sys.argv
+    sys.argv = [prog, *args]  # argparse takes its usage line's program name from sys.argv[0]
+    try:
+        runner()
+    finally:
+        sys.argv = saved_argv
+
+
+def _prepare(command: str, args: list[str]) -> tuple[Callable[[], None], list[str]]:
+    """The function that runs ``command`` (it parses ``sys.argv``) and the arguments to give it."""
+    if command == "train":
+        from rl_zoo3.train import train
+
+        if not _has_conf_option(args):
+            args = [*args, "-conf", str(default_hyperparams_path())]
+        return train, args
+    if command == "enjoy":
+        _allow_enjoy_without_requests()
+        from rl_zoo3.enjoy import enjoy
+
+        return enjoy, args
+    if command == "record_video":
+        return _record_video, args
+    if command == "plot_train":
+        output, args = _pop_plot_output(args)
+        if output is not None:
+            import matplotlib
+
+            matplotlib.use("Agg")  # no window: the figure goes to the file
+        return (lambda: _plot_train(_import_plots().plot_train, output)), args
+    return getattr(_import_plots(), command), args
+
+
+def _has_conf_option(args: list[str]) -> bool:
+    """Whether the train arguments give ``-conf``/``--conf-file`` (``=value`` and argparse's prefixes included)."""
+    for arg in args:
+        name = arg.split("=", 1)[0]
+        if name == "-conf" or (name.startswith("--conf") and "--conf-file".startswith(name)):
+            return True
+    return False
+
+
+def _download_needs_requests(*args: Any, **kwargs: Any) -> None:
+    raise ModuleNotFoundError(
+        "Downloading a pretrained agent from the Hugging Face Hub needs `requests` (pip install requests), "
+        "which rl_zoo3 imports without declaring it; pass -f with the folder of your trained agents",
+        name="requests",
+    )
+
+
+def _allow_enjoy_without_requests() -> None:
+    """
+    Let ``rl_zoo3.enjoy`` be imported where ``requests`` is not installed.
+
+    ``rl_zoo3.enjoy`` (2.9) imports ``rl_zoo3.load_from_hub``, which imports ``requests``: not a dependency of rl_zoo3,
+    and no longer brought in by ``huggingface_hub`` (which moved to httpx), so ``enjoy`` fails at import. Then a
+    stand-in module takes its place whose ``download_from_hub`` explains: enjoy only calls it to fetch a pretrained
+    agent missing from ``rl-trained-agents/``, never for the agents trained here.
+    """
+    try:
+        import rl_zoo3.load_from_hub  # noqa: F401
+    except ModuleNotFoundError as error:
+        if error.name != "requests":
+            raise
+        stand_in = types.ModuleType("rl_zoo3.load_from_hub", "Stand-in without requests (see sb3_dcqn.zoo)")
+        stand_in.download_from_hub = _download_needs_requests  # type: ignore[attr-defined]
+        sys.modules["rl_zoo3.load_from_hub"] = stand_in
+
+
+def _record_video() -> None:
+    """Run ``rl_zoo3.record_video`` (a script: its code is under ``if __name__ == "__main__"``)."""
+    from rl_zoo3 import utils
+
+    create_test_env = utils.create_test_env
+
+    def create_with_saved_env_kwargs(*args: Any, hyperparams: dict[str, Any], **kwargs: Any) -> Any:
+        # rl_zoo3.record_video (2.9) ignores the env_kwargs saved in config.yml, which enjoy applies: an env trained
+        # with env_kwargs from the hyperparameter file (CampusNav's view_dim) would be made with the default
+        # observation space, and loading the model would fail. The command line's (and args.yml's) still win.
+        saved = hyperparams.pop("env_kwargs", None) or {}
+        kwargs["env_kwargs"] = {**saved, **(kwargs.get("env_kwargs") or {})}
+        return create_test_env(*args, hyperparams=hyperparams, **kwargs)
+
+    utils.create_test_env = create_with_saved_env_kwargs  # record_video imports it by name when it runs
+    try:
+        runpy.run_module("rl_zoo3.record_video", run_name="__main__")
+    finally:
+        utils.create_test_env = create_test_env
+
+
+def _pop_plot_output(args: list[str]) -> tuple[str | None, list[str]]:
+    """Split ``-o FILE``/``--output FILE``/``--output=FILE`` (this script's option of ``plot_train``) from ``args``."""
+    output, rest = None, []
+    items = iter(args)
+    for arg in items:
+        if arg in _PLOT_OUTPUT_FLAGS:
+            output = next(items, None)
+            if output is None:
+                raise SystemExit(f"dcqn-zoo plot_train: error: {arg} needs a file name")
+        elif arg.startswith("--output="):
+            output = arg.split("=", 1)[1]
+        else:
+            rest.append(arg)
+    return output, rest
+
+
+def _import_plots() -> types.ModuleType:
+    """``rl_zoo3.plots``, or an error naming the packages of the zoo's ``plots`` extra that it imports."""
+    try:
+        from rl_zoo3 import plots
+    except ModuleNotFoundError as error:
+        # rl_zoo3.plots imports all three plot scripts, so each command needs seaborn and scipy
+        raise SystemExit(
+            f"dcqn-zoo: the plot commands need the packages of the zoo's plots extra, {error.name!r} is missing: "
+            "pip install seaborn scipy (and rliable for plot_from_file -r)"
+        ) from error
+    return plots
+
+
+def _plot_train(plot_train: Callable[[], None], output: str | None) -> None:
+    """Run the zoo's ``plot_train``; with ``output``, save the figure there instead of showing it."""
+    if output is None:
+        plot_train()
+        return
+    from matplotlib import pyplot as plt
+
+    show = plt.show
+    plt.show = lambda *args, **kwargs: plt.savefig(output)  # plot_train ends with plt.show()
+    try:
+        plot_train()
+    finally:
+        plt.show = show
+    print(f"Saved the figure to {output}")
 
 
 if __name__ == "__main__":

@@ -1,7 +1,13 @@
-"""RL Zoo integration: `dcqn-zoo` trains and optimises DCQN from a zoo-format YAML file."""
+"""RL Zoo integration: `dcqn-zoo` trains and optimises DCQN from a zoo-format YAML file and runs the zoo's commands.
+
+One tiny CartPole run (``dcqn-zoo train``) and one tiny CampusNav run (``dcqn-zoo`` without the command word, cheap
+``pixels`` views) are trained once for the module; ``enjoy``, ``record_video`` and ``plot_train`` use them.
+"""
 
 from __future__ import annotations
 
+import importlib.util
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -12,7 +18,7 @@ import yaml
 pytest.importorskip("rl_zoo3")
 
 from sb3_dcqn import DCQN
-from sb3_dcqn.zoo import default_hyperparams_path, register_dcqn
+from sb3_dcqn.zoo import COMMANDS, default_hyperparams_path, main, register_dcqn
 
 TINY = {
     "CartPole-v1": {
@@ -28,11 +34,63 @@ TINY = {
 }
 
 
-def run_zoo(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+# CampusNav with cheap views (pixels encoder) and short episodes; trained without the command word
+TINY_CAMPUSNAV = {
+    "CampusNav-v0": {
+        "n_timesteps": 150,
+        "policy": "MultiInputPolicy",
+        "env_kwargs": {"encoder": "pixels", "progress": False, "view_dim": 16, "max_steps": 30},
+        "learning_starts": 100,
+        "buffer_size": 1000,
+        "batch_size": 16,
+        "train_freq": 4,
+        "target_update_interval": 50,
+        "policy_kwargs": "dict(features_extractor_class=EmbeddingFusionExtractor, features_extractor_kwargs="
+        "dict(embed_dim=16, features_dim=16), share_features_extractor=True, net_arch=[16], heading_key='heading')",
+    }
+}
+PLOTS_INSTALLED = all(importlib.util.find_spec(name) is not None for name in ("seaborn", "scipy"))
+
+
+def run_zoo(args: list[str], cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     code = "import sys; from sb3_dcqn.zoo import main; main(sys.argv[1:])"
     return subprocess.run(
-        [sys.executable, "-c", code, *args], cwd=cwd, capture_output=True, text=True, timeout=600, check=False
+        [sys.executable, "-c", code, *args],
+        cwd=cwd,
+        env={**os.environ, **(env or {})},
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
     )
+
+
+def module_env(root: Path) -> dict[str, str]:
+    # Module fixtures run before the autouse function fixtures of conftest: keep SB3's logger and CampusNav's feature
+    # cache in the module's folder; the headless Agg backend for the plot commands
+    return {"SB3_LOGDIR": str(root / "sb3-logs"), "CAMPUSNAV_CACHE": str(root / "cache"), "MPLBACKEND": "Agg"}
+
+
+@pytest.fixture(scope="module")
+def cartpole_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder whose ``logs/`` holds one tiny DCQN run on CartPole-v1 trained by ``dcqn-zoo train``."""
+    root = tmp_path_factory.mktemp("zoo-cartpole")
+    (root / "tiny.yml").write_text(yaml.safe_dump(TINY))
+    args = ["train", "--algo", "dcqn", "--env", "CartPole-v1", "-conf", "tiny.yml", "-f", "logs", "--eval-freq", "-1"]
+    result = run_zoo([*args, "--seed", "0"], root, module_env(root))
+    assert result.returncode == 0, result.stderr[-3000:]
+    return root
+
+
+@pytest.fixture(scope="module")
+def campusnav_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder whose ``logs/`` holds one tiny DCQN run on CampusNav-v0 trained by ``dcqn-zoo`` (no command word)."""
+    root = tmp_path_factory.mktemp("zoo-campusnav")
+    (root / "tiny.yml").write_text(yaml.safe_dump(TINY_CAMPUSNAV))
+    args = ["--algo", "dcqn", "--env", "CampusNav-v0", "-conf", "tiny.yml", "-f", "logs", "--eval-freq", "-1"]
+    result = run_zoo([*args, "--seed", "0"], root, module_env(root))
+    assert result.returncode == 0, result.stderr[-3000:]
+    return root
 
 
 def test_register_adds_dcqn_to_the_zoo_tables() -> None:
@@ -54,17 +112,12 @@ def test_shipped_hyperparams_cover_the_classic_control_envs_and_campusnav() -> N
     assert Path("hyperparams/dcqn.yml").resolve() == default_hyperparams_path().resolve()
 
 
-def test_dcqn_zoo_trains_and_saves_a_model(tmp_path: Path) -> None:
-    conf = tmp_path / "tiny.yml"
-    conf.write_text(yaml.safe_dump(TINY))
-    result = run_zoo(
-        ["--algo", "dcqn", "--env", "CartPole-v1", "-conf", str(conf), "--log-folder", "logs", "--eval-freq", "-1"],
-        tmp_path,
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
-    model_path = tmp_path / "logs" / "dcqn" / "CartPole-v1_1" / "CartPole-v1.zip"
+def test_dcqn_zoo_trains_and_saves_a_model(cartpole_run: Path, campusnav_run: Path) -> None:
+    model_path = cartpole_run / "logs" / "dcqn" / "CartPole-v1_1" / "CartPole-v1.zip"
     assert model_path.is_file()
     assert DCQN.load(model_path).policy.n_critics == 2
+    # Without the command word (backwards compatible): train
+    assert (campusnav_run / "logs" / "dcqn" / "CampusNav-v0_1" / "CampusNav-v0.zip").is_file()
 
 
 def test_dcqn_zoo_optimize_writes_the_study_to_a_journal_file(tmp_path: Path) -> None:
@@ -84,3 +137,76 @@ def test_dcqn_zoo_optimize_writes_the_study_to_a_journal_file(tmp_path: Path) ->
     finished = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
     assert len(finished) == 2
     assert "Writing report to" in result.stdout
+
+
+def test_enjoy_runs_the_trained_dcqn_agent(cartpole_run: Path) -> None:
+    args = ["enjoy", "--algo", "dcqn", "--env", "CartPole-v1", "-f", "logs", "-n", "200", "--no-render"]
+    result = run_zoo(args, cartpole_run, module_env(cartpole_run))
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "Loading logs/dcqn/CartPole-v1_1/CartPole-v1.zip" in result.stdout
+    assert "Episode Reward:" in result.stdout and "Mean reward:" in result.stdout
+
+
+@pytest.mark.skipif(importlib.util.find_spec("pygame") is None, reason="CartPole renders with pygame")
+def test_record_video_writes_a_video_of_cartpole(cartpole_run: Path, tmp_path: Path) -> None:
+    args = ["record_video", "--algo", "dcqn", "--env", "CartPole-v1", "-f", "logs", "-n", "20"]
+    result = run_zoo([*args, "-o", str(tmp_path / "videos")], cartpole_run, module_env(cartpole_run))
+    assert result.returncode == 0, result.stderr[-3000:]
+    videos = list((tmp_path / "videos").glob("final-model-dcqn-CartPole-v1-*.mp4"))
+    assert len(videos) == 1 and videos[0].stat().st_size > 0
+
+
+def test_campusnav_agent_plays_and_is_recorded_with_its_saved_env_kwargs(campusnav_run: Path, tmp_path: Path) -> None:
+    env = module_env(campusnav_run)
+    args = ["enjoy", "--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs", "-n", "30", "--no-render"]
+    result = run_zoo(args, campusnav_run, env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    # The model loads (view_dim 16) and an episode ends within 30 steps (max_steps 30): the config's env_kwargs
+    assert "Episode Reward:" in result.stdout
+    # record_video: the env is made with the saved env_kwargs (view_dim 16), else the model's spaces would not match
+    args = ["record_video", "--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs", "-n", "10"]
+    result = run_zoo([*args, "-o", str(tmp_path / "videos")], campusnav_run, env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    videos = list((tmp_path / "videos").glob("final-model-dcqn-CampusNav-v0-*.mp4"))
+    assert len(videos) == 1 and videos[0].stat().st_size > 0
+
+
+@pytest.mark.skipif(not PLOTS_INSTALLED, reason="the zoo's plots need seaborn and scipy")
+def test_plot_train_saves_the_training_curve(cartpole_run: Path, tmp_path: Path) -> None:
+    figure = tmp_path / "curve.png"
+    args = ["plot_train", "-a", "dcqn", "-e", "CartPole-v1", "-f", "logs", "-w", "5", "-o", str(figure)]
+    result = run_zoo(args, cartpole_run, module_env(cartpole_run))
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert figure.read_bytes().startswith(b"\x89PNG")
+    assert "No data available" not in result.stdout
+
+
+@pytest.mark.skipif(PLOTS_INSTALLED, reason="seaborn and scipy are installed")
+def test_plot_commands_name_the_missing_plot_packages(cartpole_run: Path, tmp_path: Path) -> None:
+    args = ["plot_train", "-a", "dcqn", "-e", "CartPole-v1", "-f", "logs", "-o", str(tmp_path / "curve.png")]
+    result = run_zoo(args, cartpole_run, module_env(cartpole_run))
+    assert result.returncode == 1
+    assert "pip install seaborn scipy" in result.stderr
+
+
+def test_unknown_command_exits_with_code_2_and_lists_the_commands(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["enjoi", "--algo", "dcqn"])
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert "unknown command 'enjoi'" in error
+    assert all(command in error for command in ("train", "enjoy", "record_video", "plot_train", "all_plots"))
+
+
+def test_help_lists_the_commands_and_the_train_options(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = list(sys.argv)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    assert sys.argv == argv
+    out = capsys.readouterr().out
+    assert all(command in out for command in COMMANDS)
+    assert "usage: dcqn-zoo [-h]" in out and "--algo" in out and "dcqn" in out  # the zoo's train help
+    with pytest.raises(SystemExit) as exit_info:
+        main([])
+    assert exit_info.value.code == 2
