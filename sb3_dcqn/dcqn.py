@@ -82,12 +82,14 @@ def dcqn_td_target(
     dones: th.Tensor,
     discounts: th.Tensor | float,
     excluded_actions: th.Tensor | None = None,
+    pessimistic: bool = True,
 ) -> th.Tensor:
     """
     The DCQN temporal-difference target ``y = r + gamma * (1 - done) * max_a' min_i Q'_i(s', a')``.
 
     Taking the element-wise minimum over the target critics before the max curbs the over-estimation of the max
-    operator.
+    operator. With ``pessimistic=False`` (an ablation) the first target critic alone is used:
+    ``y = r + gamma * (1 - done) * max_a' Q'_1(s', a')``.
 
     :param next_q_values: Target critics' Q-values at the next observations, shape ``(n_critics, batch, n_actions)``
     :param rewards: Shape ``(batch, 1)``
@@ -95,12 +97,14 @@ def dcqn_td_target(
     :param discounts: ``gamma`` (or ``gamma ** n`` per row for n-step returns, shape ``(batch, 1)``)
     :param excluded_actions: Boolean mask ``(batch, n_actions)`` of actions left out of the max (at least one action
         of each row must stay in)
+    :param pessimistic: Take the element-wise minimum over the target critics (DCQN); ``False``: the first target
+        critic's values
     :return: The TD target, shape ``(batch, 1)``
     """
-    pessimistic_q = next_q_values.min(dim=0).values
+    next_q = next_q_values.min(dim=0).values if pessimistic else next_q_values[0]
     if excluded_actions is not None:
-        pessimistic_q = pessimistic_q.masked_fill(excluded_actions, -th.inf)
-    next_value = pessimistic_q.max(dim=1).values.reshape(-1, 1)
+        next_q = next_q.masked_fill(excluded_actions, -th.inf)
+    next_value = next_q.max(dim=1).values.reshape(-1, 1)
     return rewards + (1 - dones) * discounts * next_value
 
 
@@ -158,6 +162,10 @@ class DCQN(OffPolicyAlgorithm):
         the taken action out of the target's max (see :func:`blocked_actions`): a blocked action's value falls below
         the open roads' in one update instead of shrinking by ``gamma`` per target update. Off by default (the
         paper's target)
+    :param pessimistic_target: Bootstrap from the element-wise minimum of the target critics (DCQN's target, the
+        default). ``False`` is an ablation: the target takes the first target critic's values instead of the minimum
+        (both online critics still regress to that shared target, and acting still maximises the mean of the
+        critics), to measure what the minimum does against over-estimation
     :param stats_window_size: Window size for the rollout logging, specifying the number of episodes to average
         the reported success rate, mean episode length, and mean reward over
     :param tensorboard_log: the log location for tensorboard (if None, no logging)
@@ -207,6 +215,7 @@ class DCQN(OffPolicyAlgorithm):
         prioritized_replay: bool = False,
         adaptation_boost: dict[str, Any] | None = None,
         blocked_action_target: bool = False,
+        pessimistic_target: bool = True,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -255,6 +264,7 @@ class DCQN(OffPolicyAlgorithm):
         self.prioritized_replay = prioritized_replay
         self.adaptation_boost = _check_boost(adaptation_boost, experience_revision)
         self.blocked_action_target = blocked_action_target
+        self.pessimistic_target = pessimistic_target
         if blocked_action_target and n_steps > 1:
             raise ValueError(
                 "blocked_action_target needs one-step transitions (n_steps=1): with n_steps > 1 an "
@@ -382,7 +392,12 @@ class DCQN(OffPolicyAlgorithm):
                         int(self.action_space.n),  # type: ignore[attr-defined]
                     )
                 target_q_values = dcqn_td_target(
-                    next_q_values, replay_data.rewards, replay_data.dones, discounts, excluded
+                    next_q_values,
+                    replay_data.rewards,
+                    replay_data.dones,
+                    discounts,
+                    excluded,
+                    pessimistic=self.pessimistic_target,
                 )
 
             # Q-values of the taken actions for every critic: (n_critics, batch, 1)
