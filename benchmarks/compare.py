@@ -24,14 +24,15 @@ random starts (the same starts for every agent: drawn from the goal and the seed
 episode counting 200: success, mean steps, SPL. Actor-critic agents are also tested sampling their actions (Zhu et
 al.'s agent acts by sampling). Routes are evaluated every ``--eval-every`` env steps during training.
 
-Runs (agent x goal x seed) go to ``--workers`` processes of one torch thread each; each finished run is appended to a
-JSON-lines file, so an interrupted benchmark keeps its results and a rerun skips what is done. Writes
-``results/compare.md`` and ``results/compare.png``.
+Runs (agent x goal x seed) go to ``--workers`` processes (default: one per core) of one torch thread each; each
+finished run is appended to a JSON-lines file, so an interrupted benchmark keeps its results and a rerun skips what is
+done. Writes ``results/compare.md`` and ``results/compare.png``.
 
 Usage::
 
-    python benchmarks/compare.py                                  # 14 goals, 10 s per goal, seed 0
-    python benchmarks/compare.py --budget 300 --seeds 0 1 2 --workers 2   # the paper's 5 minutes per goal
+    python benchmarks/compare.py                            # 14 goals, 5 s per goal, seed 0, a worker per core
+    python benchmarks/compare.py --budget 20 --seeds 0 1    # the results file's run
+    python benchmarks/compare.py --budget 300 --seeds 0 1 2   # the paper's 5 minutes per goal
     python benchmarks/compare.py --quick --out /tmp/compare.md --runs-file /tmp/runs.jsonl   # a smoke run
 """
 
@@ -519,7 +520,7 @@ def draw(runs: list[dict[str, Any]], path: Path) -> None:
 # ------------------------------------------------------------------------------------------------------ the script
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--budget", type=float, default=10.0, help="training seconds per goal (paper: 300)")
+    parser.add_argument("--budget", type=float, default=5.0, help="training seconds per goal (paper: 300)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--goals", type=int, default=N_GOALS, help="how many of the 14 goals")
     parser.add_argument("--agents", nargs="+", default=list(AGENTS), choices=list(AGENTS))
@@ -527,7 +528,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--quick", action="store_true", help="smoke run: 2 goals, 2 s, cheap pixel features")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "compare.md")
     parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "compare_runs.jsonl")
-    workers_argument(parser)
+    workers_argument(parser, default=None)
     args = parser.parse_args(argv)
     if args.quick:
         args.goals, args.budget, args.eval_every = min(args.goals, 2), min(args.budget, 2.0), min(args.eval_every, 300)

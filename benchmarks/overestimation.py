@@ -23,13 +23,13 @@ busiest road on the shortest routes to the goal closes (the first closure of ``c
 recomputed on the closed map, and training goes on for ``--after`` steps (phase 2) with the same measurements against
 the new Q*: the stale values right after the closure, then how they come down.
 
-Runs go to ``--workers`` worker processes (one torch thread each); each finished run is appended to a JSON-lines
-file, so an interrupted benchmark keeps its runs and a rerun skips them. Writes ``results/overestimation.md`` and
-``results/overestimation.png`` (errors vs env steps per agent, the closure marked).
+Runs go to ``--workers`` worker processes (default: one per core; one torch thread each); each finished run is
+appended to a JSON-lines file, so an interrupted benchmark keeps its runs and a rerun skips them. Writes
+``results/overestimation.md`` and ``results/overestimation.png`` (errors vs env steps per agent, the closure marked).
 
 Usage::
 
-    python benchmarks/overestimation.py --workers 1                     # 5 agents, seeds 0 1 2, 20k + 10k steps
+    python benchmarks/overestimation.py                 # 5 agents, seeds 0 1 2, 20k + 10k steps (~7 min, 2 cores)
     python benchmarks/overestimation.py --agents DCQN DQN --seeds 0 1 --steps 30000 --after 15000
     python benchmarks/overestimation.py --quick --out /tmp/o.md --runs-file /tmp/o.jsonl   # smoke run (~1 minute)
 """
@@ -521,7 +521,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--quick", action="store_true", help="smoke run: pixel features, 400 + 200 steps, 1 seed")
     parser.add_argument("--out", type=Path, default=None, help="results file (default results/overestimation.md)")
     parser.add_argument("--runs-file", type=Path, default=None, help="default: <out stem>_runs.jsonl beside it")
-    workers_argument(parser)
+    workers_argument(parser, default=None)
     args = parser.parse_args(argv)
     th.set_num_threads(1)
 

@@ -63,11 +63,11 @@ def run_in_workers(function: Callable[[Job], Result], jobs: Sequence[Job], worke
             yield future.result()
 
 
-def workers_argument(parser: Any) -> None:
-    """Add ``--workers`` to a benchmark's argument parser."""
+def workers_argument(parser: Any, default: int | None = 1) -> None:
+    """Add ``--workers`` to a benchmark's argument parser (``default=None``: one worker per core)."""
     parser.add_argument(
         "--workers",
         type=int,
-        default=1,
+        default=default_workers() if default is None else default,
         help=f"worker processes, one torch thread each (this machine has {default_workers()} cores); 1: in process",
     )
