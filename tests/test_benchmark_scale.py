@@ -1,0 +1,42 @@
+"""benchmarks/scale.py runs and writes its tables and picture (a smoke run: the figures themselves are not asserted)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _quick_run(tmp_path: Path) -> tuple[str, list[dict]]:
+    """Run the smoke run (views encoded into a fresh cache in tmp_path); return its results file and records."""
+    out, runs = tmp_path / "scale.md", tmp_path / "runs.jsonl"
+    env = {**os.environ, "CAMPUSNAV_CACHE": str(tmp_path / "campusnav-cache")}
+    command = [sys.executable, str(BENCHMARKS / "scale.py"), "--quick", "--out", str(out), "--runs-file", str(runs)]
+    subprocess.run(command, check=True, timeout=600, env=env, cwd=tmp_path)
+    return out.read_text(), [json.loads(line) for line in runs.read_text().splitlines()]
+
+
+def test_scale_quick_run_writes_its_tables_and_picture(tmp_path: Path) -> None:
+    text, records = _quick_run(tmp_path)
+    # Every stage of the smoke run was recorded, once
+    stages = sorted((r["stage"], r["size"]) for r in records)
+    assert stages == sorted(
+        [("buffer", 0), ("vecenv", 101)] + [(stage, n) for stage in ("build", "fit", "train") for n in (101, 300)]
+    )
+    assert "| intersections | states | encoder, views | map (s) | 3D world (s) | render (ms/node) |" in text
+    assert "| intersections | features | budget (s) | solved | training time to threshold (s) | env steps |" in text
+    shipped = "DictReplayBuffer (shipped)"
+    assert f"| array (B per transition) | {shipped}, view_dim 64 | {shipped}, view_dim 1280 |" in text
+    assert "| view_dim | features: B/transition | 50,000 transitions (MB) | indices: B/transition |" in text
+    assert "| vector env | envs | env steps/s (all envs) | vs DummyVecEnv, 1 env |" in text
+    assert "| part of one env step | us per call |" in text
+    assert "| intersections | cold build, EfficientNet (s) | of which render / encode / 3D world |" in text
+    assert "| intersections (views x features) | before: fit + transform (s) | before: peak memory (MB) |" in text
+    # The large map's EfficientNet cost is extrapolated, and the results say so
+    assert "extrapolated from 2 nodes" in text
+    assert "Machine: " in text and "Command: `python benchmarks/scale.py --quick --out" in text
+    assert (tmp_path / "scale.png").stat().st_size > 0
