@@ -172,11 +172,13 @@ class SolveResult:
     :param solved_at: The first evaluation at the thresholds, or ``None`` (a miss)
     :param evaluations: Every evaluation of the run
     :param wall_seconds: Wall time of ``learn()``, evaluations included
+    :param evaluation_seconds: Of which the evaluations took
     """
 
     solved_at: RouteEvaluation | None
     evaluations: list[RouteEvaluation]
     wall_seconds: float
+    evaluation_seconds: float = 0.0
 
     def curve(self) -> list[dict[str, float]]:
         return [
@@ -224,7 +226,7 @@ def train_until_solved(
         ),
         None,
     )
-    return SolveResult(solved, list(evaluation.evaluations), wall)
+    return SolveResult(solved, list(evaluation.evaluations), wall, evaluation.excluded_seconds)
 
 
 # ------------------------------------------------------------------------------------------------ closure experiments

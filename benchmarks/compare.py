@@ -431,7 +431,16 @@ def _mean_spread(values: list[float], digits: int = 2) -> str:
     return f"{statistics.fmean(values):.{digits}f} ± {statistics.stdev(values):.{digits}f}"
 
 
-def summary_lines(runs: list[dict[str, Any]]) -> list[str]:
+def solved_seconds(run: dict[str, Any]) -> float | None:
+    """Training seconds to the first route evaluation at the thresholds, the one after training included."""
+    if run["solved_at"] is not None:
+        return run["solved_at"]["seconds"]
+    if run["route_success"] >= SUCCESS_THRESHOLD and run["route_spl"] >= SPL_THRESHOLD:
+        return run["train_seconds"]
+    return None
+
+
+def summary_lines(runs: list[dict[str, Any]], eval_every: int) -> list[str]:
     goals = sorted({run["goal"] for run in runs})
     seeds = sorted({run["seed"] for run in runs})
     budgets = sorted({run["budget"] for run in runs})
@@ -439,14 +448,16 @@ def summary_lines(runs: list[dict[str, Any]]) -> list[str]:
         f"{len(goals)} goals, seeds {seeds}, training budget {', '.join(f'{b:g}' for b in budgets)} s per goal "
         f"(evaluations excluded). Test: {TEST_EPISODES} episodes per goal from the same random starts for every "
         f"agent, capped at {TEST_STEP_CAP} steps (a failure counts {TEST_STEP_CAP}). Figures are means over goals; "
-        "with several seeds, mean ± standard deviation over the seeds' means.",
+        "with several seeds, mean ± standard deviation over the seeds' means. Routes from every (start, heading) are "
+        f"evaluated every {eval_every:,} env steps and after training; time to solved: training seconds at the first "
+        "evaluation with success >= 0.99 and SPL >= 0.98.",
         "",
         "| agent | env steps in the budget | test success | test mean steps | test SPL | route success "
         "(every start) | route SPL | goals solved (success 0.99, SPL 0.98) | median time to solved |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, key, mine in _rows(runs):
-        solved = [run["solved_at"]["seconds"] for run in mine if run["solved_at"] is not None]
+        solved = [seconds for run in mine if (seconds := solved_seconds(run)) is not None]
         is_oracle = mine[0]["agent"] == "oracle"
         lines.append(
             "| "
@@ -566,7 +577,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "",
         machine_line(f"runs in {args.workers} worker process(es)"),
         "",
-        *summary_lines(runs),
+        *summary_lines(runs, args.eval_every),
         *step_ratio_lines(runs),
         *per_goal_lines(runs),
         "",

@@ -567,9 +567,8 @@ def _top_functions(profile: cProfile.Profile, count: int = 6) -> list[dict[str, 
 
 def measure_training(n_nodes: int, plan: Plan) -> dict[str, Any]:
     """DCQN as shipped until the map is solved (or the budget is spent): time, steps, memory, evaluation cost."""
-    from campusnav_runs import SPL_THRESHOLD, SUCCESS_THRESHOLD, TASKS, VARIANTS, train_until_solved
+    from campusnav_runs import TASKS, VARIANTS, train_until_solved
 
-    from campusnav_env.callbacks import RouteEvaluationCallback
     from campusnav_env.env import CampusNavEnv
     from campusnav_env.route_evaluation import evaluate_routes
 
@@ -601,15 +600,8 @@ def measure_training(n_nodes: int, plan: Plan) -> dict[str, Any]:
     record["reset_us"] = 1e6 * _per_call(env.reset, 200)
 
     model = variant.make_model(env, entry, plan.seed)
-    evaluation = RouteEvaluationCallback(
-        eval_freq=eval_freq,
-        success_threshold=SUCCESS_THRESHOLD,
-        spl_threshold=SPL_THRESHOLD,
-        stop_when_solved=True,
-        every_goal=True,
-    )
     with peak_memory() as peak:
-        result = train_until_solved(model, max_steps, budget, eval_freq, evaluation=evaluation)
+        result = train_until_solved(model, max_steps, budget, eval_freq)
     last, solved = result.evaluations[-1], result.solved_at
     at = solved or last
     buffer = model.replay_buffer
@@ -626,7 +618,7 @@ def measure_training(n_nodes: int, plan: Plan) -> dict[str, Any]:
         "eval_freq": eval_freq,
         "max_steps": max_steps,
         "evaluations": len(result.evaluations),
-        "evaluation_seconds": evaluation.excluded_seconds,
+        "evaluation_seconds": result.evaluation_seconds,
         "routes": len(last.report.routes),
         "wall_seconds": result.wall_seconds,
         "train_peak_mb": peak.peak_mb,
