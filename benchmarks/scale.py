@@ -40,14 +40,11 @@ import argparse
 import cProfile
 import gc
 import math
-import multiprocessing
 import os
 import pstats
 import resource
-import sys
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -55,9 +52,9 @@ from typing import Any
 
 import numpy as np
 from report import append_run, publish, read_runs
+from workers import run_in_fresh_process
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
-SCRIPT_DIR = str(Path(__file__).resolve().parent)
 GOAL = "Dreese Lab"
 WORLD_SEED = 0
 CAMPUS_EXTENT = (2500.0, 1700.0)  # metres, the built-in campus (generate_campus's defaults)
@@ -191,21 +188,6 @@ def peak_memory() -> Iterator[Peak]:
         hwm = _status_kb("VmHWM") if peak.method == "VmHWM" else None
         kb = hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         peak.peak_mb = kb * 1024 / MB
-
-
-def _init_child(script_dir: str) -> None:
-    import torch
-
-    torch.set_num_threads(1)
-    if script_dir not in sys.path:
-        sys.path.insert(0, script_dir)
-
-
-def in_child(function: Callable[..., dict[str, Any]], *args: Any) -> dict[str, Any]:
-    """Run ``function(*args)`` in a fresh spawned process (its own peak RSS, nothing left over); return its record."""
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(1, mp_context=context, initializer=_init_child, initargs=(SCRIPT_DIR,)) as pool:
-        return pool.submit(function, *args).result()
 
 
 def _per_call(function: Callable[[], Any], repeats: int) -> float:
@@ -1151,7 +1133,7 @@ def main(argv: list[str] | None = None) -> None:
         if (stage, size) in done:
             continue
         begin = time.perf_counter()
-        record = in_child(function, *function_args)
+        record = run_in_fresh_process(function, *function_args)
         record["stage_wall_seconds"] = time.perf_counter() - begin
         append_run(args.runs_file, record)
         print(f"{stage} {size}: done in {record['stage_wall_seconds']:.0f} s", flush=True)

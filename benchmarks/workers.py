@@ -63,6 +63,17 @@ def run_in_workers(function: Callable[[Job], Result], jobs: Sequence[Job], worke
             yield future.result()
 
 
+def run_in_fresh_process(function: Callable[..., Result], *args: Any) -> Result:
+    """
+    Run ``function(*args)`` in a fresh spawned process of one torch thread and return its result: what it allocates
+    (its peak memory included) is its own, and nothing of it stays in this process.
+    """
+    context = multiprocessing.get_context("spawn")
+    script_dir = str(Path(__file__).resolve().parent)
+    with ProcessPoolExecutor(1, mp_context=context, initializer=_init_worker, initargs=(script_dir,)) as pool:
+        return pool.submit(function, *args).result()
+
+
 def workers_argument(parser: Any, default: int | None = 1) -> None:
     """Add ``--workers`` to a benchmark's argument parser (``default=None``: one worker per core)."""
     parser.add_argument(
