@@ -36,13 +36,11 @@ import numpy as np
 import torch as th
 from campusnav_runs import LEVERS, SPL_THRESHOLD, SUCCESS_THRESHOLD, TASKS, machine_line, quick_env_kwargs
 from closures_one_at_a_time import (
-    append_run,
     closure_benchmark_parser,
     figure_lever,
     lever_options,
     medians,
     number,
-    read_runs,
     roads_text,
     run_figures,
     run_record,
@@ -50,7 +48,7 @@ from closures_one_at_a_time import (
     solve_text,
     train_then_close,
 )
-from report import command_line, write_results  # benchmarks/report.py, beside this script
+from report import append_run, command_line, read_runs, write_results  # benchmarks/report.py, beside this script
 
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Sequence
@@ -54,7 +53,7 @@ from campusnav_runs import (
     quick_env_kwargs,
     train_until_solved,
 )
-from report import command_line, write_results  # benchmarks/report.py, beside this script
+from report import append_run, command_line, read_runs, write_results  # benchmarks/report.py, beside this script
 
 from campusnav_env.callbacks import RoadClosureCallback, RouteEvaluationCallback
 from campusnav_env.closures import ClosureEvent, busiest_road
@@ -240,20 +239,6 @@ def run_record(run: ClosureRun, **fields: Any) -> dict[str, Any]:
         "closure_wall_seconds": round(run.closure_wall_seconds, 3),
         "recoveries": [recovery_record(k, r, run) for k, r in enumerate(run.recoveries, start=1)],
     }
-
-
-def read_runs(path: Path) -> list[dict[str, Any]]:
-    """The runs of a JSON-lines file (none if it does not exist)."""
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-
-
-def append_run(path: Path, record: dict[str, Any]) -> None:
-    """Append one finished run to the JSON-lines file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a") as file:
-        file.write(json.dumps(record) + "\n")
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -49,7 +48,7 @@ from campusnav_runs import (
     quick_env_kwargs,
     train_until_solved,
 )
-from report import command_line, write_results  # benchmarks/report.py, beside this script
+from report import append_run, command_line, read_runs, write_results  # benchmarks/report.py, beside this script
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from campusnav_env.env import CampusNavEnv
@@ -180,12 +179,6 @@ def train_and_test(agent: str, seed: int, quick: bool, n_episodes: int, env_kwar
         "tests": tests,
         "routes": routes,
     }
-
-
-def read_runs(path: Path) -> list[dict[str, Any]]:
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
 def _moving_average(values: np.ndarray, window: int) -> np.ndarray:
@@ -345,9 +338,7 @@ def main(argv: list[str] | None = None) -> None:
     started = time.perf_counter()
     for agent, seed in todo:
         record = train_and_test(agent, seed, args.quick, n_episodes, env_kwargs)
-        runs_file.parent.mkdir(parents=True, exist_ok=True)
-        with open(runs_file, "a") as file:
-            file.write(json.dumps(record) + "\n")
+        append_run(runs_file, record)
         stored.append(record)
         print(
             f"{_agent_name(agent)}, seed {seed}: {_solve_text(record)}; test success "
