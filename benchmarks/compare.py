@@ -180,9 +180,14 @@ class _HarnessCallback(BaseCallback):
     def __init__(self, harness: BudgetHarness) -> None:
         super().__init__()
         self.harness = harness
+        self._policy: Policy | None = None
+
+    def _init_callback(self) -> None:
+        self._policy = greedy_policy(self.model)  # once, not on every step
 
     def _on_step(self) -> bool:
-        return self.harness.step(self.model.num_timesteps, greedy_policy(self.model))
+        assert self._policy is not None
+        return self.harness.step(self.model.num_timesteps, self._policy)
 
 
 def greedy_policy(model: Any) -> Policy:
