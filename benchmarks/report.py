@@ -1,14 +1,37 @@
-"""What every benchmark script does with its results: name the command that made them and write them atomically."""
+"""What every benchmark script does with its results: Markdown tables, the command that made them, atomic writes,
+and the JSON-lines files of finished runs."""
 
 from __future__ import annotations
 
 import json
 import shlex
 import sys
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 from campusnav_env.atomic_files import write_text_atomic
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
+    """
+    The lines of a Markdown table: the header, the separator, one line per row (cells already formatted as text).
+
+    :param header: Column titles
+    :param rows: Rows, each with one cell per column
+    :return: the table's lines (no blank line before or after)
+    """
+    lines = [table_row(header), "|" + "---|" * len(header)]
+    for row in rows:
+        if len(row) != len(header):
+            raise ValueError(f"a table row has {len(row)} cells for {len(header)} columns: {list(row)}")
+        lines.append(table_row(row))
+    return lines
+
+
+def table_row(cells: Sequence[Any]) -> str:
+    """One Markdown table line: ``| a | b | c |``."""
+    return "| " + " | ".join(str(cell) for cell in cells) + " |"
 
 
 def command_line(script: str, argv: list[str] | None) -> str:
