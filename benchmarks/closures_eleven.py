@@ -50,9 +50,9 @@ from closures_one_at_a_time import (
 )
 from report import append_run, command_line, read_runs, write_results  # benchmarks/report.py, beside this script
 
+from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD
-from campusnav_env.rendering.figures import figure_image, write_figure
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "closures_eleven.py"

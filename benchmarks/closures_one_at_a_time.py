@@ -57,9 +57,9 @@ from report import append_run, command_line, read_runs, write_results  # benchma
 
 from campusnav_env.callbacks import RoadClosureCallback, RouteEvaluationCallback
 from campusnav_env.closures import ClosureEvent, busiest_road
+from campusnav_env.figures import closure_route_panels, figure_image, training_curves, write_figure
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD, Recovery, median_recovery
-from campusnav_env.rendering.figures import closure_route_panels, figure_image, training_curves, write_figure
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "closures_one_at_a_time.py"

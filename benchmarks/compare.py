@@ -60,9 +60,9 @@ from stable_baselines3.common.env_util import make_vec_env
 from workers import run_in_workers, workers_argument
 
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.maps.campus import GOALS
 from campusnav_env.optimal_values import optimal_q_values
-from campusnav_env.rendering.figures import figure_image, write_figure
 from campusnav_env.route_evaluation import Policy, RouteReport, evaluate_routes
 from sb3_dcqn import DCQN
 from sb3_dcqn.fusion import EmbeddingFusionExtractor

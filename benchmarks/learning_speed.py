@@ -39,7 +39,7 @@ from campusnav_runs import TASKS, VARIANTS, train_until_solved  # beside this sc
 from matplotlib.figure import Figure
 from report import append_run, publish, read_runs, write_results
 
-from campusnav_env.rendering.figures import figure_image, write_figure
+from campusnav_env.figures import figure_image, write_figure
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 DEFAULT_VARIANTS = ("DCQN", "DCQN, no heading_key", "DQN")

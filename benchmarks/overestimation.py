@@ -56,8 +56,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from workers import run_in_workers, workers_argument
 
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.optimal_values import optimal_q_values
-from campusnav_env.rendering.figures import figure_image, write_figure
 from campusnav_env.route_evaluation import evaluate_routes
 from sb3_dcqn.zoo import ZooEntry
 

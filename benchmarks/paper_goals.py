@@ -52,8 +52,8 @@ from report import append_run, command_line, read_runs, write_results  # benchma
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.figures import figure_image, training_curves, write_figure
 from campusnav_env.maps.campus import GOALS
-from campusnav_env.rendering.figures import figure_image, training_curves, write_figure
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"

@@ -877,7 +877,7 @@ def plot(
     """Time (left) and memory (right) against intersections, log x."""
     from matplotlib.figure import Figure
 
-    from campusnav_env.rendering.figures import figure_image, write_figure
+    from campusnav_env.figures import figure_image, write_figure
 
     figure = Figure(figsize=(11, 5.6), dpi=100, layout="constrained")
     left, right = figure.subplots(1, 2)

@@ -71,6 +71,7 @@ from campusnav_env.atomic_files import write_bytes_atomic, write_text_atomic
 from campusnav_env.callbacks import RoadClosureCallback, RouteEvaluationCallback
 from campusnav_env.closures import ClosureEvent, ClosureSchedule
 from campusnav_env.features.encoders import ENCODER_NAMES
+from campusnav_env.figures import closure_route_panels, training_curves, write_figure
 from campusnav_env.recovery import (
     DEFAULT_SPL_THRESHOLD,
     DEFAULT_SUCCESS_THRESHOLD,
@@ -78,7 +79,6 @@ from campusnav_env.recovery import (
     RouteEvaluation,
     recovery_table,
 )
-from campusnav_env.rendering.figures import closure_route_panels, training_curves, write_figure
 from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.rendering.street_view import RenderSettings
 from campusnav_env.route_evaluation import Route

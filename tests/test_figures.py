@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from campusnav_env import generate_campus
+from campusnav_env.figures import closure_route_panels, panel_title, training_curves, write_figure
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation, measure_recoveries
-from campusnav_env.rendering.figures import closure_route_panels, panel_title, training_curves, write_figure
 from campusnav_env.rendering.map_view import CLOSED_RGB, ROUTE_COLOURS
 from campusnav_env.route_evaluation import Route, RouteReport
 
