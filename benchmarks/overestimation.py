@@ -125,10 +125,10 @@ def agent_q_values(model: BaseAlgorithm, env: CampusNavEnv, goal: int) -> np.nda
     states = np.arange(env.graph.n_states)
     observations = env.observations_at(env.graph.map.state_nodes[states], env.graph.map.state_headings[states], goal)
     tensors, _ = model.policy.obs_to_tensor(observations)
+    q_net = model.q_net  # type: ignore[attr-defined]
     with th.no_grad():
-        q = model.q_net(tensors)  # type: ignore[attr-defined]
-    q = q.cpu().numpy().astype(np.float64)
-    return q if q.ndim == 3 else q[None]
+        q = q_net.critic_values(tensors) if hasattr(q_net, "critic_values") else q_net(tensors)[None]
+    return q.cpu().numpy().astype(np.float64)
 
 
 def visited_pairs(buffer: ReplayBuffer, env: CampusNavEnv) -> np.ndarray:

@@ -20,12 +20,8 @@ from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy
 
 SelfDCQN = TypeVar("SelfDCQN", bound="DCQN")
 
-# Order of the per-step statistics gathered in ``train`` (kept as one tensor to avoid a sync per value)
-_STAT_NAMES = ("loss", "q_mean", "q_abs_diff", "target_q_mean")
-
-
-_BOOST_TRIGGERS = ("revision", "episode_length", "td_error")
-_BOOST_DEFAULTS = {"exploration": 0.3, "replay_ratio": 4, "steps": 2000, "factor": 2.0}
+# The statistics of the last batch of each ``train`` call, gathered in one tensor (one sync instead of one per value)
+_STAT_NAMES = ("q_mean", "q_abs_diff", "target_q_mean")
 
 
 def blocked_actions(
@@ -56,24 +52,6 @@ def blocked_actions(
         unchanged &= (before == after).reshape(before.shape[0], -1).all(dim=1)
     taken = F.one_hot(actions.reshape(-1).long(), n_actions).bool()
     return taken & unchanged[:, None]
-
-
-def _check_boost(boost: dict[str, Any] | None, experience_revision: bool) -> dict[str, Any] | None:
-    """Fill in the defaults of an ``adaptation_boost`` and check it, naming the key that is wrong."""
-    if boost is None:
-        return None
-    unknown = set(boost) - {"trigger", *_BOOST_DEFAULTS}
-    if unknown:
-        allowed = ", ".join(["trigger", *_BOOST_DEFAULTS])
-        raise ValueError(f"adaptation_boost: unknown key(s) {sorted(unknown)}; allowed: {allowed}")
-    config = {**_BOOST_DEFAULTS, **boost}
-    if config.get("trigger") not in _BOOST_TRIGGERS:
-        raise ValueError(f"adaptation_boost['trigger'] must be one of {_BOOST_TRIGGERS}, got {config.get('trigger')!r}")
-    if config["trigger"] == "revision" and not experience_revision:
-        raise ValueError("adaptation_boost with trigger 'revision' needs experience_revision=True")
-    if not 0.0 <= config["exploration"] <= 1.0 or config["replay_ratio"] < 1 or config["steps"] < 1:
-        raise ValueError(f"adaptation_boost: need 0 <= exploration <= 1, replay_ratio >= 1, steps >= 1; got {config}")
-    return config
 
 
 def dcqn_td_target(
@@ -153,11 +131,6 @@ class DCQN(OffPolicyAlgorithm):
         :mod:`sb3_dcqn.buffers`. Off by default: the paper's agent keeps its stale experience
     :param prioritized_replay: Replay transitions in proportion to their TD error, importance-weighted (Schaul et al.
         2016); ``beta`` is annealed to 1 over training. Off by default
-    :param adaptation_boost: Temporarily raise exploration and the replay ratio when the world seems to have changed:
-        ``dict(trigger=..., exploration=0.3, replay_ratio=4, steps=2000)``, ``trigger`` one of ``"revision"`` (the
-        buffer revised contradicted experience; needs ``experience_revision``), ``"episode_length"`` (the mean length
-        of the last 5 episodes exceeds ``factor`` (default 2) times that of the last 100) or ``"td_error"`` (a
-        training loss above ``factor`` times its running mean). ``None`` (default): no boost
     :param blocked_action_target: For a transition after which the observation did not change (a collision), leave
         the taken action out of the target's max (see :func:`blocked_actions`): a blocked action's value falls below
         the open roads' in one update instead of shrinking by ``gamma`` per target update. Off by default (the
@@ -213,7 +186,6 @@ class DCQN(OffPolicyAlgorithm):
         max_grad_norm: float = 10,
         experience_revision: bool = False,
         prioritized_replay: bool = False,
-        adaptation_boost: dict[str, Any] | None = None,
         blocked_action_target: bool = False,
         pessimistic_target: bool = True,
         stats_window_size: int = 100,
@@ -262,7 +234,6 @@ class DCQN(OffPolicyAlgorithm):
         self.exploration_rate = 0.0
         self.experience_revision = experience_revision
         self.prioritized_replay = prioritized_replay
-        self.adaptation_boost = _check_boost(adaptation_boost, experience_revision)
         self.blocked_action_target = blocked_action_target
         self.pessimistic_target = pessimistic_target
         if blocked_action_target and n_steps > 1:
@@ -270,9 +241,6 @@ class DCQN(OffPolicyAlgorithm):
                 "blocked_action_target needs one-step transitions (n_steps=1): with n_steps > 1 an "
                 "unchanged observation after n steps does not mean the first action was blocked"
             )
-        self._boost_until = 0  # boosted while num_timesteps < _boost_until
-        self._revised_seen = 0
-        self._loss_average: float | None = None
 
         if _init_setup_model:
             self._setup_model()
@@ -317,29 +285,6 @@ class DCQN(OffPolicyAlgorithm):
             "prioritized": self.prioritized_replay,
         }
 
-    @property
-    def boosted(self) -> bool:
-        """Whether the adaptation boost (more exploration, more gradient steps) is on now."""
-        return self.num_timesteps < self._boost_until
-
-    def _check_boost_triggers(self) -> None:
-        boost = self.adaptation_boost
-        if boost is None:
-            return
-        triggered = False
-        if boost["trigger"] == "revision":
-            revised = getattr(self.replay_buffer, "revised", 0)
-            triggered, self._revised_seen = revised > self._revised_seen, revised
-        elif boost["trigger"] == "episode_length" and len(self.ep_info_buffer) >= 20:
-            lengths = [info["l"] for info in self.ep_info_buffer]
-            triggered = np.mean(lengths[-5:]) > boost["factor"] * np.mean(lengths)
-        if triggered:
-            self._start_boost()
-
-    def _start_boost(self) -> None:
-        assert self.adaptation_boost is not None
-        self._boost_until = self.num_timesteps + int(self.adaptation_boost["steps"])
-
     def _create_aliases(self) -> None:
         self.q_net = self.policy.q_net
         self.q_net_target = self.policy.q_net_target
@@ -357,106 +302,111 @@ class DCQN(OffPolicyAlgorithm):
             polyak_update(self.q_net.parameters(), self.q_net_target.parameters(), self.tau)
             polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
 
-        self._check_boost_triggers()
         self.exploration_rate = self.exploration_schedule(self._current_progress_remaining)
-        if self.boosted:
-            self.exploration_rate = max(self.exploration_rate, self.adaptation_boost["exploration"])  # type: ignore
         self.logger.record("rollout/exploration_rate", self.exploration_rate)
 
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         # Switch to train mode (this affects batch norm / dropout)
         self.policy.set_training_mode(True)
+        # Update learning rate according to schedule (and, with prioritised replay, the importance correction)
         self._update_learning_rate(self.policy.optimizer)
+        self._update_importance_correction()
 
-        n_critics = self.q_net.n_critics
-        if self.boosted:
-            gradient_steps *= int(self.adaptation_boost["replay_ratio"])  # type: ignore[index]
-        if self.prioritized_replay:
-            # Importance correction annealed to full (beta = 1) by the end of training (Schaul et al. 2016)
-            elapsed = 1.0 - self._current_progress_remaining
-            self.replay_buffer.beta = self._beta0 + (1.0 - self._beta0) * elapsed  # type: ignore[union-attr]
-        step_stats: list[th.Tensor] = []
+        losses = []
         for _ in range(gradient_steps):
+            # Sample replay buffer
             replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            # For n-step replay, discount factor is gamma**n_steps (when no early termination)
-            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
 
             with th.no_grad():
-                next_q_values = self.q_net_target(replay_data.next_observations)
-                excluded = None
-                if self.blocked_action_target:
-                    excluded = blocked_actions(
-                        replay_data.observations,
-                        replay_data.next_observations,
-                        replay_data.actions,
-                        int(self.action_space.n),  # type: ignore[attr-defined]
-                    )
-                target_q_values = dcqn_td_target(
-                    next_q_values,
-                    replay_data.rewards,
-                    replay_data.dones,
-                    discounts,
-                    excluded,
-                    pessimistic=self.pessimistic_target,
-                )
+                target_q_values = self.td_target(replay_data)
 
-            # Q-values of the taken actions for every critic: (n_critics, batch, 1)
-            current_q_values = self.q_net(replay_data.observations)
-            action_index = replay_data.actions.long().unsqueeze(0).expand(n_critics, -1, -1)
+            # Get current Q-values estimates of every critic, (n_critics, batch, n_actions)
+            current_q_values = self.q_net.critic_values(replay_data.observations)
+            # Retrieve the q-values for the actions from the replay buffer, (n_critics, batch, 1)
+            action_index = replay_data.actions.long().expand(current_q_values.shape[0], -1, -1)
             current_q_values = th.gather(current_q_values, dim=2, index=action_index)
 
-            # Huber loss of each critic against the shared target, summed over critics
-            per_sample = F.smooth_l1_loss(
-                current_q_values, target_q_values.unsqueeze(0).expand_as(current_q_values), reduction="none"
-            )
-            if self.prioritized_replay:
-                per_sample = per_sample * replay_data.weights.unsqueeze(0)  # importance weights, (1, batch, 1)
-                td_errors = (current_q_values.detach() - target_q_values.unsqueeze(0)).abs().mean(dim=0)
-                buffer = self.replay_buffer
-                buffer.update_priorities(replay_data.indices, td_errors.cpu().numpy())  # type: ignore[union-attr]
-            critic_losses = per_sample.mean(dim=(1, 2))
-            loss = critic_losses.sum()
+            loss = self.critic_loss(current_q_values, target_q_values, replay_data)
+            losses.append(loss.detach())
 
+            # Optimize the policy
             self.policy.optimizer.zero_grad()
             loss.backward()
+            # Clip gradient norm
             th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
             self.policy.optimizer.step()
 
-            with th.no_grad():
-                q_taken = current_q_values.detach()
-                q_abs_diff = (q_taken[0] - q_taken[-1]).abs().mean()
-                step_stats.append(
-                    th.cat(
-                        [
-                            th.stack([loss.detach(), q_taken.mean(), q_abs_diff, target_q_values.mean()]),
-                            critic_losses.detach(),
-                        ]
-                    )
-                )
-
+        # Increase update counter
         self._n_updates += gradient_steps
+
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        if not step_stats:
-            return
-        means = th.stack(step_stats).mean(dim=0).cpu().numpy()
-        for name, value in zip(_STAT_NAMES, means[: len(_STAT_NAMES)], strict=True):
-            self.logger.record(f"train/{name}", float(value))
-        for critic, value in enumerate(means[len(_STAT_NAMES) :], start=1):
-            self.logger.record(f"train/critic_{critic}_loss", float(value))
+        if losses:
+            self.logger.record("train/loss", th.stack(losses).mean().item())
+            self._record_critic_statistics(current_q_values.detach(), target_q_values)
         if self.experience_revision:
             self.logger.record("train/revised_transitions", self.replay_buffer.revised)  # type: ignore[union-attr]
-        if self.adaptation_boost is not None:
-            self.logger.record("train/boosted", float(self.boosted))
-            self._watch_loss(float(means[0]))
 
-    def _watch_loss(self, loss: float) -> None:
-        """The ``td_error`` trigger: a loss well above its running mean means the world stopped matching the critics."""
-        assert self.adaptation_boost is not None
-        if self.adaptation_boost["trigger"] != "td_error":
-            return
-        if self._loss_average is not None and loss > self.adaptation_boost["factor"] * self._loss_average:
-            self._start_boost()
-        self._loss_average = loss if self._loss_average is None else 0.99 * self._loss_average + 0.01 * loss
+    def td_target(self, replay_data: Any) -> th.Tensor:
+        """
+        The TD target of a replay batch (see :func:`dcqn_td_target`): the minimum over the target critics, or the
+        first one's values with ``pessimistic_target=False``; with ``blocked_action_target``, a transition that left
+        the observation unchanged bootstraps from the best other action (:func:`blocked_actions`).
+
+        :param replay_data: A batch sampled from the replay buffer
+        :return: The target, shape ``(batch, 1)``
+        """
+        # For n-step replay, discount factor is gamma**n_steps (when no early termination)
+        discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
+        excluded = None
+        if self.blocked_action_target:
+            n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
+            excluded = blocked_actions(
+                replay_data.observations, replay_data.next_observations, replay_data.actions, n_actions
+            )
+        next_q_values = self.q_net_target.critic_values(replay_data.next_observations)
+        return dcqn_td_target(
+            next_q_values, replay_data.rewards, replay_data.dones, discounts, excluded, self.pessimistic_target
+        )
+
+    def critic_loss(self, current_q_values: th.Tensor, target_q_values: th.Tensor, replay_data: Any) -> th.Tensor:
+        """
+        Huber loss of every critic against the shared target, summed over the critics.
+
+        With prioritised replay each sample is weighted by its importance weight, and the batch's new TD errors
+        (mean over the critics) become its priorities.
+
+        :param current_q_values: The critics' values of the taken actions, shape ``(n_critics, batch, 1)``
+        :param target_q_values: The TD target, shape ``(batch, 1)``
+        :param replay_data: The batch (its importance ``weights`` and ``indices`` with prioritised replay)
+        :return: The loss to minimise (a scalar)
+        """
+        n_critics = current_q_values.shape[0]
+        targets = target_q_values.expand_as(current_q_values)
+        if not self.prioritized_replay:
+            # The mean over critics and samples times the number of critics: the sum of the critics' mean losses
+            return n_critics * F.smooth_l1_loss(current_q_values, targets)
+        per_sample = F.smooth_l1_loss(current_q_values, targets, reduction="none") * replay_data.weights
+        td_errors = (current_q_values.detach() - targets).abs().mean(dim=0)
+        self.replay_buffer.update_priorities(replay_data.indices, td_errors.cpu().numpy())  # type: ignore[union-attr]
+        return n_critics * per_sample.mean()
+
+    def _update_importance_correction(self) -> None:
+        """Anneal prioritised replay's importance correction to full (beta = 1) by the end of training."""
+        if self.prioritized_replay:
+            elapsed = 1.0 - self._current_progress_remaining
+            self.replay_buffer.beta = self._beta0 + (1.0 - self._beta0) * elapsed  # type: ignore[union-attr]
+
+    def _record_critic_statistics(self, current_q_values: th.Tensor, target_q_values: th.Tensor) -> None:
+        """Log the last batch's per-critic losses, mean Q, mean |Q1 - Q2| and mean target (one sync)."""
+        targets = target_q_values.expand_as(current_q_values)
+        critic_losses = F.smooth_l1_loss(current_q_values, targets, reduction="none").mean(dim=(1, 2))
+        q_abs_diff = (current_q_values[0] - current_q_values[-1]).abs().mean()
+        summary = th.cat([th.stack([current_q_values.mean(), q_abs_diff, target_q_values.mean()]), critic_losses])
+        values = summary.cpu().numpy()
+        for name, value in zip(_STAT_NAMES, values[: len(_STAT_NAMES)], strict=True):
+            self.logger.record(f"train/{name}", float(value))
+        for critic, value in enumerate(values[len(_STAT_NAMES) :], start=1):
+            self.logger.record(f"train/critic_{critic}_loss", float(value))
 
     def predict(
         self,

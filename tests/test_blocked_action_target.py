@@ -61,9 +61,11 @@ def test_train_regresses_a_blocked_action_to_the_masked_target() -> None:
     with th.no_grad():
         excluded = blocked_actions(data.observations, data.next_observations, data.actions, 2)
         target = dcqn_td_target(
-            model.q_net_target(data.next_observations), data.rewards, data.dones, model.gamma, excluded
+            model.q_net_target.critic_values(data.next_observations), data.rewards, data.dones, model.gamma, excluded
         )
-        taken = model.q_net(data.observations).gather(2, data.actions.long().unsqueeze(0).expand(2, -1, -1))
+        taken = model.q_net.critic_values(data.observations).gather(
+            2, data.actions.long().unsqueeze(0).expand(2, -1, -1)
+        )
     assert excluded.any()
     expected = sum(th.nn.functional.smooth_l1_loss(taken[i], target).item() for i in range(2))
     model.train(gradient_steps=1, batch_size=8)

@@ -131,32 +131,6 @@ def test_dcqn_flags_are_checked() -> None:
         DCQN("MlpPolicy", "CartPole-v1", experience_revision=True, n_steps=3)
     with pytest.raises(ValueError, match="need DCQNReplayBuffer or DCQNDictReplayBuffer"):
         DCQN("MlpPolicy", "CartPole-v1", prioritized_replay=True, replay_buffer_class=ReplayBuffer)
-    with pytest.raises(ValueError, match="trigger 'revision' needs experience_revision"):
-        DCQN("MlpPolicy", "CartPole-v1", adaptation_boost=dict(trigger="revision"))
-    with pytest.raises(ValueError, match=r"unknown key\(s\) \['speed'\]"):
-        DCQN("MlpPolicy", "CartPole-v1", adaptation_boost=dict(trigger="td_error", speed=2))
-    with pytest.raises(ValueError, match="must be one of"):
-        DCQN("MlpPolicy", "CartPole-v1", adaptation_boost=dict(trigger="moon"))
-
-
-def test_a_revision_boosts_exploration_and_the_replay_ratio_for_a_while() -> None:
-    model = DCQN(
-        "MlpPolicy",
-        "CartPole-v1",
-        experience_revision=True,
-        adaptation_boost=dict(trigger="revision", exploration=0.5, replay_ratio=3, steps=100),
-        learning_starts=0,
-        exploration_fraction=0.01,
-        seed=0,
-        policy_kwargs=dict(net_arch=[16]),
-    )
-    model.learn(200)
-    assert not model.boosted and model.exploration_rate == pytest.approx(0.05)
-    model.replay_buffer.revised += 1  # as if a contradiction had just been seen
-    updates = model._n_updates
-    model.learn(40, reset_num_timesteps=False)
-    assert model.boosted and model.exploration_rate == 0.5
-    assert model._n_updates - updates == 3 * 40 // 4  # train_freq 4, three gradient steps each while boosted
 
 
 class DictCartPole(gym.ObservationWrapper):

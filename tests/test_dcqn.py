@@ -10,6 +10,7 @@ import pytest
 import torch as th
 from gymnasium import spaces
 from gymnasium.wrappers import FlattenObservation
+from stable_baselines3 import DQN
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.envs import FakeImageEnv, IdentityEnv
 from stable_baselines3.common.evaluation import evaluate_policy
@@ -83,9 +84,9 @@ def test_train_regresses_both_critics_to_the_shared_min_target() -> None:
     data = model.replay_buffer.sample(8)
     np.random.set_state(state)
     with th.no_grad():
-        next_q = model.q_net_target(data.next_observations)
+        next_q = model.q_net_target.critic_values(data.next_observations)
         target = dcqn_td_target(next_q, data.rewards, data.dones, model.gamma)
-        q = model.q_net(data.observations)
+        q = model.q_net.critic_values(data.observations)
     taken = q.gather(2, data.actions.long().unsqueeze(0).expand(2, -1, -1))
     per_critic = [th.nn.functional.smooth_l1_loss(taken[i], target).item() for i in range(2)]
     assert np.all(np.isfinite(per_critic))
@@ -117,17 +118,38 @@ def test_ensemble_members_are_initialised_independently() -> None:
     assert not th.allclose(first.weight[0], first.weight[1])
 
 
-def test_q_network_returns_one_row_of_q_values_per_critic() -> None:
+def test_critic_values_return_one_row_of_q_values_per_critic() -> None:
     model = DCQN("MlpPolicy", "CartPole-v1", seed=0, **SMALL)
     obs = th.as_tensor(np.stack([model.observation_space.sample() for _ in range(7)]))
-    assert model.q_net(obs).shape == (2, 7, 2)
+    assert model.q_net.critic_values(obs).shape == (2, 7, 2)
+    assert model.q_net_target.critic_values(obs).shape == (2, 7, 2)
+
+
+@pytest.mark.parametrize("network", ["q_net", "q_net_target"])
+def test_q_net_returns_what_dqns_q_net_returns_the_greedy_values(network: str) -> None:
+    # Code written for SB3's DQN: q_net(obs) is (batch, n_actions) and its argmax over dim 1 is the greedy action
+    dqn = DQN("MlpPolicy", "CartPole-v1", seed=0, **SMALL)
+    model = DCQN("MlpPolicy", "CartPole-v1", seed=0, **SMALL)
+    obs = np.stack([model.observation_space.sample() for _ in range(9)])
+    with th.no_grad():
+        dqn_q = getattr(dqn, network)(th.as_tensor(obs))
+        q_values = getattr(model, network)(th.as_tensor(obs))
+        per_critic = getattr(model, network).critic_values(th.as_tensor(obs))
+    assert q_values.shape == dqn_q.shape == (9, 2)
+    th.testing.assert_close(q_values, per_critic.mean(dim=0), rtol=1e-5, atol=1e-6)
+    if network == "q_net":
+        actions, _ = model.predict(obs, deterministic=True)
+        # Ties between the two actions within float noise could break either way
+        chosen = q_values.gather(1, th.as_tensor(actions).long().reshape(-1, 1)).reshape(-1)
+        th.testing.assert_close(chosen, q_values.max(dim=1).values, rtol=0, atol=1e-6)
+        assert (q_values.argmax(dim=1).numpy() == actions).mean() >= 8 / 9
 
 
 def test_greedy_action_maximises_the_mean_of_the_critics() -> None:
     model = DCQN("MlpPolicy", "CartPole-v1", seed=3, **SMALL)
     obs = np.stack([model.observation_space.sample() for _ in range(64)])
     with th.no_grad():
-        q = model.q_net(th.as_tensor(obs))
+        q = model.q_net.critic_values(th.as_tensor(obs))
     mean_q = q.mean(dim=0)
     # The batch tells the rules apart: acting on either critic alone would choose other actions for some observations
     for critic_q in q:
@@ -272,8 +294,8 @@ def test_dict_observations_train_like_their_flattened_twin() -> None:
     probe = {k: np.stack([sample[k] for sample in samples]) for k in probe_env.observation_space}
     flat_probe = np.concatenate([probe["a"], probe["b"]], axis=1)
     with th.no_grad():
-        dict_q = dict_model.q_net(dict_model.policy.obs_to_tensor(probe)[0])
-        flat_q = flat_model.q_net(th.as_tensor(flat_probe))
+        dict_q = dict_model.q_net.critic_values(dict_model.policy.obs_to_tensor(probe)[0])
+        flat_q = flat_model.q_net.critic_values(th.as_tensor(flat_probe))
     # Same weights, inputs concatenated in the same order: float32 rounding at most (Q-values are O(1))
     assert th.allclose(dict_q, flat_q, rtol=1e-5, atol=1e-6)
 

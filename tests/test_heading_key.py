@@ -54,7 +54,7 @@ def test_an_action_scores_what_its_direction_scores_at_every_heading(extractor: 
     model = DCQN("MultiInputPolicy", HeadingEnv(), policy_kwargs=kwargs, seed=0)
     headings = np.arange(4)
     with th.no_grad():
-        q = model.q_net(observations(headings))  # (critics, 4 headings, 4 actions)
+        q = model.q_net.critic_values(observations(headings))  # (critics, 4 headings, 4 actions)
     for h in range(4):
         for a in range(4):
             # Action a at heading h goes the same way as action (a + h) at heading 0. The rows are identical inputs in
@@ -68,7 +68,7 @@ def test_an_action_scores_what_its_direction_scores_at_every_heading(extractor: 
 def test_without_heading_key_the_heading_is_an_input() -> None:
     model = DCQN("MultiInputPolicy", HeadingEnv(), policy_kwargs={"net_arch": [32]}, seed=0)
     with th.no_grad():
-        q = model.q_net(observations(np.arange(4)))
+        q = model.q_net.critic_values(observations(np.arange(4)))
     rotated = th.stack([q[:, h, (np.arange(4) - h) % 4] for h in range(4)], dim=1)
     assert not th.allclose(rotated[:, 0], rotated[:, 1])  # no built-in rotation
 
@@ -81,7 +81,9 @@ def test_heading_key_is_saved_and_loaded(tmp_path: Path) -> None:
     assert loaded.policy.heading_key == "heading" and loaded.q_net.heading_key == "heading"
     obs = observations(np.array([0, 3]))
     with th.no_grad():
-        th.testing.assert_close(loaded.q_net(obs), model.q_net(obs), rtol=0, atol=0)  # the same stored numbers
+        th.testing.assert_close(
+            loaded.q_net.critic_values(obs), model.q_net.critic_values(obs), rtol=0, atol=0
+        )  # the same stored numbers
 
 
 def test_a_bad_heading_key_is_refused() -> None:

@@ -54,9 +54,11 @@ def test_train_regresses_both_critics_to_the_first_target_critic() -> None:
     data = model.replay_buffer.sample(16)
     np.random.set_state(state)
     with th.no_grad():
-        next_q = model.q_net_target(data.next_observations)
+        next_q = model.q_net_target.critic_values(data.next_observations)
         target = data.rewards + model.gamma * next_q[0].max(dim=1).values.reshape(-1, 1)
-        taken = model.q_net(data.observations).gather(2, data.actions.long().unsqueeze(0).expand(2, -1, -1))
+        taken = model.q_net.critic_values(data.observations).gather(
+            2, data.actions.long().unsqueeze(0).expand(2, -1, -1)
+        )
     expected = sum(th.nn.functional.smooth_l1_loss(taken[i], target).item() for i in range(2))
     model.train(gradient_steps=1, batch_size=16)
     assert model.logger.name_to_value["train/loss"] == pytest.approx(expected, rel=1e-5)
