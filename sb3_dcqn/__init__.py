@@ -1,7 +1,8 @@
 """DCQN (double-critic deep Q-learning) for Stable-Baselines3."""
 
-from sb3_dcqn.dcqn import DCQN, dcqn_td_target
+from sb3_dcqn.dcqn import DCQN
 from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
+from sb3_dcqn.targets import blocked_actions, dcqn_td_target
 
 __version__ = "0.1.0"
 
@@ -13,5 +14,6 @@ __all__ = [
     "MultiInputPolicy",
     "TwinQNetwork",
     "__version__",
+    "blocked_actions",
     "dcqn_td_target",
 ]

@@ -7,7 +7,7 @@ import pytest
 import torch as th
 
 from sb3_dcqn import DCQN, dcqn_td_target
-from sb3_dcqn.dcqn import blocked_actions
+from sb3_dcqn.targets import blocked_actions
 
 
 def test_the_mask_marks_the_taken_action_of_rows_whose_observation_did_not_change() -> None:
