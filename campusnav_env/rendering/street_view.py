@@ -5,8 +5,8 @@ The camera is a horizontal pinhole camera standing at the intersection (``eye_he
 horizontal field of view, like a street-view car. View ``d`` of a node (``d`` = 0 N, 1 E, 2 S, 3 W, the node's compass
 slots, :mod:`campusnav_env.maps.compass`) looks along the *view bearing* of that slot: the initial bearing of the road
 in slot ``d`` (``RoadGraph.slot_bearings``), or the slot's compass bearing 0/90/180/270 where the slot is empty (see
-:func:`view_bearings`). So the road seen straight ahead in view ``d`` is always the road that the action pointing to
-slot ``d`` takes, even where a road sits far from its slot's compass bearing. One shared
+:func:`~campusnav_env.maps.compass.view_bearings`). So the road seen straight ahead in view ``d`` is always the road
+that the action pointing to slot ``d`` takes, even where a road sits far from its slot's compass bearing. One shared
 :class:`~campusnav_env.rendering.world.World` supplies every view, so the same building seen from two intersections
 looks related.
 
@@ -41,16 +41,12 @@ from collections import OrderedDict
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, fields
 from functools import partial
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
-from campusnav_env.maps.compass import SLOT_BEARINGS
+from campusnav_env.maps.compass import view_bearings
 from campusnav_env.rendering.world import SpatialIndex, World, footprint_walls
-
-if TYPE_CHECKING:
-    from campusnav_env.maps.road_graph import RoadGraph
 
 __all__ = [
     "BARRIER_OFFSET",
@@ -58,7 +54,7 @@ __all__ = [
     "RENDERER_VERSION",
     "RenderSettings",
     "StreetViewRenderer",
-    "view_bearings",
+    "view_bearings",  # moved to campusnav_env.maps.compass, still importable from here
 ]
 
 # Bump when the drawing changes: feature caches key on RenderSettings.key().
@@ -234,32 +230,11 @@ class _View:
     wall_of_pixel: np.ndarray  # (height, width) int32 id of the wall each pixel shows (-1: none)
 
 
-def view_bearings(graph: RoadGraph) -> np.ndarray:
-    """
-    The bearing each view of each node looks along (degrees clockwise from north, in ``[0, 360)``).
-
-    View ``d`` of a node looks along the initial bearing of the road in compass slot ``d`` (its first non-degenerate
-    polyline segment leaving the node, ``graph.slot_bearings``), so that what the agent sees ahead in view ``d`` is the
-    road that the action pointing to slot ``d`` takes; an empty slot keeps its compass bearing ``90 * d``. Graphs
-    without compass slots (built from scene files, ``slot_bearings`` is ``None``) get the compass bearings everywhere.
-
-    :param graph: The road network
-    :return: ``(N, 4)`` float64 array, read-only
-    """
-    if graph.slot_bearings is None:
-        bearings = np.tile(SLOT_BEARINGS, (graph.n_nodes, 1))
-    else:
-        bearings = np.array(graph.slot_bearings, dtype=np.float64)
-        if bearings.shape != (graph.n_nodes, 4):
-            raise ValueError(f"slot_bearings must have shape ({graph.n_nodes}, 4), got {bearings.shape}")
-    bearings.flags.writeable = False
-    return bearings
-
-
 class StreetViewRenderer:
     """
     Draws the four views at every intersection of a :class:`~campusnav_env.rendering.world.World`, view ``d``
-    looking along the road in compass slot ``d`` (``view_bearings[node, d]``, see :func:`view_bearings`).
+    looking along the road in compass slot ``d`` (``view_bearings[node, d]``, see
+    :func:`~campusnav_env.maps.compass.view_bearings`).
 
     :param world: The scene (see :func:`~campusnav_env.rendering.world.build_world`)
     :param settings: Camera and appearance settings; ``None`` = defaults
