@@ -46,7 +46,21 @@ import cv2
 import numpy as np
 
 from campusnav_env.maps.compass import view_bearings
-from campusnav_env.rendering.world import SpatialIndex, World, footprint_walls
+from campusnav_env.rendering.palette import (
+    ASPHALT_RGB,
+    BARRIER_LEG_RGB,
+    BARRIER_RED_RGB,
+    BARRIER_WHITE_RGB,
+    CAR_PALETTE,
+    CONE_ORANGE_RGB,
+    GRASS_RGB,
+    LIT_WINDOW_RGB,
+    MARKING_RGB,
+    SIDEWALK_RGB,
+    TRUNK_RGB,
+)
+from campusnav_env.rendering.scene import World, footprint_walls
+from campusnav_env.rendering.spatial_index import SpatialIndex
 
 __all__ = [
     "BARRIER_OFFSET",
@@ -75,27 +89,6 @@ BARRIER_NEAR = 1.0  # barrier parts nearer to the camera than this are clipped (
 BARRIER_TOP = 2.75  # top of the "ROAD CLOSED" sign above the road (m)
 BARRIER_RAILS = ((0.4, 0.75), (0.9, 1.25), (1.4, 1.75))  # (bottom, top) of the striped boards (m)
 BARRIER_TEXELS_PER_M = 64  # barrier texture resolution: sharp at 640x480 down to about 5 m away
-
-GRASS_RGB = (104, 138, 74)
-ASPHALT_RGB = (82, 82, 86)
-SIDEWALK_RGB = (178, 174, 166)
-MARKING_RGB = (236, 236, 226)
-TRUNK_RGB = (92, 70, 52)
-LIT_WINDOW_RGB = (255, 212, 140)
-BARRIER_RED_RGB = (206, 28, 34)
-BARRIER_WHITE_RGB = (246, 246, 240)
-CONE_ORANGE_RGB = (250, 96, 10)
-BARRIER_LEG_RGB = (226, 226, 222)
-CAR_PALETTE = (
-    (235, 235, 235),
-    (30, 30, 34),
-    (170, 172, 176),
-    (176, 30, 36),
-    (36, 70, 150),
-    (96, 100, 104),
-    (40, 90, 60),
-    (210, 170, 60),
-)
 
 
 @dataclass(frozen=True)
