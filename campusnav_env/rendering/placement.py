@@ -1,6 +1,13 @@
 """
-How :func:`~campusnav_env.rendering.world.build_world` places things: road clearance queries, an occupancy raster that
-keeps footprints apart, district styles, and the shapes it places (rectangles, pitch lines).
+The placement steps of :func:`~campusnav_env.rendering.world.build_world`, in the order it runs them:
+
+1. :func:`place_landmarks`: a building (or a sports field and a monument sign) per landmark, claimed first.
+2. :func:`place_parks`: a few lawns with trees, where no road crosses.
+3. :func:`place_buildings`: rows of ordinary buildings along the roads, styled by district.
+4. :func:`place_street_trees`: trees on the verges.
+
+They share a :class:`PlacementSite`: the random stream, exact distance queries to the roads and an occupancy raster
+that keeps footprints apart.
 """
 
 from __future__ import annotations
@@ -13,10 +20,29 @@ import cv2
 import numpy as np
 
 from campusnav_env.maps.geometry import point_segment_distances, polygon_segment_distances
+from campusnav_env.rendering.palette import (
+    CROWN_PALETTE,
+    FACADE_PALETTE,
+    PARK_GREEN,
+    ROOF_PALETTE,
+    SPORTS_GREEN,
+    WINDOW_PALETTE,
+    landmark_colour,
+)
+from campusnav_env.rendering.scene import ROAD_WIDTH, SIDEWALK_WIDTH, VERGE_WIDTH, Building, Field, Sign, Tree
 from campusnav_env.rendering.spatial_index import SpatialIndex
 
 if TYPE_CHECKING:
     from campusnav_env.maps.road_graph import RoadGraph
+
+__all__ = [
+    "DISTRICT_STYLES",
+    "PlacementSite",
+    "place_buildings",
+    "place_landmarks",
+    "place_parks",
+    "place_street_trees",
+]
 
 _FIELD_WORDS = ("field", "park", "green", "quad", "garden")
 
@@ -255,3 +281,303 @@ def _ccw(polygon: np.ndarray) -> np.ndarray:
     x, y = polygon[:, 0], polygon[:, 1]
     area = 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
     return polygon if area > 0 else polygon[::-1].copy()
+
+
+@dataclass(frozen=True)
+class PlacementSite:
+    """
+    What the placement steps share: the graph, the random stream, the area, and the ground already taken.
+
+    The steps draw from ``rng`` in a fixed order (landmarks, parks, buildings, street trees) and claim ground in
+    ``occupancy``, so the same graph and seed always give the same world.
+
+    :param graph: The road network
+    :param rng: The placement's random stream
+    :param lo: Lower corner of the area (m), 150 m beyond the roads
+    :param hi: Upper corner of the area (m)
+    :param clearance: Distance from a road centreline that buildings never enter (m)
+    :param clear: Distance queries to the roads
+    :param occupancy: Ground already taken by footprints, fields and parks
+    """
+
+    graph: RoadGraph
+    rng: np.random.Generator
+    lo: np.ndarray
+    hi: np.ndarray
+    clearance: float
+    clear: _RoadClearance
+    occupancy: _Occupancy
+
+    @classmethod
+    def around(cls, graph: RoadGraph, seed: int) -> PlacementSite:
+        """The empty site around ``graph`` with the random stream of ``seed``."""
+        positions = np.asarray(graph.positions, dtype=np.float64)
+        seg_a, seg_b = _road_segments(graph)
+        all_pts = np.concatenate([positions, seg_a, seg_b]) if len(seg_a) else positions
+        lo = all_pts.min(axis=0) - 150.0
+        hi = all_pts.max(axis=0) + 150.0
+        return cls(
+            graph=graph,
+            rng=np.random.default_rng([int(seed), 0xCA4905]),
+            lo=lo,
+            hi=hi,
+            clearance=ROAD_WIDTH / 2 + VERGE_WIDTH + SIDEWALK_WIDTH,
+            clear=_RoadClearance(graph),
+            occupancy=_Occupancy(lo, hi),
+        )
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``(N, 2)`` intersection positions (m)."""
+        return np.asarray(self.graph.positions, dtype=np.float64)
+
+    @property
+    def area_km2(self) -> float:
+        """Size of the area (km^2): the number of parks and districts grows with it."""
+        return float(np.prod(self.hi - self.lo)) / 1e6
+
+
+def place_landmarks(site: PlacementSite) -> tuple[list[Building], list[Field], list[Sign]]:
+    """
+    Step 1: every landmark claims its ground first, so that it always exists: a building in a distinctive colour in
+    the widest free sector at its intersection, front facing it; a sports field with a monument sign by the road for
+    names that say field/park/green.
+
+    :return: ``(buildings, fields, signs)`` of the landmarks
+    """
+    buildings: list[Building] = []
+    fields: list[Field] = []
+    signs: list[Sign] = []
+    graph, rng, clearance = site.graph, site.rng, site.clearance
+    positions = site.positions
+    for name, node in sorted(graph.landmarks.items(), key=lambda kv: (kv[1], kv[0])):
+        pos = positions[node]
+        bearing = _widest_gap_bearing(_incident_bearings(graph, node))
+        if _is_field_name(name):
+            placed = _place_outward(pos, bearing, 120.0, 80.0, site.clear, site.occupancy, clearance + 3.0)
+            if placed is None:
+                continue
+            poly, _ = placed
+            # Long side first so that the pitch lines run along it.
+            poly = (
+                poly if np.linalg.norm(poly[1] - poly[0]) >= np.linalg.norm(poly[3] - poly[0]) else poly[[1, 2, 3, 0]]
+            )
+            fields.append(Field(poly, SPORTS_GREEN, kind="sports", name=name, lines=_pitch_lines(poly)))
+            sign_pos = pos + _unit(bearing) * (clearance + 1.5)
+            if site.clear.point_distances(sign_pos[None])[0] > ROAD_WIDTH / 2 + VERGE_WIDTH:
+                signs.append(Sign(sign_pos, name, bearing=(bearing + 180.0) % 360.0, width=max(6.0, 0.75 * len(name))))
+            continue
+        big = name.lower() in ("stadium", "hospital", "train station")
+        width, depth = (70.0, 50.0) if big else (46.0, 30.0)
+        placed = _place_outward(pos, bearing, width, depth, site.clear, site.occupancy, clearance + 1.0)
+        if placed is None:
+            continue
+        poly, _ = placed
+        buildings.append(
+            Building(
+                footprint=poly,
+                height=float(rng.uniform(16.0, 28.0)),
+                facade_rgb=landmark_colour(name),
+                window_rgb=(38, 46, 58),
+                roof_rgb=(80, 80, 84),
+                floor_height=4.0,
+                window_spacing=float(rng.uniform(3.0, 4.0)),
+                window_width=float(rng.uniform(0.45, 0.7)),
+                window_height=0.55,
+                name=name,
+                node=int(node),
+                sign_wall=0,
+            )
+        )
+    return buildings, fields, signs
+
+
+def place_parks(site: PlacementSite) -> tuple[list[Field], list[Tree]]:
+    """
+    Step 2: a few lawns with trees (about 0.6 per km^2, at least one), in places no road crosses.
+
+    :return: ``(fields, trees)`` of the parks
+    """
+    rng, lo, hi = site.rng, site.lo, site.hi
+    fields: list[Field] = []
+    trees: list[Tree] = []
+    n_parks = max(1, round(site.area_km2 * 0.6))
+    for _ in range(n_parks):
+        for _attempt in range(40):
+            center = rng.uniform(lo + 150.0, hi - 150.0)
+            w, d = rng.uniform(70.0, 140.0), rng.uniform(50.0, 100.0)
+            along = _unit(float(rng.uniform(0.0, 180.0)))
+            poly = _rectangle(center, along, w, d)
+            if site.clear.polygon_distances(poly[None])[0] <= site.clearance + 2.0:
+                continue
+            if not site.occupancy.try_place(poly, 3.0):
+                continue
+            fields.append(Field(poly, PARK_GREEN, kind="park"))
+            n_trees = int(w * d / 450.0)
+            local = rng.uniform(-0.42, 0.42, size=(n_trees, 2)) * [w, d]
+            across = np.array([-along[1], along[0]])
+            for p in center + local[:, :1] * along + local[:, 1:] * across:
+                trees.append(
+                    Tree(
+                        p,
+                        radius=float(rng.uniform(2.5, 4.5)),
+                        height=float(rng.uniform(7.0, 13.0)),
+                        crown_rgb=CROWN_PALETTE[int(rng.integers(len(CROWN_PALETTE)))],
+                    )
+                )
+            break
+    return fields, trees
+
+
+def place_buildings(site: PlacementSite) -> list[Building]:
+    """
+    Step 3: ordinary buildings in rows along both sides of every road segment (:func:`_building_lots`), clear of the
+    roads and of each other. Their style follows the district they stand in (nearest of a few random district
+    centres), so that nearby streets look alike, as on a real campus.
+
+    :return: The buildings
+    """
+    rng = site.rng
+    n_districts = max(len(DISTRICT_STYLES), round(site.area_km2 * 1.6))
+    districts = rng.uniform(site.lo, site.hi, size=(n_districts, 2))
+    district_style = np.arange(n_districts) % len(DISTRICT_STYLES)
+    rng.shuffle(district_style)
+    polys, tiers = _building_lots(site)
+    buildings: list[Building] = []
+    if len(polys) == 0:
+        return buildings
+    filled = np.where(np.isnan(polys), polys[:, :1, :], polys)  # repeat vertex 0 for the padded rectangles
+    ok = site.clear.polygon_distances(filled) > site.clearance + 0.5
+    order = np.lexsort((rng.random(len(polys)), tiers))  # the front row first
+    for i in order:
+        if not ok[i]:
+            continue
+        poly = polys[i][~np.isnan(polys[i, :, 0])]
+        if not site.occupancy.try_place(poly, 3.0):
+            continue
+        style = DISTRICT_STYLES[district_style[_nearest(districts, poly.mean(axis=0))]]
+        if rng.random() < 0.2:  # a fifth of the buildings ignore their district: campuses are never uniform
+            style = DISTRICT_STYLES[int(rng.integers(len(DISTRICT_STYLES)))]
+        low, high = style.heights
+        ribbon = rng.random() < style.ribbon_share
+        buildings.append(
+            Building(
+                footprint=_ccw(poly),
+                height=float(np.clip(low + (high - low) * rng.beta(1.3, 2.2), 6.0, 40.0)),
+                facade_rgb=FACADE_PALETTE[style.facades[int(rng.integers(len(style.facades)))]],
+                window_rgb=WINDOW_PALETTE[int(rng.integers(len(WINDOW_PALETTE)))],
+                roof_rgb=ROOF_PALETTE[int(rng.integers(len(ROOF_PALETTE)))],
+                floor_height=float(rng.uniform(3.2, 4.0)),
+                window_spacing=float(rng.uniform(2.4, 4.2)),
+                window_width=float(rng.uniform(0.85, 0.95)) if ribbon else float(rng.uniform(0.35, 0.65)),
+                window_height=float(rng.uniform(0.4, 0.65)),
+            )
+        )
+    return buildings
+
+
+def _building_lots(site: PlacementSite) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Candidate footprints in one or two rows (tiers) on both sides of every road segment of 20 m or more, a sixth of
+    them L-shaped, some lots left empty; not yet checked against roads or each other.
+
+    :return: ``(polygons, tiers)``: ``(P, 6, 2)`` footprints (rectangles padded with NaN vertices) and ``(P,)`` tiers
+    """
+    rng, clearance = site.rng, site.clearance
+    cand_polys: list[np.ndarray] = []
+    cand_tier: list[int] = []
+    for geometry in site.graph.geometries:
+        g = np.asarray(geometry, dtype=np.float64)
+        for a, b in itertools.pairwise(g):
+            seg = b - a
+            seg_len = float(np.linalg.norm(seg))
+            if seg_len < 20.0:
+                continue
+            along = seg / seg_len
+            normal = np.array([-along[1], along[0]])
+            for side in (-1.0, 1.0):
+                for tier in (0, 1):
+                    pos = float(rng.uniform(0.0, 12.0))
+                    setback = clearance + float(rng.uniform(2.5, 9.0)) + (tier * rng.uniform(38.0, 55.0))
+                    while True:
+                        w = float(rng.uniform(16.0, 44.0))
+                        d = float(rng.uniform(13.0, 30.0)) if tier == 0 else float(rng.uniform(16.0, 40.0))
+                        if pos + w > seg_len:
+                            break
+                        center = a + along * (pos + w / 2) + side * normal * (setback + d / 2)
+                        poly = _rectangle(center, along, w, d)
+                        if side < 0:  # keep vertex 0-1 on the road side for both sides (for L-shape cut-outs)
+                            poly = poly[[2, 3, 0, 1]]
+                        if rng.random() < 0.25:
+                            # L-shape: cut a back corner (vertices 2..3 are the back wall).
+                            fw, fd = float(rng.uniform(0.35, 0.6)), float(rng.uniform(0.35, 0.6))
+                            p0, p1, p2, p3 = poly
+                            if rng.random() < 0.5:
+                                q = p2 + (p3 - p2) * fw
+                                r = p2 + (p1 - p2) * fd
+                                poly = np.array([p0, p1, r, r + (q - p2), q, p3])
+                            else:
+                                q = p3 + (p2 - p3) * fw
+                                r = p3 + (p0 - p3) * fd
+                                poly = np.array([p0, p1, p2, q, q + (r - p3), r])
+                        else:
+                            poly = np.concatenate(
+                                [poly, np.full((2, 2), np.nan)]
+                            )  # pad to 6 vertices to stack with L-shapes
+                        if rng.random() > 0.18:  # leave some lots empty: lawns and gaps
+                            cand_polys.append(poly)
+                            cand_tier.append(tier)
+                        pos += w + float(rng.uniform(4.0, 14.0))
+    if not cand_polys:
+        return np.zeros((0, 6, 2)), np.zeros(0, dtype=np.int64)
+    return np.stack(cand_polys), np.asarray(cand_tier)
+
+
+def place_street_trees(site: PlacementSite) -> list[Tree]:
+    """
+    Step 4: street trees on the verges every 14 m (70% of the spots), away from intersections, buildings and other
+    roads.
+
+    :return: The trees
+    """
+    rng = site.rng
+    positions = site.positions
+    tree_pts = []
+    offset = ROAD_WIDTH / 2 + VERGE_WIDTH / 2 + 0.2
+    for geometry in site.graph.geometries:
+        g = np.asarray(geometry, dtype=np.float64)
+        seg_lens = np.linalg.norm(np.diff(g, axis=0), axis=1)
+        total = float(seg_lens.sum())
+        if total < 40.0:
+            continue
+        s = np.arange(16.0 + rng.uniform(0, 6), total - 16.0, 14.0)
+        cum = np.concatenate([[0.0], np.cumsum(seg_lens)])
+        k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg_lens) - 1)
+        t = (s - cum[k]) / np.maximum(seg_lens[k], 1e-9)
+        along = (g[k + 1] - g[k]) / np.maximum(seg_lens[k], 1e-9)[:, None]
+        normal = np.stack([-along[:, 1], along[:, 0]], axis=1)
+        base = g[k] + t[:, None] * (g[k + 1] - g[k])
+        for side in (-1.0, 1.0):
+            pts = base + side * normal * offset
+            keep = rng.random(len(pts)) < 0.7
+            tree_pts.append(pts[keep])
+    trees: list[Tree] = []
+    if not tree_pts:
+        return trees
+    pts = np.concatenate(tree_pts)
+    far_from_nodes = np.ones(len(pts), dtype=bool)
+    node_index = SpatialIndex(positions, positions, cell=64.0)
+    pid, nid = node_index.pairs(pts, 18.0)
+    close = np.linalg.norm(pts[pid] - positions[nid], axis=1) < 18.0
+    far_from_nodes[pid[close]] = False
+    ok = far_from_nodes & (site.clear.point_distances(pts) > ROAD_WIDTH / 2 + 0.6) & site.occupancy.free(pts)
+    for p in pts[ok]:
+        trees.append(
+            Tree(
+                p,
+                radius=float(rng.uniform(2.0, 3.6)),
+                height=float(rng.uniform(6.0, 11.0)),
+                crown_rgb=CROWN_PALETTE[int(rng.integers(len(CROWN_PALETTE)))],
+            )
+        )
+    return trees
