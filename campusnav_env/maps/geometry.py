@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["point_segment_distances", "polygon_segment_distances", "segment_segment_distances"]
+__all__ = ["point_segment_distances", "points_along", "polygon_segment_distances", "segment_segment_distances"]
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -52,3 +52,17 @@ def polygon_segment_distances(polygons: np.ndarray, a: np.ndarray, b: np.ndarray
     x_at = v1[..., 0] + (py - y1) * (v2[..., 0] - v1[..., 0]) / np.where(y2 == y1, 1.0, y2 - y1)
     inside = (straddle & (px < x_at)).sum(axis=1) % 2 == 1
     return np.where(inside, 0.0, dist)
+
+
+def points_along(polyline: np.ndarray, cumulative: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """
+    Points at arc lengths ``s`` along a polyline (clamped to its first and last segment beyond its ends).
+
+    :param polyline: ``(k, 2)`` vertices, ``k >= 2``
+    :param cumulative: ``(k,)`` arc length at each vertex (0 first)
+    :param s: ``(n,)`` arc lengths
+    :return: ``(n, 2)`` points
+    """
+    k = np.clip(np.searchsorted(cumulative, s, side="right") - 1, 0, len(polyline) - 2)
+    t = (s - cumulative[k]) / np.maximum(cumulative[k + 1] - cumulative[k], 1e-9)
+    return polyline[k] + t[:, None] * (polyline[k + 1] - polyline[k])

@@ -21,6 +21,8 @@ __all__ = [
     "CONE_ORANGE_RGB",
     "CROWN_PALETTE",
     "FACADE_PALETTE",
+    "FACADE_SIGN_INK_RGB",
+    "FACADE_SIGN_RGB",
     "GRASS_RGB",
     "LANDMARK_COLOURS",
     "LIT_WINDOW_RGB",
@@ -65,6 +67,9 @@ FACADE_PALETTE: tuple[RGB, ...] = (
 )
 WINDOW_PALETTE: tuple[RGB, ...] = ((52, 64, 80), (70, 92, 112), (40, 48, 56), (96, 120, 136), (60, 80, 76))
 ROOF_PALETTE: tuple[RGB, ...] = ((90, 90, 92), (110, 104, 98), (70, 72, 76))
+# Landmark names on their walls
+FACADE_SIGN_RGB: RGB = (240, 238, 228)
+FACADE_SIGN_INK_RGB: RGB = (24, 24, 28)
 # Tree crowns and open fields
 CROWN_PALETTE: tuple[RGB, ...] = ((52, 96, 40), (64, 110, 46), (44, 84, 44), (78, 118, 52), (58, 92, 34))
 SPORTS_GREEN: RGB = (76, 150, 60)
