@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from campusnav_env.maps.campus import default_campus, generate_campus
-from campusnav_env.maps.compass import SLOT_BEARINGS
+from campusnav_env.maps.compass import SLOT_BEARINGS, view_bearings
 from campusnav_env.maps.road_graph import RoadGraph
-from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer, view_bearings
+from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
 from campusnav_env.rendering.world import World, build_world
 
 TINY = RenderSettings(width=16, height=16)

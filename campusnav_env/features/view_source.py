@@ -16,8 +16,10 @@ import numpy as np
 from campusnav_env.features.encoders import ViewEncoder, make_encoder
 from campusnav_env.features.feature_cache import cached_view_features
 from campusnav_env.maps.road_graph import RoadGraph
-from campusnav_env.rendering.street_view import BARRIER_VERSION, RenderSettings, StreetViewRenderer
-from campusnav_env.rendering.world import WORLD_VERSION, build_world
+from campusnav_env.rendering.barriers import BARRIER_VERSION
+from campusnav_env.rendering.scene import WORLD_VERSION
+from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
+from campusnav_env.rendering.world import build_world
 
 __all__ = ["IMAGE_MODE_VIEW", "ViewSource"]
 

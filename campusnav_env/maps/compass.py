@@ -1,5 +1,6 @@
 """
-Compass conventions: headings, heading-relative actions, bearings and the rule that gives each road a compass slot.
+Compass conventions: headings, heading-relative actions, bearings, the rule that gives each road a compass slot and
+the bearing each view looks along.
 
 **Compass slots.** Every intersection has four compass slots, ``0 = N, 1 = E, 2 = S, 3 = W`` (bearings 0, 90, 180 and
 270 degrees clockwise from north, ``bearing = degrees(atan2(dx, dy)) % 360``). Each road leaving an intersection
@@ -18,13 +19,20 @@ heading, and no road is ever lost to a crowded sector.
 
 **Actions.** ``FORWARD, RIGHT, BACK, LEFT = 0, 1, 2, 3``, relative to the heading: from ``(node, heading h)`` action
 ``a`` takes the road in slot ``(h + a) % 4``.
+
+**View bearings.** View ``d`` of a node looks along the initial bearing of the road in slot ``d``, or along the slot's
+compass bearing where the slot is empty (:func:`view_bearings`), so the road seen ahead is the road the action takes.
 """
 
 from __future__ import annotations
 
 import itertools
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from campusnav_env.maps.road_graph import RoadGraph
 
 __all__ = [
     "ACTION_NAMES",
@@ -38,6 +46,7 @@ __all__ = [
     "bearing_degrees",
     "compass_slots",
     "initial_bearing",
+    "view_bearings",
 ]
 
 FORWARD, RIGHT, BACK, LEFT = 0, 1, 2, 3
@@ -109,3 +118,25 @@ def compass_slots(bearings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     slots = np.empty((n_rows, k), dtype=np.int64)
     np.put_along_axis(slots, order, maps[choice], axis=1)
     return slots, best[:, 0]
+
+
+def view_bearings(graph: RoadGraph) -> np.ndarray:
+    """
+    The bearing each view of each node looks along (degrees clockwise from north, in ``[0, 360)``).
+
+    View ``d`` of a node looks along the initial bearing of the road in compass slot ``d`` (its first non-degenerate
+    polyline segment leaving the node, ``graph.slot_bearings``), so that what the agent sees ahead in view ``d`` is the
+    road that the action pointing to slot ``d`` takes; an empty slot keeps its compass bearing ``90 * d``. Graphs
+    without compass slots (built from scene files, ``slot_bearings`` is ``None``) get the compass bearings everywhere.
+
+    :param graph: The road network
+    :return: ``(N, 4)`` float64 array, read-only
+    """
+    if graph.slot_bearings is None:
+        bearings = np.tile(SLOT_BEARINGS, (graph.n_nodes, 1))
+    else:
+        bearings = np.array(graph.slot_bearings, dtype=np.float64)
+        if bearings.shape != (graph.n_nodes, 4):
+            raise ValueError(f"slot_bearings must have shape ({graph.n_nodes}, 4), got {bearings.shape}")
+    bearings.flags.writeable = False
+    return bearings

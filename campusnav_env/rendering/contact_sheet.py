@@ -2,7 +2,7 @@
 Contact sheet of street views: the N/E/S/W views of a few intersections above the map, as one PNG.
 
 Each view is labelled with its compass slot and the bearing it looks along (the road in that slot, see
-:func:`~campusnav_env.rendering.street_view.view_bearings`), e.g. ``E 034``.
+:func:`~campusnav_env.maps.compass.view_bearings`), e.g. ``E 034``.
 
 Command line (console script ``campusnav-views``)::
 

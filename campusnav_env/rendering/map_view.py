@@ -15,9 +15,9 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from campusnav_env.maps.compass import view_bearings
 from campusnav_env.maps.navigation import NavigationGraph
-from campusnav_env.rendering.street_view import view_bearings
-from campusnav_env.rendering.world import landmark_colour
+from campusnav_env.rendering.palette import landmark_colour
 
 if TYPE_CHECKING:
     from campusnav_env.maps.road_graph import RoadGraph
