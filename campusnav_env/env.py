@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from campusnav_env.features.encoders import ViewEncoder
+from campusnav_env.features.encoders import ThumbnailEncoder, ViewEncoder
 from campusnav_env.features.projection import FeatureTransform
 from campusnav_env.features.view_source import ViewSource
 from campusnav_env.maps.campus import default_campus
@@ -21,6 +21,8 @@ from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.rendering.street_view import RenderSettings
 
 OBSERVATION_MODES = ("features", "image")
+# (height, width) of the image observations made from a scene file's stored images
+SCENE_THUMBNAIL = (48, 64)
 # Cheap settings for image mode: thumbnails are all the policy sees, so render small views directly
 
 
@@ -197,7 +199,11 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         scene = load_scene_file(path)
         if observation_mode == "image" and scene.node_images is None:
             raise ValueError(f"{path}: image mode needs the 'observation' dataset, which this file lacks")
-        node_views = scene.node_images if observation_mode == "image" else scene.node_features
+        node_views = scene.node_features
+        if observation_mode == "image":
+            images = scene.node_images
+            thumbnails = ThumbnailEncoder(*SCENE_THUMBNAIL).encode(images.reshape(-1, *images.shape[2:]))
+            node_views = thumbnails.reshape(*images.shape[:2], *thumbnails.shape[1:])
         env = cls.__new__(cls)
         graph = NavigationGraph(scene.graph)
         env._init_core(graph, goals, observation_mode, node_views, normalize_features, view_dim, render_mode)

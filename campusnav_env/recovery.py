@@ -14,8 +14,10 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from campusnav_env.route_evaluation import RouteReport
+if TYPE_CHECKING:  # plain records: the evaluation (and the env behind it) is not imported at run time
+    from campusnav_env.route_evaluation import RouteReport
 
 __all__ = [
     "DEFAULT_SPL_THRESHOLD",

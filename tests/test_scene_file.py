@@ -64,7 +64,7 @@ def test_loads_states_as_locations_with_compass_views(tmp_path: Path) -> None:
     scene = load_scene_file(path)
     assert scene.graph.n_states == n_states and scene.graph.n_nodes == 9
     assert scene.node_features.shape == (9, 4, 32)  # 3 crops averaged
-    assert scene.node_images.shape == (9, 4, 3, 48, 64)
+    assert scene.node_images.shape == (9, 4, 30, 40, 3)  # the file's images, per location and compass slot
     assert len(scene.graph.roads) == 12  # a 3 x 3 grid has 12 edges
 
 

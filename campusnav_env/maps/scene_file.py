@@ -21,20 +21,19 @@ from pathlib import Path
 
 import numpy as np
 
-from campusnav_env.features.encoders import ThumbnailEncoder
 from campusnav_env.maps.road_graph import RoadGraph
 
 REQUIRED_DATASETS = ("graph", "location", "rotation", "resnet_feature")
-_THUMBNAIL = (48, 64)
 
 
 class Scene:
     """
-    A loaded scene file: its road graph plus per-node view features (and thumbnails when the file has images).
+    A loaded scene file: its road graph plus per-node view features (and images when the file has them).
 
     :param graph: The scene's states and transitions as a road graph
     :param node_features: ``(N, 4, D)`` features of each location's views in compass order (zeros where missing)
-    :param node_images: ``(N, 4, 3, h, w)`` uint8 thumbnails in the same order, or ``None``
+    :param node_images: ``(N, 4, H, W, 3)`` uint8 images as stored, in the same order (zeros where missing), or
+        ``None``
     """
 
     def __init__(self, graph: RoadGraph, node_features: np.ndarray, node_images: np.ndarray | None) -> None:
@@ -54,7 +53,7 @@ def load_scene_file(path: str | Path) -> Scene:
     Load a Zhu et al.-format HDF5 scene file.
 
     :param path: The ``.h5`` file
-    :return: the scene (graph, per-node features in compass order, thumbnails if the file has images)
+    :return: the scene (graph, per-node features in compass order, images if the file has them)
     :raises FileNotFoundError: no such file
     :raises KeyError: a required dataset is missing (named)
     :raises ValueError: datasets with inconsistent shapes or transitions to states that do not exist
@@ -106,8 +105,5 @@ def load_scene_file(path: str | Path) -> Scene:
         )
     except ValueError as error:
         raise ValueError(f"{path}: {error}") from error
-    node_images = None
-    if images is not None:
-        thumbnails = ThumbnailEncoder(height=_THUMBNAIL[0], width=_THUMBNAIL[1]).encode(images.astype(np.uint8))
-        node_images = _per_node_views(graph, thumbnails)
+    node_images = None if images is None else _per_node_views(graph, images.astype(np.uint8))
     return Scene(graph, _per_node_views(graph, features), node_images)
