@@ -25,7 +25,7 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from report import command_line, write_results  # benchmarks/report.py, beside this script
+from report import command_line, markdown_table, table_row, write_results  # benchmarks/report.py, beside this script
 from stable_baselines3 import DQN
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
@@ -77,13 +77,30 @@ class Config:
     net_arch: tuple[int, ...]
     batch_size: int
     policy: str = "MlpPolicy"
-    extractor: dict[str, Any] = field(default_factory=dict)  # features extractor policy_kwargs, same for both
+    extractor: dict[str, Any] = field(default_factory=dict)  # policy_kwargs given to both (features extractor, ...)
     dcqn_only: dict[str, Any] = field(default_factory=dict)  # DCQN-only policy_kwargs
+    dcqn_options: dict[str, Any] = field(default_factory=dict)  # DCQN-only algorithm options (the levers)
 
+
+# The demo's re-adaptation levers (DQN has none: the row shows what they cost on top of DCQN's step)
+LEVERS = dict(experience_revision=True, blocked_action_target=True, prioritized_replay=True)
+# Both algorithms with the same (fused) Adam: what the second critic costs when the optimizer is the same
+SAME_ADAM = dict(optimizer_kwargs=dict(fused=True))
 
 CONFIGS = (
     Config("CartPole-v1, net [64, 64], batch 64", "CartPole-v1", (64, 64), 64),
+    Config("CartPole-v1, net [256, 256], batch 64", "CartPole-v1", (256, 256), 64),
     Config("CartPole-v1, net [256, 256], batch 128", "CartPole-v1", (256, 256), 128),
+    Config(
+        "CartPole-v1, net [256, 256], batch 64, fused Adam for both", "CartPole-v1", (256, 256), 64, extractor=SAME_ADAM
+    ),
+    Config(
+        "CartPole-v1, net [256, 256], batch 64, DCQN with revision + blocked target + PER",
+        "CartPole-v1",
+        (256, 256),
+        64,
+        dcqn_options=LEVERS,
+    ),
     Config(
         "CampusNav features, fusion 256 (separate per critic), net [256], batch 64",
         "campusnav-features",
@@ -107,8 +124,10 @@ CONFIGS = (
 def make_model(algo: type[OffPolicyAlgorithm], config: Config, seed: int) -> OffPolicyAlgorithm:
     env = RandomObservationEnv(CAMPUSNAV_SPACE) if config.env_id == "campusnav-features" else gym.make(config.env_id)
     policy_kwargs = dict(net_arch=list(config.net_arch), **config.extractor)
+    options = {}
     if algo is DCQN:
         policy_kwargs.update(config.dcqn_only)
+        options = config.dcqn_options
     return algo(
         config.policy,
         env,
@@ -120,6 +139,7 @@ def make_model(algo: type[OffPolicyAlgorithm], config: Config, seed: int) -> Off
         policy_kwargs=policy_kwargs,
         seed=seed,
         device="cpu",
+        **options,
     )
 
 
@@ -179,7 +199,7 @@ def format_cell(column: str, value: float | str) -> str:
 
 
 def format_row(row: dict[str, float | str]) -> str:
-    return "| " + " | ".join(format_cell(c, row[c]) for c in COLUMNS) + " |"
+    return table_row([format_cell(c, row[c]) for c in COLUMNS])
 
 
 def write_markdown(rows: list[dict[str, float | str]], path: Path, args: argparse.Namespace) -> None:
@@ -189,11 +209,10 @@ def write_markdown(rows: list[dict[str, float | str]], path: Path, args: argpars
         f"Machine: {platform.processor() or platform.machine()}, {th.get_num_threads()} torch thread(s), "
         f"torch {th.__version__}; medians of {args.repeats} alternating repeats, "
         f"{args.grad_steps} gradient steps and {args.env_steps} env steps each. "
-        "Ratios > 1 mean DCQN is slower.",
+        "Ratios > 1 mean DCQN is slower. Each algorithm runs with its defaults (DCQN's Adam is fused where torch "
+        "supports it, SB3 DQN's is not) unless the row says otherwise.",
         "",
-        "| " + " | ".join(COLUMNS) + " |",
-        "|" + "---|" * len(COLUMNS),
-        *[format_row(row) for row in rows],
+        *markdown_table(COLUMNS, [[format_cell(c, row[c]) for c in COLUMNS] for row in rows]),
         "",
         command_line("throughput.py", args.argv),
     ]
@@ -214,7 +233,7 @@ def main(argv: list[str] | None = None) -> None:
     configs = CONFIGS[:1] if args.quick else CONFIGS
     if args.quick:
         args.repeats, args.grad_steps, args.env_steps = 1, 20, 200
-    print("| " + " | ".join(COLUMNS) + " |")
+    print(table_row(COLUMNS))
     rows = run(configs, args.repeats, args.grad_steps, args.env_steps)
     write_markdown(rows, args.out, args)
     print(f"wrote {args.out}")

@@ -26,7 +26,9 @@ def _sb3_logs_in_tmp_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> No
 def _library_caches_in_pytest_temp(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     # torch's first optimizer step imports torch._dynamo, which creates <temp dir>/torchinductor_<user>; matplotlib
     # (imported by the RL Zoo) writes its font cache to ~/.cache/matplotlib. Both move unless set by the caller.
-    caches = {"TORCHINDUCTOR_CACHE_DIR": "torchinductor", "MPLCONFIGDIR": "matplotlib"}
+    # SB3_LOGDIR here too: module-scoped fixtures (benchmark runs, the resume test's subprocesses) are set up before
+    # the per-test folder above exists, and each learn() of theirs would leave an SB3-<date> folder in the temp dir.
+    caches = {"TORCHINDUCTOR_CACHE_DIR": "torchinductor", "MPLCONFIGDIR": "matplotlib", "SB3_LOGDIR": "sb3-logs"}
     with pytest.MonkeyPatch.context() as patch:
         for variable, name in caches.items():
             if variable not in os.environ:
