@@ -32,7 +32,9 @@ class DCQN(OffPolicyAlgorithm):
     Paper: Han & Yilmaz, "Dynamic Routing for Navigation in Changing Unknown Maps Using Deep Reinforcement Learning".
     DQN with two online critics and two target critics. Both critics regress (Huber loss, summed) to the same target
     ``r + gamma * (1 - done) * max_a' min(Q1'(s', a'), Q2'(s', a'))``. The greedy action maximises the mean of the
-    two online critics, in ``predict``, in evaluation and in epsilon-greedy exploration alike. The critics' MLPs (and
+    two online critics, in ``predict``, in evaluation and in epsilon-greedy exploration alike: ``model.q_net(obs)``
+    returns that mean, shape ``(batch, n_actions)`` as DQN's ``q_net`` does, and ``model.q_net.critic_values(obs)``
+    every critic's values, ``(n_critics, batch, n_actions)`` (likewise ``q_net_target``). The critics' MLPs (and
     the targets') are evaluated in one batched forward pass; a features extractor with parameters is shared by the
     critics (``policy_kwargs=dict(share_features_extractor=True)``) or run once per critic (the default).
 
