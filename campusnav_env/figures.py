@@ -36,7 +36,7 @@ from campusnav_env.atomic_files import write_png
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph, road_key
 from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation
-from campusnav_env.rendering.map_view import CLOSED_RGB, TEXT_RGB, draw_map
+from campusnav_env.rendering.map_view import CLOSED_RGB, PAGE_RGB, TEXT_RGB, draw_map, title_band
 from campusnav_env.route_evaluation import Route
 
 if TYPE_CHECKING:
@@ -47,7 +47,6 @@ __all__ = ["closure_route_panels", "panel_title", "training_curves", "write_figu
 COMPASS_LETTERS = ("N", "E", "S", "W")
 RECOVERED_RGB = (20, 120, 60)
 BORDER_RGB = (200, 200, 204)
-PAGE_RGB = (255, 255, 255)
 _SHADE = {True: "tab:green", False: "tab:red"}  # training span after a closure: recovered or not
 Road = tuple[int, int]
 
@@ -118,32 +117,6 @@ def _route_steps(route: Route | None) -> str:
     if route is None:
         return "-"
     return f"{route.steps} steps" if route.success else "fails"
-
-
-def _header(width: int, lines: Sequence[tuple[str, tuple[int, int, int]]], scale: float) -> np.ndarray:
-    """
-    A white band with one line of text per entry, shrunk where a line would not fit the width.
-
-    The band's height depends on ``scale`` only, so that panels whose titles were shrunk line up with the others.
-    """
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    pad = max(4, round(8 * scale))
-    rows = []
-    for i, (text, rgb) in enumerate(lines):
-        nominal = scale if i == 0 else scale * 0.85  # the detail line is smaller than the title
-        s, thick = nominal, max(1, round(nominal * 2))
-        # OpenCV renders text in steps of size, so shrink until what it measures fits
-        while cv2.getTextSize(text, font, s, thick)[0][0] > width - 2 * pad and s > 0.15:
-            s *= 0.95
-            thick = max(1, round(s * 2))
-        (_, h), base = cv2.getTextSize("Ag", font, nominal, max(1, round(nominal * 2)))
-        rows.append((text, rgb, s, thick, h + base, base))
-    band = np.full((pad * (len(rows) + 1) + sum(r[4] for r in rows), width, 3), PAGE_RGB, dtype=np.uint8)
-    y = pad
-    for text, rgb, s, thick, height, base in rows:
-        cv2.putText(band, text, (pad, y + height - base), font, s, rgb, thick, cv2.LINE_AA)
-        y += height + pad
-    return band
 
 
 def closure_route_panels(
@@ -251,7 +224,7 @@ def closure_route_panels(
             f"from node {start} facing {COMPASS_LETTERS[heading]} to {goal}: before {_route_steps(before)}, "
             f"after {_route_steps(after)} (shortest now {shortest if shortest >= 0 else '-'})"
         )
-        header = _header(
+        header = title_band(
             image.shape[1],
             [(panel_title(number, recovery), RECOVERED_RGB if recovery.recovered else CLOSED_RGB), (detail, TEXT_RGB)],
             scale=max(0.4, size / 1200),

@@ -22,7 +22,7 @@ from campusnav_env.rendering.world import landmark_colour
 if TYPE_CHECKING:
     from campusnav_env.maps.road_graph import RoadGraph
 
-__all__ = ["ROUTE_COLOURS", "draw_map"]
+__all__ = ["ROUTE_COLOURS", "draw_map", "title_band"]
 
 BACKGROUND_RGB = (246, 245, 240)
 ROAD_RGB = (168, 168, 172)
@@ -32,6 +32,7 @@ PATH_RGB = (30, 100, 220)
 AGENT_RGB = (0, 150, 80)
 GOAL_RGB = (250, 196, 20)
 TEXT_RGB = (30, 30, 34)
+PAGE_RGB = (255, 255, 255)
 # Distinct colours of extra routes (matplotlib's tab10 without the path blue and the closure red).
 ROUTE_COLOURS = (
     (255, 127, 14),
@@ -166,6 +167,32 @@ def _legend_corner(canvas: _Canvas, size: np.ndarray, markers: np.ndarray, landm
         return int(np.sum(np.all((px >= lo) & (px <= hi), axis=1)))
 
     return min(boxes, key=lambda box: (hidden(box, markers), hidden(box, landmarks)))
+
+
+def title_band(width: int, lines: Sequence[tuple[str, tuple[int, int, int]]], scale: float) -> np.ndarray:
+    """
+    A white band with one line of text per entry, shrunk where a line would not fit the width.
+
+    The band's height depends on ``scale`` only, so that panels whose titles were shrunk line up with the others.
+    """
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    pad = max(4, round(8 * scale))
+    rows = []
+    for i, (text, rgb) in enumerate(lines):
+        nominal = scale if i == 0 else scale * 0.85  # the detail line is smaller than the title
+        s, thick = nominal, max(1, round(nominal * 2))
+        # OpenCV renders text in steps of size, so shrink until what it measures fits
+        while cv2.getTextSize(text, font, s, thick)[0][0] > width - 2 * pad and s > 0.15:
+            s *= 0.95
+            thick = max(1, round(s * 2))
+        (_, h), base = cv2.getTextSize("Ag", font, nominal, max(1, round(nominal * 2)))
+        rows.append((text, rgb, s, thick, h + base, base))
+    band = np.full((pad * (len(rows) + 1) + sum(r[4] for r in rows), width, 3), PAGE_RGB, dtype=np.uint8)
+    y = pad
+    for text, rgb, s, thick, height, base in rows:
+        cv2.putText(band, text, (pad, y + height - base), font, s, rgb, thick, cv2.LINE_AA)
+        y += height + pad
+    return band
 
 
 def _star(center: np.ndarray, radius: float) -> np.ndarray:
