@@ -116,6 +116,9 @@ def test_route_pictures_have_a_legend_of_routes_start_goal_closed_roads_and_land
     band = image[round(layout.legend_box[1]) :]
     for colour in (*ROUTE_COLOURS[:2], AGENT_RGB, GOAL_RGB, CLOSED_RGB):
         assert _share(band, colour, tol=6) > 0.0005
+    # A route that never moves has no line to show: the legend says so
+    stuck = map_layout(graph, **{**options, "routes": {**routes, "re-routed": [21, 21, 21]}})
+    assert stuck.legend[1].text == "re-routed (never leaves node 21)"
     # Without labels on the map the legend names the landmarks by colour
     unlabelled = map_layout(graph, **options, labels=False)
     assert [e.text for e in unlabelled.legend if e.symbol == "landmark"] == sorted(graph.landmarks)

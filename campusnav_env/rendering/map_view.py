@@ -285,9 +285,6 @@ class _LabelPlacer:
         self.taken = np.vstack([self.taken, boxes[best] + (-1.0, -1.0, 1.0, 1.0)])  # a pixel of air around text
         return boxes[best], int(ring[best])
 
-    def reserve(self, box: np.ndarray) -> None:
-        self.taken = np.vstack([self.taken, box])
-
 
 def _box_distance(boxes: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Distances ``(n_boxes, n_points)`` from each box ``(x0, y0, x1, y1)`` to each point (0 inside)."""
@@ -391,15 +388,13 @@ def _wrap_title(title: str, width: int, scale: float) -> list[str]:
     """The lines of ``title``; a line too long for ``width`` is broken at its ``" | "`` separators."""
     pad = max(4, round(8 * scale))
     lines: list[str] = []
-    for i, line in enumerate(title.splitlines() or [""]):
-        s = scale if i == 0 and not lines else scale * 0.85
-        thick = max(1, round(s * 2))
+    for line in title.splitlines() or [""]:
         current = ""
         for part in line.split(" | "):
             joined = f"{current} | {part}" if current else part
-            if current and cv2.getTextSize(joined, _FONT, s, thick)[0][0] > width - 2 * pad:
+            s = scale if not lines else scale * 0.85  # the sizes title_band draws
+            if current and cv2.getTextSize(joined, _FONT, s, max(1, round(s * 2)))[0][0] > width - 2 * pad:
                 lines.append(current)
-                s, thick = scale * 0.85, max(1, round(scale * 0.85 * 2))
                 current = part
             else:
                 current = joined
@@ -447,6 +442,64 @@ def _legend_band(width: int, symbols: Sequence[_Symbol], unit: float, scale: flo
         text_box = np.array([x0 + swatch + 4.0 * unit, top, x0 + swatch + 4.0 * unit + text_w, top + text_h])
         _put_text(band, text_box, entry.text, scale, TEXT_RGB, PAGE_RGB)
     return band, boxes
+
+
+def _place_labels(
+    canvas: _Canvas,
+    graph: RoadGraph,
+    nodes_px: np.ndarray,
+    goal_nodes: Sequence[int],
+    agent: int | None,
+    route_picture: bool,
+    labels: bool,
+    node_ids: bool,
+    text_scale: float,
+    id_scale: float,
+) -> list[MapLabel]:
+    """
+    Place the texts, most important first: the start and a goal that is no landmark (route pictures only), the
+    landmark names (the goal's first), the node ids. Boxes are in map pixels.
+    """
+    unit = canvas.unit
+    placer = _LabelPlacer(canvas)
+    placed: list[MapLabel] = []
+    marked = sorted({*goal_nodes, *([] if agent is None else [agent]), *graph.landmarks.values()})
+
+    def place(text: str, kind: str, node: int, scale: float, gap: float, rings: int, leaders: bool) -> None:
+        w, h, _ = _text_box(text, scale)
+        anchor = nodes_px[node]
+        # Names must not look as if they named another marked node, ids another intersection
+        rivals = np.array([n for n in (range(graph.n_nodes) if kind == "node id" else marked) if n != node], dtype=int)
+        box, ring = placer.place(placer.candidates(anchor, w, h, gap, h * 0.9, rings), rings, anchor, nodes_px[rivals])
+        leader = None
+        if leaders and ring >= 2:  # far from its node: a thin line shows which node it names
+            nearest = np.clip(anchor, box[:2], box[2:])
+            start = anchor + (nearest - anchor) * min(1.0, gap * 0.6 / max(np.linalg.norm(nearest - anchor), 1e-9))
+            leader = (float(start[0]), float(start[1]), float(nearest[0]), float(nearest[1]))
+        placed.append(MapLabel(text, kind, node, (float(box[0]), float(box[1]), float(box[2]), float(box[3])), leader))
+
+    if route_picture and agent is not None:
+        place(f"start {agent}", "start", agent, text_scale, 7.5 * unit, 6, True)
+    if route_picture:
+        for node in goal_nodes:
+            if node not in graph.landmarks.values():
+                place(f"goal {node}", "goal", node, text_scale, 7.5 * unit, 6, True)
+    if labels:
+        for name, node in sorted(graph.landmarks.items(), key=lambda item: (item[1] not in goal_nodes, *item[::-1])):
+            big = node in goal_nodes or node == agent
+            place(name, "landmark", node, text_scale, (7.5 if big else 4.5) * unit, 6, True)  # star/arrow > dot
+    if node_ids:
+        for node in range(graph.n_nodes):
+            place(str(node), "node id", node, id_scale, 2.0 * unit, 3, False)
+    return placed
+
+
+def _moved_down(label: MapLabel, by: float) -> MapLabel:
+    x0, y0, x1, y1 = label.box
+    leader = (
+        None if label.leader is None else (label.leader[0], label.leader[1] + by, label.leader[2], label.leader[3] + by)
+    )
+    return MapLabel(label.text, label.kind, label.node, (x0, y0 + by, x1, y1 + by), leader)
 
 
 def draw_map(
@@ -537,7 +590,7 @@ def _draw(
     if agent is not None:
         agent = graph.check_node(agent, "agent")
     route_lines = [
-        (str(name), _route_polyline(graph, list(nodes), f"route {name!r} node"))
+        (str(name), [int(n) for n in nodes], _route_polyline(graph, list(nodes), f"route {name!r} node"))
         for name, nodes in (routes or {}).items()
     ]
     path_line = _route_polyline(graph, list(path), "path node")
@@ -546,11 +599,14 @@ def _draw(
     closed = {graph.road_id(u, v) for u, v in closed_roads}
     canvas.lines([g for i, g in enumerate(graph.geometries) if i not in closed], ROAD_RGB, 2.0 * unit, canvas.soft)
     symbols: list[_Symbol] = []
-    for i, ((name, line), width) in enumerate(zip(route_lines, _route_widths(len(route_lines), unit), strict=True)):
+    widths = _route_widths(len(route_lines), unit)
+    for i, ((name, nodes, line), width) in enumerate(zip(route_lines, widths, strict=True)):
         colour = ROUTE_COLOURS[i % len(ROUTE_COLOURS)]
-        symbols.append(_Symbol("line", name, colour, width))
         if line is not None:
             canvas.lines([line], colour, width, canvas.hard)
+        elif nodes:  # nodes, but no line to see (every move blocked): say so, or the legend names an invisible route
+            name = f"{name} (never leaves node {nodes[0]})"
+        symbols.append(_Symbol("line", name, colour, width))
     if path_line is not None:
         canvas.lines([path_line], PATH_RGB, 2.5 * unit, canvas.hard)
         symbols.append(_Symbol("line", "route so far", PATH_RGB, 2.5 * unit))
@@ -569,44 +625,12 @@ def _draw(
     for node, radius in markers:
         canvas.mask_disc(canvas.hard, nodes_px[node], radius)
 
-    # Text, most important first: start and goal, landmark names (the goal's first), node ids
-    placer = _LabelPlacer(canvas)
-    placed: list[MapLabel] = []
-    text_scale = 0.32 * unit
-
-    def place(text: str, kind: str, node: int, scale: float, gap: float, rings: int, leaders: bool) -> None:
-        w, h, _ = _text_box(text, scale)
-        anchor = nodes_px[node]
-        # Names must not look as if they named another marked node, ids another intersection
-        rivals = np.array([n for n in (range(graph.n_nodes) if kind == "node id" else marked) if n != node], dtype=int)
-        others = nodes_px[rivals].reshape(-1, 2)
-        box, ring = placer.place(placer.candidates(anchor, w, h, gap, h * 0.9, rings), rings, anchor, others)
-        leader = None
-        if leaders and ring >= 2:
-            nearest = np.clip(anchor, box[:2], box[2:])
-            start = anchor + (nearest - anchor) * min(1.0, gap * 0.6 / max(np.linalg.norm(nearest - anchor), 1e-9))
-            leader = (float(start[0]), float(start[1]), float(nearest[0]), float(nearest[1]))
-        placed.append(MapLabel(text, kind, node, tuple(float(v) for v in box), leader))  # type: ignore[arg-type]
-
+    text_scale = max(0.35, 0.32 * unit)  # OpenCV font scales; smaller than these is unreadable
+    id_scale = max(0.3, 0.24 * unit)
     route_picture = routes is not None
-    marked = sorted({*goal_nodes, *([] if agent is None else [agent]), *graph.landmarks.values()})
-    if route_picture and agent is not None:
-        place(f"start {agent}", "start", agent, text_scale, 7.5 * unit, 6, True)
-    landmark_nodes = set(graph.landmarks.values())
-    if route_picture:
-        for node in goal_nodes:
-            if node not in landmark_nodes:
-                place(f"goal {node}", "goal", node, text_scale, 7.5 * unit, 6, True)
-    if labels:
-        for name, node in sorted(
-            graph.landmarks.items(), key=lambda item: (item[1] not in goal_nodes, item[1], item[0])
-        ):
-            big = node in goal_nodes or node == agent
-            gap = (7.5 if big else 4.5) * unit  # the star or arrow is bigger than the dot
-            place(name, "landmark", node, text_scale, gap, 6, True)
-    if node_ids:
-        for node in range(graph.n_nodes):
-            place(str(node), "node id", node, 0.24 * unit, 2.0 * unit, 3, False)
+    placed = _place_labels(
+        canvas, graph, nodes_px, goal_nodes, agent, route_picture, labels, node_ids, text_scale, id_scale
+    )
 
     # Draw: leader lines, landmark dots, goal stars and the agent over the lines, then the text over everything
     for label in placed:
@@ -628,7 +652,7 @@ def _draw(
             _polygon(canvas.image, _triangle(p, ahead, 7.0 * unit), AGENT_RGB)
     for label in placed:
         small = label.kind == "node id"
-        scale, rgb = (0.24 * unit, NODE_ID_RGB) if small else (text_scale, TEXT_RGB)
+        scale, rgb = (id_scale, NODE_ID_RGB) if small else (text_scale, TEXT_RGB)
         _put_text(canvas.image, np.asarray(label.box), label.text, scale, rgb, BACKGROUND_RGB)
 
     # Bands: the title above the map, the legend below it
@@ -666,18 +690,6 @@ def _draw(
         legend_box = (0.0, float(below), float(canvas.width), float(below + band.shape[0]))
         parts.append(band)
     image = np.concatenate(parts) if len(parts) > 1 else canvas.image
-    shifted = [
-        MapLabel(
-            label.text,
-            label.kind,
-            label.node,
-            (label.box[0], label.box[1] + top, label.box[2], label.box[3] + top),
-            None
-            if label.leader is None
-            else (label.leader[0], label.leader[1] + top, label.leader[2], label.leader[3] + top),
-        )
-        for label in placed
-    ]
     layout = MapLayout(
         shape=(int(image.shape[0]), int(image.shape[1])),
         map_box=(0.0, float(top), float(canvas.width), float(top + canvas.height)),
@@ -685,7 +697,7 @@ def _draw(
         title_box=title_box,
         legend=tuple(legend),
         legend_box=legend_box,
-        labels=tuple(shifted),
+        labels=tuple(_moved_down(label, top) for label in placed),
         nodes=nodes_px + np.array([0.0, top]),
     )
     return image, layout
