@@ -3,7 +3,9 @@ Figures of the dynamic-routing experiments, as RGB images: route panels per clos
 
 - :func:`closure_route_panels` (the paper's Fig. 7 and 9): one map per closure with the route the agent learned from
   one start before the closure and the route it took after recovering (or at the end of the closure's window if it
-  never did), every road closed so far in red, start and goal marked and a title per panel, tiled in a grid.
+  never did), every road closed so far in red, start and goal marked, a legend, and a title per panel (the change and
+  the recovery, start, goal, closed roads, steps and score), tiled in a grid; :func:`closure_panels` gives what each
+  panel shows, as data.
 - :func:`training_curves` (the paper's Fig. 8): episode reward and episode length against training episodes, smoothed,
   with a vertical line per closure, and optionally the route evaluations' success rate and SPL.
 - :func:`write_figure` writes either image as a PNG, atomically.
@@ -26,6 +28,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -36,18 +39,17 @@ from campusnav_env.atomic_files import write_png
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph, road_key
 from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation
-from campusnav_env.rendering.map_view import CLOSED_RGB, TEXT_RGB, draw_map
+from campusnav_env.rendering.map_view import CLOSED_RGB, PAGE_RGB, TEXT_RGB, draw_map, title_band
 from campusnav_env.route_evaluation import Route
 
 if TYPE_CHECKING:
     import matplotlib.figure
 
-__all__ = ["closure_route_panels", "panel_title", "training_curves", "write_figure"]
+__all__ = ["ClosurePanel", "closure_panels", "closure_route_panels", "panel_title", "training_curves", "write_figure"]
 
 COMPASS_LETTERS = ("N", "E", "S", "W")
 RECOVERED_RGB = (20, 120, 60)
 BORDER_RGB = (200, 200, 204)
-PAGE_RGB = (255, 255, 255)
 _SHADE = {True: "tab:green", False: "tab:red"}  # training span after a closure: recovered or not
 Road = tuple[int, int]
 
@@ -120,33 +122,72 @@ def _route_steps(route: Route | None) -> str:
     return f"{route.steps} steps" if route.success else "fails"
 
 
-def _header(width: int, lines: Sequence[tuple[str, tuple[int, int, int]]], scale: float) -> np.ndarray:
+def _closed_text(roads: Sequence[Road], limit: int = 4) -> str:
+    names = [f"{u}-{v}" for u, v in sorted(roads)]
+    if len(names) > limit:
+        names = [*names[:limit], f"+{len(names) - limit} more"]
+    return ", ".join(names) or "none"
+
+
+@dataclass(frozen=True)
+class ClosurePanel:
     """
-    A white band with one line of text per entry, shrunk where a line would not fit the width.
+    What one panel of :func:`closure_route_panels` shows.
 
-    The band's height depends on ``scale`` only, so that panels whose titles were shrunk line up with the others.
+    :param number: Number of the closure (1 for the first)
+    :param recovery: The closure and how the agent fared after it
+    :param start: Start node of both routes
+    :param heading: Start heading (0 N, 1 E, 2 S, 3 W)
+    :param goal: Goal name
+    :param goal_node: Its node
+    :param closed: Roads closed at the time (all closures so far, minus reopened roads), sorted
+    :param learned: The route from the last evaluation before the closure, if any
+    :param after: The route at recovery (or at the last evaluation of the window), if any
+    :param after_evaluation: The evaluation ``after`` comes from, if any
+    :param shortest: Hops of the shortest path from ``start`` with ``closed`` closed (-1: cut off)
     """
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    pad = max(4, round(8 * scale))
-    rows = []
-    for i, (text, rgb) in enumerate(lines):
-        nominal = scale if i == 0 else scale * 0.85  # the detail line is smaller than the title
-        s, thick = nominal, max(1, round(nominal * 2))
-        # OpenCV renders text in steps of size, so shrink until what it measures fits
-        while cv2.getTextSize(text, font, s, thick)[0][0] > width - 2 * pad and s > 0.15:
-            s *= 0.95
-            thick = max(1, round(s * 2))
-        (_, h), base = cv2.getTextSize("Ag", font, nominal, max(1, round(nominal * 2)))
-        rows.append((text, rgb, s, thick, h + base, base))
-    band = np.full((pad * (len(rows) + 1) + sum(r[4] for r in rows), width, 3), PAGE_RGB, dtype=np.uint8)
-    y = pad
-    for text, rgb, s, thick, height, base in rows:
-        cv2.putText(band, text, (pad, y + height - base), font, s, rgb, thick, cv2.LINE_AA)
-        y += height + pad
-    return band
+
+    number: int
+    recovery: Recovery
+    start: int
+    heading: int
+    goal: str
+    goal_node: int
+    closed: tuple[Road, ...]
+    learned: Route | None
+    after: Route | None
+    after_evaluation: RouteEvaluation | None
+    shortest: int
+
+    @property
+    def after_name(self) -> str:
+        """Name of the route after the closure in the legend and the title."""
+        return "re-routed" if self.recovery.recovered else "at end of window"
+
+    @property
+    def title(self) -> tuple[str, str, str]:
+        """
+        The panel's three title lines: :func:`panel_title`; start, goal and the roads closed; the steps of both
+        routes against the shortest path, and the score (success rate and SPL of the evaluation the second route is
+        from), e.g.::
+
+            closure 1: road 69-81 closed; recovered after 55 episodes / 1.6 s
+            start 21 facing N -> Dreese Lab (81) | closed: 69-81
+            learned 17 steps | re-routed 17 steps | shortest 17 | success 0.99, SPL 0.98
+        """
+        shortest = self.shortest if self.shortest >= 0 else "-"
+        score = self.after_evaluation
+        return (
+            panel_title(self.number, self.recovery),
+            f"start {self.start} facing {COMPASS_LETTERS[self.heading]} -> {self.goal} ({self.goal_node}) | "
+            f"closed: {_closed_text(self.closed)}",
+            f"learned {_route_steps(self.learned)} | {self.after_name} {_route_steps(self.after)} | "
+            f"shortest {shortest} | "
+            + (f"success {score.success_rate:.2f}, SPL {score.spl:.2f}" if score is not None else "no evaluation"),
+        )
 
 
-def closure_route_panels(
+def closure_panels(
     road_graph: RoadGraph | NavigationGraph,
     evaluations: Sequence[RouteEvaluation],
     recoveries: Sequence[Recovery],
@@ -154,34 +195,12 @@ def closure_route_panels(
     heading: int | None = None,
     *,
     goal: str | None = None,
-    size: int = 600,
-    columns: int = 3,
-    labels: bool = False,
-) -> np.ndarray:
+) -> list[ClosurePanel]:
     """
-    One map per closure with the route before it and the route after recovery, tiled in a grid.
+    What :func:`closure_route_panels` draws, one :class:`ClosurePanel` per closure (same arguments).
 
-    Every panel shows the routes from one fixed start (and heading): the *learned route* (from the last evaluation
-    before the closure, ``evaluations[closure.evaluation_index - 1]``) and the route at recovery (or, if the agent never
-    recovered, at the last evaluation of the closure's window), the roads closed so far (all closures up to this one,
-    minus reopened roads) in red with an X, the start (a triangle facing the heading) and the goal (a star). Its title
-    names the change and the recovery (:func:`panel_title`); a second line gives the steps of both routes and the
-    shortest path at the end.
-
-    :param road_graph: The map (a ``NavigationGraph``'s own closures are ignored: they come from the records)
-    :param evaluations: All route evaluations in the order they were made (``RouteEvaluationCallback.evaluations``)
-    :param recoveries: One per closure, in order (``RoadClosureCallback.recoveries``); one panel each
-    :param start: Start node of the routes shown. Default: the start of the longest learned route that travelled a
-        road of the first closure, else the start farthest from the goal
-    :param heading: Start heading (0 N, 1 E, 2 S, 3 W). Default: that of the learned route chosen as above (among the
-        routes from ``start`` when it is given)
-    :param goal: Goal name of the routes (default: the goal of the first route in the evaluations)
-    :param size: Longer side of each map panel in pixels
-    :param columns: Panels per row at most
-    :param labels: Write the landmark names on the maps (off by default: they can hide a closed road; the goal is
-        named in the second title line)
-    :return: ``(H, W, 3)`` uint8 RGB image
-    :raises ValueError: no recoveries, a bad start, heading, goal, size or column count
+    :return: the panels, in the order of ``recoveries``
+    :raises ValueError: no recoveries, a bad start, heading or goal
     :raises TypeError: a map that is neither a ``RoadGraph`` nor a ``NavigationGraph``
     """
     graph = road_graph.map if isinstance(road_graph, NavigationGraph) else road_graph
@@ -189,8 +208,6 @@ def closure_route_panels(
         raise TypeError(f"road_graph must be a RoadGraph or NavigationGraph, got {type(road_graph).__name__}")
     if not recoveries:
         raise ValueError("closure_route_panels needs at least one recovery (one panel per closure)")
-    if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 1:
-        raise ValueError(f"columns must be a positive int, got {columns!r}")
     if heading is not None and (isinstance(heading, bool) or heading not in (0, 1, 2, 3)):
         raise ValueError(f"heading must be 0 (N), 1 (E), 2 (S), 3 (W) or None, got {heading!r}")
     if start is not None:
@@ -232,32 +249,95 @@ def closure_route_panels(
         closure = recovery.closure
         closed |= {road_key(u, v) for u, v in closure.closed}
         closed -= {road_key(u, v) for u, v in closure.reopened}
-        before = _route_from(_before(evaluations, closure), goal, start, heading)
         end = recovery.recovered_at if recovery.recovered_at is not None else recovery.last
-        after = _route_from(end, goal, start, heading)
-        # Both always in the legend, so that every panel has the same colours; drawn in this order, the route after
-        # the closure ends on top where both share a road
-        after_name = "re-routed" if recovery.recovered else "at end of window"
+        panels.append(
+            ClosurePanel(
+                number=number,
+                recovery=recovery,
+                start=start,
+                heading=heading,
+                goal=goal,
+                goal_node=goal_node,
+                closed=tuple(sorted(closed)),
+                learned=_route_from(_before(evaluations, closure), goal, start, heading),
+                after=_route_from(end, goal, start, heading),
+                after_evaluation=end,
+                shortest=int(NavigationGraph(graph, sorted(closed)).hops_to(goal_node)[start]),
+            )
+        )
+    return panels
+
+
+def closure_route_panels(
+    road_graph: RoadGraph | NavigationGraph,
+    evaluations: Sequence[RouteEvaluation],
+    recoveries: Sequence[Recovery],
+    start: int | None = None,
+    heading: int | None = None,
+    *,
+    goal: str | None = None,
+    size: int = 600,
+    columns: int = 3,
+    labels: bool = True,
+    title: str | None = None,
+) -> np.ndarray:
+    """
+    One map per closure with the route before it and the route after recovery, tiled in a grid.
+
+    Every panel shows the routes from one fixed start (and heading): the *learned route* (from the last evaluation
+    before the closure, ``evaluations[closure.evaluation_index - 1]``), drawn wide underneath so that it shows where
+    the other follows it, and the route at recovery (or, if the agent never recovered, at the last evaluation of the
+    closure's window), the roads closed so far (all closures up to this one, minus reopened roads) in red with an X,
+    the start (a triangle facing the heading) and the goal (a star), with a legend below. Its three title lines
+    (:attr:`ClosurePanel.title`) name the change and the recovery, the start, goal and closed roads, and the steps and
+    score.
+
+    :param road_graph: The map (a ``NavigationGraph``'s own closures are ignored: they come from the records)
+    :param evaluations: All route evaluations in the order they were made (``RouteEvaluationCallback.evaluations``)
+    :param recoveries: One per closure, in order (``RoadClosureCallback.recoveries``); one panel each
+    :param start: Start node of the routes shown. Default: the start of the longest learned route that travelled a
+        road of the first closure, else the start farthest from the goal
+    :param heading: Start heading (0 N, 1 E, 2 S, 3 W). Default: that of the learned route chosen as above (among the
+        routes from ``start`` when it is given)
+    :param goal: Goal name of the routes (default: the goal of the first route in the evaluations)
+    :param size: Longer side of each map panel in pixels
+    :param columns: Panels per row at most
+    :param labels: Write the landmark names on the maps (placed clear of routes and closed roads; without them the
+        legend names the landmarks by colour)
+    :param title: Text of a band above all panels (e.g. the run), none by default
+    :return: ``(H, W, 3)`` uint8 RGB image
+    :raises ValueError: no recoveries, a bad start, heading, goal, size or column count
+    :raises TypeError: a map that is neither a ``RoadGraph`` nor a ``NavigationGraph``
+    """
+    if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 1:
+        raise ValueError(f"columns must be a positive int, got {columns!r}")
+    graph = road_graph.map if isinstance(road_graph, NavigationGraph) else road_graph
+    scale = max(0.4, size / 1200)
+    images = []
+    for panel in closure_panels(road_graph, evaluations, recoveries, start, heading, goal=goal):
+        # Both always in the legend, so that every panel has the same colours
+        learned, after = panel.learned, panel.after
         routes = {
-            "learned route (before)" if before else "learned route: none": list(before.nodes) if before else [],
-            after_name if after else f"{after_name}: none": list(after.nodes) if after else [],
+            "learned route (before)" if learned else "learned route: none": list(learned.nodes) if learned else [],
+            panel.after_name if after else f"{panel.after_name}: none": list(after.nodes) if after else [],
         }
-        navigation = NavigationGraph(graph, sorted(closed))
         image = draw_map(
-            navigation, size=size, agent=start, heading=heading, goal=goal_node, routes=routes, labels=labels
+            NavigationGraph(graph, panel.closed),
+            size=size,
+            agent=panel.start,
+            heading=panel.heading,
+            goal=panel.goal_node,
+            routes=routes,
+            labels=labels,
         )
-        shortest = navigation.hops_to(goal_node)[start]
-        detail = (
-            f"from node {start} facing {COMPASS_LETTERS[heading]} to {goal}: before {_route_steps(before)}, "
-            f"after {_route_steps(after)} (shortest now {shortest if shortest >= 0 else '-'})"
-        )
-        header = _header(
-            image.shape[1],
-            [(panel_title(number, recovery), RECOVERED_RGB if recovery.recovered else CLOSED_RGB), (detail, TEXT_RGB)],
-            scale=max(0.4, size / 1200),
-        )
-        panels.append(np.concatenate([header, image]))
-    return _tile(panels, int(columns), gap=max(8, size // 40))
+        first, *details = panel.title
+        colour = RECOVERED_RGB if panel.recovery.recovered else CLOSED_RGB
+        header = title_band(image.shape[1], [(first, colour), *((d, TEXT_RGB) for d in details)], scale)
+        images.append(np.concatenate([header, image]))
+    page = _tile(images, int(columns), gap=max(8, size // 40))
+    if title is None:
+        return page
+    return np.concatenate([title_band(page.shape[1], [(str(title), TEXT_RGB)], scale * 1.2), page])
 
 
 def _tile(panels: Sequence[np.ndarray], columns: int, gap: int) -> np.ndarray:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from campusnav_env import generate_campus
-from campusnav_env.figures import closure_route_panels, panel_title, training_curves, write_figure
+from campusnav_env.figures import closure_panels, closure_route_panels, panel_title, training_curves, write_figure
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation, measure_recoveries
@@ -118,6 +118,48 @@ def test_a_closure_never_recovered_from_says_so(campus: RoadGraph) -> None:
     assert recovered.shape == stuck.shape and not np.array_equal(recovered, stuck)
     header = stuck[: stuck.shape[0] // 8, stuck.shape[1] // 2 :]  # the second panel's title
     assert _share(header, CLOSED_RGB, tol=40) > 0.0005
+
+
+def test_each_panel_is_titled_with_start_goal_closed_roads_and_score(campus: RoadGraph) -> None:
+    evaluations, closures = _timeline(campus)
+    recoveries = measure_recoveries(closures, evaluations)
+    panels = closure_panels(campus, evaluations, recoveries)
+    assert [p.number for p in panels] == [1, 2, 3] and {(p.start, p.heading, p.goal_node) for p in panels} == {
+        (0, 0, 13)
+    }
+    assert [p.closed for p in panels] == [((5, 9),), (), ((9, 10),)]
+    assert [p.title for p in panels] == [
+        (
+            "closure 1: road 5-9 closed; recovered after 35 episodes / 3.5 s",
+            "start 0 facing N -> Dreese Lab (13) | closed: 5-9",
+            "learned 6 steps | re-routed 9 steps | shortest 9 | success 1.00, SPL 1.00",
+        ),
+        (
+            "closure 2: road 5-9 reopened; recovered after 30 episodes / 3.0 s",
+            "start 0 facing N -> Dreese Lab (13) | closed: none",
+            "learned 9 steps | re-routed 6 steps | shortest 6 | success 1.00, SPL 1.00",
+        ),
+        (
+            "closure 3: road 9-10 closed; recovered after 0 episodes / 0.0 s",
+            "start 0 facing N -> Dreese Lab (13) | closed: 9-10",
+            "learned 6 steps | re-routed 6 steps | shortest 6 | success 1.00, SPL 1.00",
+        ),
+    ]
+    # The score is that of the evaluation the second route comes from: there one start of fifteen (0) loops
+    evaluations, closures = _timeline(campus, recover_second=False)
+    stuck = closure_panels(campus, evaluations, measure_recoveries(closures, evaluations))[1]
+    assert stuck.after_evaluation is stuck.recovery.last and stuck.after is not None and not stuck.after.success
+    assert stuck.title[2] == "learned 9 steps | at end of window fails | shortest 6 | success 0.93, SPL 0.93"
+
+
+def test_a_figure_title_goes_above_the_panels(campus: RoadGraph) -> None:
+    evaluations, recoveries = _recovered_timeline(campus)
+    plain = closure_route_panels(campus, evaluations, recoveries, size=300)
+    titled = closure_route_panels(campus, evaluations, recoveries, size=300, title="DCQN, seed 0")
+    band = titled.shape[0] - plain.shape[0]
+    assert band > 10 and titled.shape[1] == plain.shape[1]
+    np.testing.assert_array_equal(titled[band:], plain)
+    assert _share(titled[:band], (30, 30, 34), tol=60) > 0.005  # the title text
 
 
 def _recovered_timeline(campus: RoadGraph) -> tuple[list[RouteEvaluation], list[Recovery]]:

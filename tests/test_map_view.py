@@ -9,7 +9,15 @@ import pytest
 from campusnav_env.maps.campus import default_campus
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.rendering.contact_sheet import default_nodes, main, write_contact_sheet
-from campusnav_env.rendering.map_view import AGENT_RGB, CLOSED_RGB, GOAL_RGB, PATH_RGB, ROUTE_COLOURS, draw_map
+from campusnav_env.rendering.map_view import (
+    AGENT_RGB,
+    CLOSED_RGB,
+    GOAL_RGB,
+    PATH_RGB,
+    ROUTE_COLOURS,
+    draw_map,
+    map_layout,
+)
 from campusnav_env.rendering.street_view import RenderSettings
 
 
@@ -61,14 +69,179 @@ def test_agent_heading_goal_and_path_are_drawn(graph):
     assert _share(several, GOAL_RGB) > 0
 
 
-def test_named_routes_get_distinct_colours_and_a_legend(graph):
-    original = graph.shortest_path(0, graph.landmarks["Cinema"])
-    detour = graph.shortest_path(graph.n_nodes - 1, graph.landmarks["Cinema"])
-    image = draw_map(graph, routes={"original": original, "re-routed": detour})
-    for colour in ROUTE_COLOURS[:2]:
-        assert _share(image, colour, tol=6) > 0.001
-    with_legend = image[: image.shape[0] // 6, : image.shape[1] // 4]
-    assert _share(with_legend, (255, 255, 255), tol=0) > 0.05  # the legend box
+def _routes_after_closing(graph: NavigationGraph, *roads: tuple[int, int]) -> dict[str, list[int]]:
+    """The learned route from node 21 to Dreese Lab, then the roads closed and the route re-planned around them."""
+    goal = graph.landmarks["Dreese Lab"]
+    learned = graph.shortest_path(21, goal)
+    for u, v in roads:
+        graph.close_road(u, v, force=True)
+    return {"learned route (before)": learned, "re-routed": graph.shortest_path(21, goal)}
+
+
+def _box_pixels(mask: np.ndarray, box: tuple[float, float, float, float]) -> int:
+    x0, y0, x1, y1 = (int(np.floor(box[0])), int(np.floor(box[1])), int(np.ceil(box[2])), int(np.ceil(box[3])))
+    return int(mask[max(0, y0) : y1, max(0, x0) : x1].sum())
+
+
+def _overlap(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def _colour_mask(image: np.ndarray, colours: list[tuple[int, int, int]], tol: int = 40) -> np.ndarray:
+    return np.any([np.abs(image.astype(int) - np.asarray(c)).max(axis=-1) <= tol for c in colours], axis=0)
+
+
+def test_route_pictures_have_a_legend_of_routes_start_goal_closed_roads_and_landmarks(graph):
+    routes = _routes_after_closing(graph, (69, 81))
+    options = dict(agent=21, heading=0, goal=graph.landmarks["Dreese Lab"], routes=routes)
+    layout = map_layout(graph, **options)
+    texts = [entry.text for entry in layout.legend]
+    assert texts == [
+        "learned route (before)",
+        "re-routed",
+        "start",
+        "goal",
+        "closed road",
+        "landmark (named on the map)",
+    ]
+    assert [entry.symbol for entry in layout.legend] == ["line", "line", "start", "goal", "closed", "landmark"]
+    assert [entry.rgb for entry in layout.legend[:2]] == list(ROUTE_COLOURS[:2])
+    # A band below the map: it hides nothing of the map, and every entry lies in it, clear of the others
+    assert layout.legend_box is not None and layout.legend_box[1] >= layout.map_box[3]
+    assert layout.shape == (round(layout.legend_box[3]), round(layout.map_box[2]))
+    for i, entry in enumerate(layout.legend):
+        assert layout.legend_box[1] <= entry.box[1] and entry.box[3] <= layout.legend_box[3]
+        assert all(not _overlap(entry.box, other.box) for other in layout.legend[i + 1 :])
+    image = draw_map(graph, **options)
+    band = image[round(layout.legend_box[1]) :]
+    for colour in (*ROUTE_COLOURS[:2], AGENT_RGB, GOAL_RGB, CLOSED_RGB):
+        assert _share(band, colour, tol=6) > 0.0005
+    # A route that never moves has no line to show: the legend says so
+    stuck = map_layout(graph, **{**options, "routes": {**routes, "re-routed": [21, 21, 21]}})
+    assert stuck.legend[1].text == "re-routed (never leaves node 21)"
+    # Without labels on the map the legend names the landmarks by colour
+    unlabelled = map_layout(graph, **options, labels=False)
+    assert [e.text for e in unlabelled.legend if e.symbol == "landmark"] == sorted(graph.landmarks)
+    assert not [label for label in unlabelled.labels if label.kind == "landmark"]
+    # Plain maps (env.render()) keep to the map: no legend, no bands
+    plain = map_layout(graph, agent=21, heading=0, path=[21, 20])
+    assert plain.legend == () and plain.legend_box is None and plain.title_box is None
+    assert plain.shape == (round(plain.map_box[3]), round(plain.map_box[2]))
+
+
+def test_the_learned_route_shows_where_the_re_routed_one_follows_it(graph):
+    # Closing 81-82 leaves the way from 21 as it was: the re-routed line lies exactly on the learned one
+    routes = _routes_after_closing(graph, (81, 82))
+    assert routes["learned route (before)"] == routes["re-routed"]
+    layout = map_layout(graph, routes=routes, labels=False)
+    image = draw_map(graph, routes=routes, labels=False)
+    top, bottom = round(layout.map_box[1]), round(layout.map_box[3])
+    learned, rerouted = (_share(image[top:bottom], colour, tol=6) for colour in ROUTE_COLOURS[:2])
+    assert learned > 0.002 and rerouted > 0.002
+    # Drawn wider underneath, and the legend says so with the same widths
+    assert layout.legend[0].width > layout.legend[1].width
+
+
+def test_labels_keep_clear_of_routes_closed_roads_and_each_other(graph):
+    # Dreese Lab's closed road 81-82 runs east of it, where a label goes first when it is free (the old placement
+    # wrote "Dreese Lab" over it); the route from 21 reaches it from the south
+    routes = _routes_after_closing(graph, (81, 82))
+    options = dict(size=800, agent=21, heading=0, goal=graph.landmarks["Dreese Lab"], routes=routes)
+    layout = map_layout(graph, **options)
+    bare = draw_map(graph, **options, labels=False)  # the same lines, without names
+    lines = _colour_mask(bare, [*ROUTE_COLOURS[:2], CLOSED_RGB])
+    dreese = layout.nodes[graph.landmarks["Dreese Lab"]]
+    east_of_dreese = (dreese[0] + 10, dreese[1] - 8, dreese[0] + 90, dreese[1] + 8)
+    assert _box_pixels(lines, east_of_dreese) > 50
+
+    labels = [label for label in layout.labels if label.kind in ("landmark", "start")]
+    assert sorted(label.text for label in labels) == sorted([*graph.landmarks, "start 21"])
+    for i, label in enumerate(labels):
+        assert _box_pixels(lines, label.box) == 0, label
+        assert all(not _overlap(label.box, other.box) for other in labels[i + 1 :]), label
+        x0, y0, x1, y1 = label.box
+        assert (
+            layout.map_box[0] <= x0 and layout.map_box[1] <= y0 and x1 <= layout.map_box[2] and y1 <= layout.map_box[3]
+        )
+        # Each name is nearer its own node than any other named node
+        named = [graph.landmarks[n] for n in graph.landmarks] + [21]
+        own = _distance_to_box(layout.nodes[label.node], label.box)
+        assert all(own <= _distance_to_box(layout.nodes[n], label.box) for n in named if n != label.node), label
+
+    # The text drawn stays inside the boxes (and the leader lines): the layout is what was drawn
+    image = draw_map(graph, **options)
+    top, bottom = round(layout.map_box[1]), round(layout.map_box[3])
+    changed = np.any(image[top:bottom] != bare[top:bottom], axis=-1)
+    allowed = np.zeros(changed.shape, dtype=np.uint8)
+    for label in layout.labels:
+        x0, y0, x1, y1 = label.box
+        cv2.rectangle(
+            allowed, (int(x0) - 1, int(y0) - 1 - top), (int(np.ceil(x1)) + 1, int(np.ceil(y1)) + 1 - top), 1, -1
+        )
+        if label.leader is not None:
+            a, b = np.round(label.leader[:2]).astype(int), np.round(label.leader[2:]).astype(int)
+            cv2.line(allowed, (a[0], a[1] - top), (b[0], b[1] - top), 1, 3)
+    assert changed.any() and not (changed & (allowed == 0)).any()
+
+
+def _distance_to_box(point: np.ndarray, box: tuple[float, float, float, float]) -> float:
+    dx = max(box[0] - point[0], 0.0, point[0] - box[2])
+    dy = max(box[1] - point[1], 0.0, point[1] - box[3])
+    return float(np.hypot(dx, dy))
+
+
+def test_node_ids_are_written_beside_their_intersections(graph):
+    routes = _routes_after_closing(graph, (69, 81))
+    options = dict(agent=21, heading=0, goal=graph.landmarks["Dreese Lab"], routes=routes)
+    layout = map_layout(graph, **options, node_ids=True)
+    ids = [label for label in layout.labels if label.kind == "node id"]
+    assert [label.text for label in ids] == [str(n) for n in range(graph.n_nodes)]
+    assert map_layout(graph, **options).labels == tuple(label for label in layout.labels if label.kind != "node id")
+    names = [label for label in layout.labels if label.kind != "node id"]
+    size = np.array([[label.box[2] - label.box[0], label.box[3] - label.box[1]] for label in ids])
+    names_h = min(label.box[3] - label.box[1] for label in names)
+    assert size[:, 1].max() < names_h  # small print
+    bare = draw_map(graph, **options, labels=False)
+    lines = _colour_mask(bare, [*ROUTE_COLOURS[:2], CLOSED_RGB])
+    clear = 0
+    for i, label in enumerate(ids):
+        assert _distance_to_box(layout.nodes[label.node], label.box) < 2 * size[i, 1]  # beside its node
+        assert not any(_overlap(label.box, name.box) for name in names)  # names stay readable
+        others = [other for other in ids if other is not label]
+        clear += _box_pixels(lines, label.box) == 0 and not any(_overlap(label.box, o.box) for o in others)
+    assert clear >= 0.95 * len(ids)
+    assert not np.array_equal(draw_map(graph, **options, node_ids=True), draw_map(graph, **options))
+
+
+def test_a_title_band_goes_above_the_map(graph):
+    routes = _routes_after_closing(graph, (69, 81))
+    options = dict(agent=21, heading=0, goal=graph.landmarks["Dreese Lab"], routes=routes)
+    title = "start 21 -> Dreese Lab (81) | closed: 69-81 | success 0.99, SPL 0.98\nDCQN, 20000 steps"
+    untitled = map_layout(graph, **options)
+    layout = map_layout(graph, **options, title=title)
+    assert layout.title == ("start 21 -> Dreese Lab (81) | closed: 69-81 | success 0.99, SPL 0.98", "DCQN, 20000 steps")
+    assert layout.title_box is not None and layout.title_box[1] == 0 and layout.title_box[3] == layout.map_box[1]
+    band = round(layout.map_box[1])
+    assert layout.shape == (untitled.shape[0] + band, untitled.shape[1])
+    # Everything else moves down by the band
+    for moved, plain in zip(layout.labels, untitled.labels, strict=True):
+        assert moved.box == pytest.approx((plain.box[0], plain.box[1] + band, plain.box[2], plain.box[3] + band))
+    image, plain_image = draw_map(graph, **options, title=title), draw_map(graph, **options)
+    np.testing.assert_array_equal(image[band:], plain_image)
+    assert _share(image[:band], (255, 255, 255), tol=0) > 0.7 and _share(image[:band], (30, 30, 34), tol=60) > 0.01
+    # A line too long for the width breaks at its " | " separators
+    narrow = map_layout(graph, **options, size=300, title=title)
+    assert len(narrow.title) > 2 and " | ".join(narrow.title[:-1]) == title.splitlines()[0]
+
+
+def test_maps_are_deterministic_and_layouts_take_only_draw_map_options(graph):
+    routes = _routes_after_closing(graph, (69, 81))
+    options = dict(agent=21, heading=0, goal=graph.landmarks["Dreese Lab"], routes=routes, node_ids=True, title="t")
+    np.testing.assert_array_equal(draw_map(graph, **options), draw_map(graph, **options))
+    assert map_layout(graph, **options) == map_layout(graph, **options)
+    assert map_layout(graph, **options).shape == draw_map(graph, **options).shape[:2]
+    with pytest.raises(TypeError, match="legend"):
+        map_layout(graph, legend=True)
 
 
 def test_map_rejects_bad_input(graph):
