@@ -46,7 +46,7 @@ import scale_replay
 import scale_training
 import scale_vec_env
 import scale_world_build
-from report import append_run, publish, read_runs
+from report import append_run, markdown_table, publish, read_runs
 from scale_common import EFFNET, GAMMA, MB, PIXELS, Plan, fmt, records_by_size
 from scale_world_build import build_peak_mb
 from workers import run_in_fresh_process
@@ -79,16 +79,54 @@ def planned_stages(plan: Plan, stages: tuple[str, ...] = STAGES) -> list[tuple[s
 
 
 # ------------------------------------------------------------------------------------------------------- the report
+# What the measurements say, by the stage that shows it: statements only, the figures are in the tables
+FINDINGS = {
+    "build": (
+        "- **Cold build, one-off, O(N):** the CNN's forward passes (EfficientNet-Lite0, one thread) are the largest "
+        "single cost of a large map, the rest is rendering and the 3D world (shares in the table below). It is paid "
+        "once per map and settings (the feature cache), and it is not ours to make cheaper short of a smaller encoder "
+        "or a GPU. The 3D world's time and memory grow about in proportion to the intersections."
+    ),
+    "train": (
+        "- **Per step, nothing grows with the map:** env.step and a training env step cost about the same at every "
+        "size (hop distances for `info['shortest_distance']` are cached per goal, observations are row gathers; the "
+        "network and batch do not depend on N).\n"
+        "- **Route evaluation grows with 4N starts x route length** (an untrained policy loops early and is stopped, "
+        "so a trained one costs more), and so does its memory: all 4N starts go through the policy as one batch. It "
+        "is excluded from the training time; `eval_freq` grows with the map to keep it a small part of the wall time.\n"
+        "- **Time to threshold grows with the number of states to learn** (samples, not per-step cost; the training "
+        "table). The replay buffer's arrays take the same whatever the map (the replay section).\n"
+        "- **Long routes, same discount:** with the shipped gamma the goal's reward is worth little from the farthest "
+        "start of a large map (last column below), so the value gap between the best action and one a hop longer is "
+        "tiny there; SPL at the threshold from every start needs the critics to resolve it everywhere, a likely "
+        "reason why SPL, not success, is the last to reach the threshold on large maps (not changed here: the "
+        "settings are the shipped ones)."
+    ),
+    "fit": (
+        "- **Ours, and growing with the map in every process that builds an env: the feature transform's PCA** on "
+        "1280-d views, fixed (the last table)."
+    ),
+}
+
+
 def cost_table(builds: dict[int, dict[str, Any]], trains: dict[int, dict[str, Any]]) -> list[str]:
     """Where the time goes at each size: the one-off build against the recurring costs of training."""
-    lines = [
-        "| intersections | cold build, EfficientNet (s) | of which render / encode / 3D world | env.step (us) | "
-        "reset (us) | training ms per env step | one route evaluation (s) | its top functions (own time) |",
-        "|---|---|---|---|---|---|---|---|",
+    header = [
+        "intersections",
+        "cold build, EfficientNet (s)",
+        "of which render / encode / 3D world",
+        "3D world: memory while built (MB)",
+        "env.step (us)",
+        "reset (us)",
+        "training ms per env step",
+        "one route evaluation (s)",
+        "its top functions (own time)",
+        f"farthest start: hops, worth of the goal's reward (gamma {GAMMA})",
     ]
+    rows = []
     for size in sorted(set(builds) | set(trains)):
         build, run = builds.get(size), trains.get(size)
-        cells = ["-", "-"]
+        cells = ["-"] * 3
         if build is not None:
             enc = next((e for e in build["encoders"] if e["encoder"] == EFFNET), build["encoders"][0])
             total = enc["build_seconds"] + build["world_seconds"]
@@ -96,107 +134,42 @@ def cost_table(builds: dict[int, dict[str, Any]], trains: dict[int, dict[str, An
             encode = 4 * enc["encode_s_per_view"] * size
             how = "" if enc["full"] else " (extrapolated)"
             shares = (100 * render / total, 100 * encode / total, 100 * build["world_seconds"] / total)
-            cells = [f"{total:,.0f}{how}", " / ".join(f"{share:.0f}%" for share in shares)]
+            cells = [
+                f"{total:,.0f}{how}",
+                " / ".join(f"{share:.0f}%" for share in shares),
+                f"{build['world_extra_mb']:,.0f}",
+            ]
         if run is not None:
             top = "; ".join(f"{f['function']} {100 * f['own_share']:.0f}%" for f in run["evaluation_profile"][:3])
+            memory = f", {run['evaluation_extra_mb']:,.0f} MB" if "evaluation_extra_mb" in run else ""
             cells += [
                 f"{run['env_step_us']:.0f}",
                 f"{run['reset_us']:.0f}",
-                f"{1e3 * run['final_train_seconds'] / max(run['final_steps'], 1):.2f}",
+                f"{scale_training.train_ms_per_step(run):.2f}",
                 f"{run['profiled_evaluation_seconds']:.2f} ({run['routes']:,} routes, "
-                f"success {run['final_success']:.3f})",
+                f"success {run['final_success']:.3f}{memory})",
                 top,
             ]
         else:
             cells += ["-"] * 5
-        lines.append(f"| {size:,} | " + " | ".join(cells) + " |")
-    return lines
+        hops = build["longest_route"] if build is not None else None
+        cells.append("-" if hops is None else f"{hops}: {GAMMA**hops:.4f}")
+        rows.append([f"{size:,}", *cells])
+    return markdown_table(header, rows)
 
 
-def findings(
+def cost_section(
     builds: dict[int, dict[str, Any]], trains: dict[int, dict[str, Any]], fits: dict[int, dict[str, Any]]
 ) -> list[str]:
-    """What the measurements say, smallest against largest map (bullets, figures filled in from the records)."""
-    lines = []
-    if len(builds) >= 2:
-        small, large = builds[min(builds)], builds[max(builds)]
-        ratio = large["size"] / small["size"]
-        world_growth = large["world_seconds"] / small["world_seconds"]
-        effnet = next(e for e in large["encoders"] if e["encoder"] == EFFNET)
-        total = effnet["build_seconds"] + large["world_seconds"]
-        encode = 4 * effnet["encode_s_per_view"] * large["size"]
-        lines.append(
-            f"- **Cold build, one-off, O(N):** with EfficientNet-Lite0 at {large['size']:,} intersections "
-            f"{total:,.0f} s ({'measured' if effnet['full'] else 'extrapolated'}), {100 * encode / total:.0f}% of it "
-            f"CNN forward passes ({1e3 * effnet['encode_s_per_view']:.0f} ms per view on one thread), the rest "
-            "rendering and the 3D world. The CNN is the largest single cost of a large map; it is paid once per map "
-            "and settings (the feature cache), and it is not ours to make cheaper short of a smaller encoder or a "
-            f"GPU. The 3D world: {small['world_seconds']:.1f} s at {small['size']:,}, {large['world_seconds']:.1f} s "
-            f"at {large['size']:,} ({world_growth:.0f}x for {ratio:.0f}x the intersections), "
-            f"{large['world_extra_mb']:,.0f} MB while it is built."
-        )
-    if len(trains) >= 2:
-        small, large = trains[min(trains)], trains[max(trains)]
-
-        def per_step(run: dict[str, Any]) -> float:
-            return 1e3 * run["final_train_seconds"] / max(run["final_steps"], 1)
-
-        def per_evaluation(run: dict[str, Any]) -> float:
-            return run["evaluation_seconds"] / max(run["evaluations"], 1)
-
-        lines.append(
-            f"- **Per step, nothing grows with the map:** env.step {small['env_step_us']:.0f} us at "
-            f"{small['size']:,} and {large['env_step_us']:.0f} us at {large['size']:,} (hop distances for "
-            "`info['shortest_distance']` are cached per goal, observations are row gathers), a training env step "
-            f"{per_step(small):.2f} and {per_step(large):.2f} ms (the network and batch do not depend on N)."
-        )
-        lines.append(
-            f"- **Route evaluation grows with 4N starts x route length:** {per_evaluation(small):.2f} s at "
-            f"{small['size']:,} ({small['routes']:,} routes), {per_evaluation(large):.2f} s at {large['size']:,} "
-            f"({large['routes']:,} routes; an untrained policy loops early and is stopped, so a trained one costs "
-            "more). It is excluded from the training time; `eval_freq` grows with the map to keep it a small part of "
-            "the wall time."
-            + (
-                f" Its memory grows too: all 4N starts go through the policy as one batch, "
-                f"{large['evaluation_extra_mb']:,.0f} MB above the training process's RSS at {large['size']:,}."
-                if "evaluation_extra_mb" in large
-                else ""
-            )
-        )
-        solved = [f"{size:,}: {run['seconds']:.0f} s" for size, run in sorted(trains.items()) if run["solved"]]
-        missed = [
-            f"{size:,}: not reached in {run['final_train_seconds']:.0f} s (success {run['final_success']:.3f}, "
-            f"SPL {run['final_spl']:.3f})"
-            for size, run in sorted(trains.items())
-            if not run["solved"]
-        ]
-        lines.append(
-            "- **Time to threshold grows with the number of states to learn** (samples, not per-step cost): "
-            + "; ".join(solved + missed)
-            + f". Replay buffer arrays: {large['buffer_allocated_bytes'] / MB:,.0f} MB whatever the map (50,000 "
-            "transitions of 4,148 B at view_dim 64)."
-        )
-        longest = {size: build["longest_route"] for size, build in builds.items() if size in trains}
-        if longest:
-            size = max(longest)
-            lines.append(
-                "- **Long routes, same discount:** the longest route to the goal is "
-                + ", ".join(f"{hops} hops at {n:,}" for n, hops in sorted(longest.items()))
-                + f". With the shipped gamma {GAMMA} the goal's reward is worth {GAMMA ** longest[size]:.4f} from the "
-                f"farthest start at {size:,}, so the value gap between the best action and one a hop longer is tiny "
-                "there; SPL >= 0.98 from every start needs the critics to resolve it everywhere, a likely reason why "
-                "SPL, not success, is the last to reach the threshold on large maps (not changed here: the settings "
-                "are the shipped ones)."
-            )
-    if fits:
-        large = fits[max(fits)]
-        lines.append(
-            f"- **Ours, and growing with the map in every process that builds an env: the feature transform's PCA** "
-            f"on 1280-d views: {large['before_seconds']:.1f} s and {large['before_extra_mb']:,.0f} MB above its "
-            f"input at {large['size']:,} intersections before the fix, {large['after_seconds']:.1f} s and "
-            f"{large['after_extra_mb']:,.0f} MB after (table below)."
-        )
-    return lines
+    """What the measurements say (statements; the figures are in the tables), and the cost table."""
+    measured = {"build": builds, "train": trains, "fit": fits}
+    return [
+        "## Where the cost goes as the map grows",
+        "",
+        *(FINDINGS[stage] for stage, records in measured.items() if records),
+        "",
+        *cost_table(builds, trains),
+    ]
 
 
 def plot(
@@ -313,23 +286,18 @@ def write_report(plan: Plan, runs: list[dict[str, Any]], out: Path, argv: list[s
             "benchmark) used the other core throughout this run, so CPU-bound figures are slower and noisier than on "
             "a quiet machine"
         ),
-        "",
-        *scale_world_build.world_build_section(builds),
-        "",
-        *scale_training.training_section(trains),
     ]
+    # Each question's section where the runs file holds its stage (a script of one question writes only its own)
+    if builds:
+        lines += ["", *scale_world_build.world_build_section(builds)]
+    if trains:
+        lines += ["", *scale_training.training_section(trains)]
     if buffer is not None:
         lines += ["", *scale_replay.replay_section(buffer, sizes)]
     if vec is not None:
         lines += ["", *scale_vec_env.vec_env_section(vec)]
-    lines += [
-        "",
-        "## Where the cost goes as the map grows",
-        "",
-        *findings(builds, trains, fits),
-        "",
-        *cost_table(builds, trains),
-    ]
+    if builds or trains:
+        lines += ["", *cost_section(builds, trains, fits)]
     if fits:
         lines += ["", *scale_feature_transform.feature_transform_section(fits)]
     lines += ["", f"![time and memory against intersections]({picture.name})"]
@@ -373,7 +341,7 @@ def make_plan(args: argparse.Namespace) -> Plan:
         extent=args.extent,
         effnet_max_nodes=args.effnet_max_nodes,
         effnet_sample=2 if quick else args.effnet_sample,
-        vec_counts=(1, 2) if quick else (1, 2, 4),
+        vec_counts=(1,) if quick else (1, 2, 4),
         vec_seconds=0.5 if quick else 4.0,
         env_steps=500 if quick else 5_000,
         quick=quick,

@@ -5,7 +5,7 @@ prioritised replay on) for the Dict observation at ``view_dim`` 64 and at full 1
 buffer_size``); and what (node, heading, goal) indices with a feature table gathered at sample time would take
 instead (computed and timed, not implemented). Run by ``scale.py`` (stage ``buffer``); alone::
 
-    python benchmarks/scale_replay.py            # the other stages' records stay in the runs file
+    python benchmarks/scale_replay.py --runs-file /tmp/replay.jsonl --out /tmp/replay.md
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ training seconds, evaluations excluded) or the ``--budget``; env step and reset 
 replay-buffer bytes, a profile of one route evaluation. Features: those of the size's full EfficientNet build, else
 the pixel build. Run by ``scale.py`` (stage ``train``); alone::
 
-    python benchmarks/scale_training.py --sizes 101 --budget 60
+    python benchmarks/scale_training.py --sizes 101 --budget 60 --runs-file /tmp/train.jsonl --out /tmp/train.md
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ envs (random actions), and the cost of one env step by part.
 
 Run by ``scale.py`` (stage ``vecenv``, on the plan's smallest map with the features its training uses); alone::
 
-    python benchmarks/scale_vec_env.py
+    python benchmarks/scale_vec_env.py --runs-file /tmp/vec.jsonl --out /tmp/vec.md
 """
 
 from __future__ import annotations

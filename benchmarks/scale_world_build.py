@@ -6,7 +6,7 @@ its cost is measured on ``--effnet-sample`` nodes and extrapolated, and the map 
 encoder on 64x48 views (every size gets a pixel build, for a like-for-like line). Run by ``scale.py`` (stage
 ``build``); alone::
 
-    python benchmarks/scale_world_build.py --sizes 101 1000
+    python benchmarks/scale_world_build.py --sizes 101 1000 --runs-file /tmp/build.jsonl --out /tmp/build.md
 """
 
 from __future__ import annotations
