@@ -16,7 +16,7 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_dcqn import DCQN
-from sb3_dcqn.campusnav_job import CommandError, build_parser, main, run
+from sb3_dcqn.campusnav.cli import CommandError, build_parser, main, run
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
 from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
 

@@ -82,7 +82,7 @@ from campusnav_env.recovery import (
 from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.rendering.street_view import RenderSettings
 from campusnav_env.route_evaluation import Route
-from sb3_dcqn.cli_progress import TqdmProgress
+from sb3_dcqn.campusnav.progress import TqdmProgress
 from sb3_dcqn.dcqn import DCQN
 from sb3_dcqn.zoo import ZooEntry, default_hyperparams_path, load_zoo_entry
 
