@@ -11,22 +11,23 @@ when the training-time budget is spent (evaluation time excluded).
 from __future__ import annotations
 
 import copy
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
 from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 import campusnav_env  # noqa: F401  (registers the CampusNav ids)
-from campusnav_env.callbacks import RouteEvaluationCallback
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.maps.campus import generate_campus
-from campusnav_env.recovery import RouteEvaluation
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
+
+# Training until solved lives in the glue; re-exported for the scripts that import it from here (scale.py)
+from sb3_dcqn.campusnav.experiments import SolveResult as SolveResult
+from sb3_dcqn.campusnav.experiments import TrainingBudget as TrainingBudget
+from sb3_dcqn.campusnav.experiments import train_until_solved as train_until_solved
 from sb3_dcqn.zoo import ZooEntry, default_hyperparams_path, load_zoo_entry, paper_hyperparams_path
 
 # The issue's threshold for a solved map
@@ -150,83 +151,6 @@ VARIANTS = {
         ),
     )
 }
-
-
-class TrainingBudget(BaseCallback):
-    """Stops training once ``evaluation`` has counted ``seconds`` of training (its evaluations excluded)."""
-
-    def __init__(self, evaluation: RouteEvaluationCallback, seconds: float) -> None:
-        super().__init__()
-        self.evaluation = evaluation
-        self.seconds = seconds
-
-    def _on_step(self) -> bool:
-        return self.evaluation.train_seconds < self.seconds
-
-
-@dataclass(frozen=True)
-class SolveResult:
-    """
-    One training run to the threshold.
-
-    :param solved_at: The first evaluation at the thresholds, or ``None`` (a miss)
-    :param evaluations: Every evaluation of the run
-    :param wall_seconds: Wall time of ``learn()``, evaluations included
-    :param evaluation_seconds: Of which the evaluations took
-    """
-
-    solved_at: RouteEvaluation | None
-    evaluations: list[RouteEvaluation]
-    wall_seconds: float
-    evaluation_seconds: float = 0.0
-
-    def curve(self) -> list[dict[str, float]]:
-        return [
-            {"step": e.step, "episode": e.episode, "seconds": e.train_seconds, "success": e.success_rate, "spl": e.spl}
-            for e in self.evaluations
-        ]
-
-
-def train_until_solved(
-    model: BaseAlgorithm,
-    max_steps: int,
-    budget_seconds: float,
-    eval_freq: int,
-    evaluation: RouteEvaluationCallback | None = None,
-    **learn_kwargs: Any,
-) -> SolveResult:
-    """
-    Train until the greedy routes from every start meet the thresholds, the step cap or the time budget.
-
-    :param model: The agent (its env is evaluated: the first training env)
-    :param max_steps: Step cap
-    :param budget_seconds: Training-time cap, evaluations excluded
-    :param eval_freq: Evaluate every this many env steps
-    :param evaluation: An evaluation callback of your own (default: one at the issue's thresholds)
-    :return: the first evaluation at the thresholds (or ``None``) and all evaluations
-    """
-    if evaluation is None:
-        evaluation = RouteEvaluationCallback(
-            eval_freq=eval_freq,
-            success_threshold=SUCCESS_THRESHOLD,
-            spl_threshold=SPL_THRESHOLD,
-            stop_when_solved=True,
-            every_goal=True,
-        )
-    start = time.perf_counter()
-    model.learn(
-        max_steps, callback=CallbackList([evaluation, TrainingBudget(evaluation, budget_seconds)]), **learn_kwargs
-    )
-    wall = time.perf_counter() - start
-    solved = next(
-        (
-            e
-            for e in evaluation.evaluations
-            if e.meets(evaluation.success_threshold, evaluation.spl_threshold, evaluation.every_goal)
-        ),
-        None,
-    )
-    return SolveResult(solved, list(evaluation.evaluations), wall, evaluation.excluded_seconds)
 
 
 # ------------------------------------------------------------------------------------------------ closure experiments

@@ -45,13 +45,10 @@ names the flag, file or road, and :func:`main` prints it and exits with status 2
 from __future__ import annotations
 
 import argparse
-import io
 import json
-import math
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -59,114 +56,45 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 from gymnasium.envs.registration import load_env_creator
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import Image, configure
 from stable_baselines3.common.utils import get_latest_run_id
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import campusnav_env  # noqa: F401  (registers the CampusNav ids)
-from campusnav_env import CampusNavEnv, RoadClosureError, RouteReport, evaluate_routes
-from campusnav_env.atomic_files import write_bytes_atomic, write_text_atomic
-from campusnav_env.callbacks import RoadClosureCallback, RouteEvaluationCallback
+from campusnav_env import CampusNavEnv, RoadClosureError, evaluate_routes
+from campusnav_env.atomic_files import write_text_atomic
 from campusnav_env.closures import ClosureEvent, ClosureSchedule
 from campusnav_env.features.encoders import ENCODER_NAMES
 from campusnav_env.figures import closure_route_panels, training_curves, write_figure
-from campusnav_env.recovery import (
-    DEFAULT_SPL_THRESHOLD,
-    DEFAULT_SUCCESS_THRESHOLD,
-    Recovery,
-    RouteEvaluation,
-    recovery_table,
+from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD, recovery_table
+from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingOutcome, train_with_closures
+from sb3_dcqn.campusnav.levers import DEMO_LEVERS, LEVERS, with_levers
+from sb3_dcqn.campusnav.model_files import model_paths, read_saved_settings, save_model
+from sb3_dcqn.campusnav.pictures import pick_route, route_picture
+from sb3_dcqn.campusnav.settings import (
+    DEFAULT_ENCODER,
+    DEFAULT_ENV,
+    EnvSettings,
+    campus_of,
+    make_env,
+    make_training_envs,
 )
-from campusnav_env.rendering.map_view import draw_map
-from campusnav_env.rendering.street_view import RenderSettings
-from campusnav_env.route_evaluation import Route
-from sb3_dcqn.campusnav.progress import TqdmProgress
+from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
+from sb3_dcqn.campusnav.summaries import finite, outcome_json, route_table, score_table
 from sb3_dcqn.dcqn import DCQN
 from sb3_dcqn.zoo import ZooEntry, default_hyperparams_path, load_zoo_entry
 
-__all__ = [
-    "ClosurePlan",
-    "CommandError",
-    "EnvSettings",
-    "TrainingOutcome",
-    "build_parser",
-    "main",
-    "route_table",
-    "run",
-    "score_table",
-    "train_with_closures",
-]
+__all__ = ["CommandError", "build_parser", "main", "run"]
 
 PROG = "dcqn-campusnav"
-DEFAULT_ENV = "CampusNav-v0"
-DEFAULT_ENCODER = "efficientnet-lite0"
 MODEL_NAME = "dcqn_campusnav"
 TB_NAME = "DCQN"
-# The map counts as solved (training stops) at these; recovery after a closure uses recovery.py's thresholds
-SOLVED_SUCCESS = 0.99
-SOLVED_SPL = 0.98
 COMPASS_LETTERS = ("N", "E", "S", "W")
 _IMAGE_ONLY_TO_TENSORBOARD = ("stdout", "log", "json", "csv")
 
 
 class CommandError(Exception):
     """Bad input to the command line (a flag, a file, a road); the message names it."""
-
-
-# ------------------------------------------------------------------------------------------------ env settings
-@dataclass(frozen=True)
-class EnvSettings:
-    """
-    The env a model is trained on, as the command line builds it (and as ``<model>.env.json`` stores it).
-
-    :param env_id: Gymnasium id (``CampusNav-v0``, ``CampusNavMulti-v0``)
-    :param env_kwargs: ``env_kwargs`` of the hyperparameter entry (e.g. ``view_dim``)
-    :param encoder: View encoder name
-    :param encoder_weights: Weights file of the encoder (ResNet-50), if any
-    :param render_size: Street-view size ``(width, height)``; ``None``: the renderer's default (640 x 480)
-    """
-
-    env_id: str
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    encoder: str = DEFAULT_ENCODER
-    encoder_weights: str | None = None
-    render_size: tuple[int, int] | None = None
-
-    def make_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments for ``gym.make``."""
-        kwargs: dict[str, Any] = {**self.env_kwargs, "encoder": self.encoder}
-        if self.encoder_weights is not None:
-            kwargs["encoder_kwargs"] = {"weights_path": self.encoder_weights}
-        if self.render_size is not None:
-            kwargs["render_settings"] = RenderSettings(width=self.render_size[0], height=self.render_size[1])
-        return kwargs
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "env": self.env_id,
-            "env_kwargs": self.env_kwargs,
-            "encoder": self.encoder,
-            "encoder_weights": self.encoder_weights,
-            "render_size": None if self.render_size is None else list(self.render_size),
-        }
-
-    @classmethod
-    def from_json(cls, document: dict[str, Any]) -> EnvSettings:
-        size = document.get("render_size")
-        return cls(
-            env_id=str(document["env"]),
-            env_kwargs=dict(document.get("env_kwargs") or {}),
-            encoder=str(document.get("encoder", DEFAULT_ENCODER)),
-            encoder_weights=document.get("encoder_weights"),
-            render_size=None if size is None else (int(size[0]), int(size[1])),
-        )
-
-    def describe(self) -> str:
-        """E.g. ``"CampusNav-v0, encoder pixels, views 64x48"``."""
-        size = "640x480" if self.render_size is None else f"{self.render_size[0]}x{self.render_size[1]}"
-        return f"{self.env_id}, encoder {self.encoder}, views {size}"
 
 
 def _zoo_entry(conf: str | None, env_id: str) -> ZooEntry:
@@ -226,23 +154,26 @@ def _check_env_id(env_id: str) -> None:
 
 
 def _campus(env: gym.Env, env_id: str) -> CampusNavEnv:
-    nav = env.unwrapped
-    if not isinstance(nav, CampusNavEnv):
-        raise CommandError(f"--env {env_id}: not a CampusNav env ({type(nav).__name__})")
-    return nav
+    try:
+        return campus_of(env)
+    except TypeError as error:
+        raise CommandError(f"--env {env_id}: {error}") from None
 
 
 def _make_env(settings: EnvSettings) -> CampusNavEnv:
     """One env, for evaluating and drawing."""
-    return _campus(gym.make(settings.env_id, **settings.make_kwargs()), settings.env_id)
+    try:
+        return make_env(settings)
+    except TypeError as error:
+        raise CommandError(f"--env {settings.env_id}: {error}") from None
 
 
 def _make_vec_env(settings: EnvSettings, n_envs: int, seed: int) -> DummyVecEnv:
     """Training envs (each in a ``Monitor``); the route evaluation shares the first one."""
-    venv = make_vec_env(settings.env_id, n_envs=n_envs, seed=seed, env_kwargs=settings.make_kwargs())
-    assert isinstance(venv, DummyVecEnv)
-    _campus(venv.envs[0], settings.env_id)
-    return venv
+    try:
+        return make_training_envs(settings, n_envs, seed)
+    except TypeError as error:
+        raise CommandError(f"--env {settings.env_id}: {error}") from None
 
 
 def _close_roads(nav: CampusNavEnv, roads: Sequence[Sequence[int]]) -> None:
@@ -257,14 +188,8 @@ def _close_roads(nav: CampusNavEnv, roads: Sequence[Sequence[int]]) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ model files
-def _model_paths(model: Path) -> tuple[Path, Path, Path]:
-    """The model zip and the files kept next to it: replay buffer and env settings."""
-    stem = model.with_suffix("") if model.suffix == ".zip" else model
-    return stem.with_suffix(".zip"), Path(f"{stem}_replay_buffer.pkl"), Path(f"{stem}.env.json")
-
-
 def _find_model(path: str) -> Path:
-    model = _model_paths(Path(path))[0]
+    model = model_paths(Path(path))[0]
     if not model.is_file():
         raise CommandError(f"model file not found: {path}")
     return model
@@ -272,14 +197,10 @@ def _find_model(path: str) -> Path:
 
 def _saved(model: Path) -> tuple[EnvSettings | None, int]:
     """The env settings and number of training envs saved next to a model (``None, 1`` without the file)."""
-    sidecar = _model_paths(model)[2]
-    if not sidecar.is_file():
-        return None, 1
     try:
-        document = json.loads(sidecar.read_text())
-        return EnvSettings.from_json(document["settings"]), int(document.get("n_envs", 1))
-    except (ValueError, KeyError, TypeError) as error:
-        raise CommandError(f"{sidecar}: not a model settings file ({error})") from None
+        return read_saved_settings(model)
+    except ValueError as error:
+        raise CommandError(str(error)) from None
 
 
 def _load_model(path: Path, settings: EnvSettings, nav: CampusNavEnv, venv: DummyVecEnv | None = None) -> DCQN:
@@ -294,29 +215,6 @@ def _load_model(path: Path, settings: EnvSettings, nav: CampusNavEnv, venv: Dumm
     return model
 
 
-def _save_model(
-    model: DCQN, path: Path, settings: EnvSettings, closed_roads: Sequence[tuple[int, int]], replay_buffer: bool
-) -> list[Path]:
-    """Save the model (and its replay buffer and env settings), each file atomically; returns the paths."""
-    zip_path, buffer_path, sidecar = _model_paths(path)
-    zip_path.parent.mkdir(parents=True, exist_ok=True)
-    data = io.BytesIO()
-    model.save(data)
-    written = [write_bytes_atomic(zip_path, data.getvalue())]
-    if replay_buffer:
-        data = io.BytesIO()
-        model.save_replay_buffer(data)
-        written.append(write_bytes_atomic(buffer_path, data.getvalue()))
-    document = {
-        "settings": settings.to_json(),
-        "num_timesteps": model.num_timesteps,
-        "n_envs": model.n_envs,
-        "closed_roads_at_save": [list(road) for road in closed_roads],
-    }
-    written.append(write_text_atomic(sidecar, json.dumps(document, indent=2) + "\n"))
-    return written
-
-
 def _new_logger(model: DCQN, out: Path, verbose: int) -> Path:
     """Log this run to ``out/tb/DCQN_<n>`` (a new folder), one logger for every ``learn`` call."""
     folder = out / "tb" / f"{TB_NAME}_{get_latest_run_id(str(out / 'tb'), TB_NAME) + 1}"
@@ -325,24 +223,6 @@ def _new_logger(model: DCQN, out: Path, verbose: int) -> Path:
 
 
 # ------------------------------------------------------------------------------------------------ closure plans
-@dataclass
-class ClosurePlan:
-    """
-    The closures of a run: those at fixed times (``--closures`` file or ``--close-at``) and those made one at a time
-    once the map is solved (or right away in ``readapt``), each after the previous one recovered or its budget ran out.
-
-    :param scheduled: Events the closure callback fires when due
-    :param later: Events applied between ``learn`` calls, one at a time
-    """
-
-    scheduled: ClosureSchedule = field(default_factory=ClosureSchedule)
-    later: list[ClosureEvent] = field(default_factory=list)
-
-    @property
-    def empty(self) -> bool:
-        return not self.scheduled.events and not self.later
-
-
 def _close_on_route(value: str) -> str | int:
     if value == "busiest":
         return value
@@ -404,279 +284,7 @@ def _plan_source(args: argparse.Namespace) -> str:
     return "/".join(name for name, given in names if given) or "closures"
 
 
-# ------------------------------------------------------------------------------------------------ training
-class _StopWhenDone(BaseCallback):
-    """
-    Stop training once every scheduled closure has fired and the latest route evaluation is good: at the solved
-    thresholds while no road has changed yet, else recovered from the latest change (the evaluation's thresholds).
-    """
-
-    def __init__(self, closures: RoadClosureCallback, expected_records: int) -> None:
-        super().__init__()
-        self.closures = closures
-        self.expected_records = expected_records
-        self._seen = -1
-
-    def _on_step(self) -> bool:
-        evaluation = self.closures.evaluation
-        assert evaluation is not None
-        if len(self.closures.records) < self.expected_records or len(evaluation.evaluations) == self._seen:
-            return True
-        self._seen = len(evaluation.evaluations)
-        if not self._seen:
-            return True
-        if any(record.changed for record in self.closures.records):
-            return not self.closures.recoveries[-1].recovered
-        return not evaluation.evaluations[-1].meets(SOLVED_SUCCESS, SOLVED_SPL, every_goal=True)
-
-
-@dataclass
-class TrainingOutcome:
-    """
-    What a run of :func:`train_with_closures` produced.
-
-    :param evaluation: The route evaluation (``evaluations``: every evaluation in order)
-    :param closures: The closure callback (``records``, ``recoveries``)
-    :param progress: The progress bar (``episode_rewards``, ``episode_lengths``)
-    :param steps: Env steps trained in this run
-    :param seconds: Wall seconds of this run (training and evaluations)
-    :param unfired: Scheduled events that did not fire within the budget
-    """
-
-    evaluation: RouteEvaluationCallback
-    closures: RoadClosureCallback
-    progress: TqdmProgress
-    steps: int
-    seconds: float
-    unfired: list[ClosureEvent]
-
-    @property
-    def recoveries(self) -> list[Recovery]:
-        return self.closures.recoveries
-
-    def solved_at(self) -> RouteEvaluation | None:
-        """The first evaluation at the solved thresholds before any road changed."""
-        changes = [r for r in self.closures.records if r.changed]
-        end = changes[0].evaluation_index if changes else len(self.evaluation.evaluations)
-        return next(
-            (e for e in self.evaluation.evaluations[:end] if e.meets(SOLVED_SUCCESS, SOLVED_SPL, every_goal=True)),
-            None,
-        )
-
-    def before_closures(self) -> RouteEvaluation | None:
-        """The last evaluation before the first change of the road network (or the last one if none)."""
-        changes = [r for r in self.closures.records if r.changed]
-        end = changes[0].evaluation_index if changes else len(self.evaluation.evaluations)
-        return self.evaluation.evaluations[end - 1] if end > 0 else None
-
-
-def train_with_closures(
-    model: DCQN,
-    plan: ClosurePlan,
-    *,
-    budget: int,
-    recovery_budget: int,
-    eval_freq: int,
-    recovery_eval_freq: int = 5,
-    keep_training: bool = False,
-    verbose: int = 0,
-    progress: bool = True,
-) -> TrainingOutcome:
-    """
-    Train with route evaluations and closures: first up to ``budget`` steps (scheduled closures fire on the way; stop
-    once solved and recovered from them), then each of ``plan.later`` in turn, training on up to ``recovery_budget``
-    steps after each (stop once recovered).
-
-    :param model: The model, with its training env (a ``DummyVecEnv``) and logger set
-    :param plan: The closures
-    :param budget: Steps of the first phase (0: none)
-    :param recovery_budget: Steps after each closure of ``plan.later`` at most
-    :param eval_freq: Route evaluation every this many env steps
-    :param recovery_eval_freq: While recovering, a route evaluation every this many episodes
-    :param keep_training: Train every budget out, even when solved or recovered
-    :param verbose: 1: a line per route evaluation and closure event
-    :param progress: Show a progress bar on stderr
-    :return: the callbacks, with everything they recorded
-    """
-    start, start_steps = time.perf_counter(), model.num_timesteps
-    evaluation = RouteEvaluationCallback(
-        eval_freq=eval_freq,
-        unit="step",
-        success_threshold=DEFAULT_SUCCESS_THRESHOLD,
-        spl_threshold=DEFAULT_SPL_THRESHOLD,
-        verbose=int(verbose >= 1),
-    )
-    closures = RoadClosureCallback(
-        plan.scheduled, evaluation=evaluation, recovery_eval_freq=recovery_eval_freq, verbose=int(verbose >= 1)
-    )
-    bar = TqdmProgress(evaluation, disable=not progress)
-    closures.init_callback(model)  # learns the map, so that closures can be applied before any training
-
-    def learn(steps: int, phase: str, expected_events: int = 0) -> None:
-        callbacks: list[BaseCallback] = [closures, bar]
-        if not keep_training:
-            callbacks.append(_StopWhenDone(closures, len(closures.records) + expected_events))
-        bar.phase = phase
-        model.learn(steps, callback=callbacks, reset_num_timesteps=False)
-
-    if budget > 0:
-        learn(budget, "train", len(plan.scheduled.events))
-    fired = len(closures.records)
-    if plan.later and not evaluation.evaluations:
-        evaluation.evaluate()  # the routes before the first closure
-    for event in plan.later:
-        record = closures.apply(replace(event, at=model.num_timesteps))  # described as "step N: ..."
-        if not record.changed:
-            for what, why in record.refused:
-                print(f"closure refused: {what}: {why}", file=sys.stderr)
-            continue
-        roads = ", ".join(f"{u}-{v}" for u, v in record.closed)
-        if recovery_budget > 0:
-            learn(recovery_budget, f"closed {roads}")
-    return TrainingOutcome(
-        evaluation=evaluation,
-        closures=closures,
-        progress=bar,
-        steps=model.num_timesteps - start_steps,
-        seconds=time.perf_counter() - start,
-        unfired=plan.scheduled.ordered()[fired:],
-    )
-
-
 # ------------------------------------------------------------------------------------------------ reports
-def _cell(value: float, digits: int = 3) -> str:
-    return "-" if math.isnan(value) else f"{value:.{digits}f}"
-
-
-def _score_cells(report: RouteReport) -> str:
-    s = report.summary()
-    return (
-        f"{_cell(s['success_rate'])} | {_cell(s['spl'])} | {_cell(s['coverage'])} | {_cell(s['mean_steps'], 2)} | "
-        f"{_cell(s['mean_shortest'], 2)} | {_cell(s['optimality_gap'], 2)} | {int(s['n_routes'])}"
-    )
-
-
-def score_table(report: RouteReport) -> str:
-    """Markdown table of a route report: all goals, then each goal."""
-    lines = [
-        "| goal | success rate | SPL | coverage | mean steps | mean shortest | optimality gap | routes |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    lines.append(f"| all | {_score_cells(report)} |")
-    for goal in sorted({route.goal for route in report.routes}):
-        lines.append(f"| {goal} | {_score_cells(report.for_goal(goal))} |")
-    return "\n".join(lines)
-
-
-def _phases(outcome: TrainingOutcome) -> list[tuple[str, RouteEvaluation]]:
-    """The evaluations worth a row: before the closures, then right after each and at its recovery (or end)."""
-    rows: list[tuple[str, RouteEvaluation]] = []
-    before = outcome.before_closures()
-    if before is not None:
-        rows.append(("trained", before))
-    for number, recovery in enumerate(outcome.recoveries, start=1):
-        roads = ", ".join(f"{u}-{v}" for u, v in recovery.closure.closed) or "reopened " + ", ".join(
-            f"{u}-{v}" for u, v in recovery.closure.reopened
-        )
-        if recovery.right_after is not None:
-            rows.append((f"closure {number} ({roads}): right after", recovery.right_after))
-        if recovery.recovered_at is not None:
-            rows.append((f"closure {number}: recovered", recovery.recovered_at))
-        elif recovery.last is not None and recovery.last is not recovery.right_after:
-            rows.append((f"closure {number}: not recovered, at the end", recovery.last))
-    return rows
-
-
-def route_table(outcome: TrainingOutcome) -> str:
-    """Markdown table: the greedy routes' scores before the closures, right after each and once recovered."""
-    lines = [
-        "| phase | env step | episode | success rate | SPL | coverage | mean steps | mean shortest | optimality gap | "
-        "routes |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for name, evaluation in _phases(outcome):
-        lines.append(f"| {name} | {evaluation.step} | {evaluation.episode} | {_score_cells(evaluation.report)} |")
-    return "\n".join(lines)
-
-
-def _finite(value: float) -> float | None:
-    return None if math.isinf(value) or math.isnan(value) else value
-
-
-def _evaluation_json(evaluation: RouteEvaluation | None) -> dict[str, Any] | None:
-    if evaluation is None:
-        return None
-    summary = {key: _finite(value) for key, value in evaluation.report.summary().items()}
-    return {
-        "step": evaluation.step,
-        "episode": evaluation.episode,
-        "train_seconds": evaluation.train_seconds,
-        **summary,
-    }
-
-
-def _outcome_json(outcome: TrainingOutcome) -> dict[str, Any]:
-    return {
-        "steps": outcome.steps,
-        "seconds": outcome.seconds,
-        "episodes": len(outcome.progress.episode_rewards),
-        "solved_at": _evaluation_json(outcome.solved_at()),
-        "trained": _evaluation_json(outcome.before_closures()),
-        "closures": [
-            {
-                "description": r.closure.description,
-                "closed": [list(road) for road in r.closure.closed],
-                "reopened": [list(road) for road in r.closure.reopened],
-                "refused": [list(pair) for pair in r.closure.refused],
-                "routes_affected": r.closure.routes_affected,
-                "recovered": r.recovered,
-                "recovery_episodes": _finite(r.episodes),
-                "recovery_steps": _finite(r.steps),
-                "recovery_seconds": _finite(r.seconds),
-                "right_after": _evaluation_json(r.right_after),
-                "recovered_at": _evaluation_json(r.recovered_at),
-                "last": _evaluation_json(r.last),
-            }
-            for r in outcome.recoveries
-        ],
-        "refused": [list(pair) for record in outcome.closures.records for pair in record.refused],
-        "unfired": [event.describe() for event in outcome.unfired],
-    }
-
-
-def _pick_route(report: RouteReport, goal: str, start: int | None, heading: int | None) -> Route | None:
-    """The route from ``start``/``heading`` if given, else a failed one from the farthest start, else the longest."""
-    routes = [
-        r
-        for r in report.routes
-        if r.goal == goal and (start is None or r.start == start) and (heading is None or r.heading == heading)
-    ]
-    if not routes:
-        return None
-    failed = [r for r in routes if not r.success]
-    return max(failed or routes, key=lambda r: (r.shortest, len(r.nodes), -r.start, -r.heading))
-
-
-def _route_picture(nav: CampusNavEnv, goal: str, route: Route | None, start: int | None, size: int) -> np.ndarray:
-    """The map (closures in red), the goal, the shortest path from the start and the route, if any."""
-    goal_node = nav.goal_nodes[nav.goal_names.index(goal)]
-    routes: dict[str, list[int]] = {}
-    origin = route.start if route is not None else start
-    if origin is not None and origin != goal_node and nav.node_distances(goal_node)[origin] > 0:
-        routes["shortest path"] = nav.graph.shortest_path(origin, goal_node)
-    if route is not None:
-        outcome = f"{route.steps} steps" if route.success else "fails"
-        routes[f"greedy route ({outcome})"] = list(route.nodes)
-    return draw_map(
-        nav.graph,
-        size=size,
-        goal=goal_node,
-        agent=origin,
-        heading=None if route is None else route.heading,
-        routes=routes or None,
-    )
-
-
 def _check_goal(nav: CampusNavEnv, goal: str | None) -> str:
     if goal is None:
         return nav.goal_names[0]
@@ -717,7 +325,7 @@ def _finish_training(
         figures["routes"] = closure_route_panels(nav.graph, evaluations, recoveries)
     elif evaluations:
         goal = nav.goal_names[0]
-        figures["routes"] = _route_picture(nav, goal, _pick_route(evaluations[-1].report, goal, None, None), None, 800)
+        figures["routes"] = route_picture(nav, goal, pick_route(evaluations[-1].report, goal, None, None), None, 800)
     figures["curves"] = training_curves(
         outcome.progress.episode_rewards,
         outcome.progress.episode_lengths,
@@ -731,7 +339,7 @@ def _finish_training(
     model.logger.dump(model.num_timesteps)
     model.logger.close()
 
-    saved = _save_model(model, model_path, settings, sorted(nav.closed_roads), replay_buffer)
+    saved = save_model(model, model_path, settings, sorted(nav.closed_roads), replay_buffer)
     files["model"] = str(saved[0])
     if replay_buffer:
         files["replay_buffer"] = str(saved[1])
@@ -780,7 +388,7 @@ def _finish_training(
         "seed": args.seed,
         "levers": list(getattr(args, "levers", [])),
         "num_timesteps": model.num_timesteps,
-        **_outcome_json(outcome),
+        **outcome_json(outcome),
         "files": files,
     }
     write_text_atomic(out / "summary.md", text)
@@ -794,7 +402,7 @@ def _finish_training(
 def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, title: str) -> dict[str, Any]:
     """``train`` and ``demo``: a new model, trained with ``plan``'s closures."""
     _check_env_id(args.env or DEFAULT_ENV)
-    entry = _with_levers(_zoo_entry(args.conf, args.env or DEFAULT_ENV), args.levers)
+    entry = with_levers(_zoo_entry(args.conf, args.env or DEFAULT_ENV), args.levers)
     settings = _env_settings(args, entry=entry)
     budget = entry.n_timesteps if args.timesteps is None else args.timesteps
     recovery_budget = max(1, budget // 2) if args.recovery_budget is None else args.recovery_budget
@@ -859,15 +467,15 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
         "model": str(path),
         "settings": settings.to_json(),
         "closed_roads": [list(road) for road in sorted(nav.closed_roads)],
-        "all": {key: _finite(value) for key, value in report.summary().items()},
+        "all": {key: finite(value) for key, value in report.summary().items()},
         "goals": {
-            goal_name: {key: _finite(value) for key, value in report.for_goal(goal_name).summary().items()}
+            goal_name: {key: finite(value) for key, value in report.for_goal(goal_name).summary().items()}
             for goal_name in nav.goal_names
         },
     }
     if args.picture is not None:
-        route = _pick_route(report, goal, args.start, args.heading)
-        picture = write_figure(args.picture, _route_picture(nav, goal, route, args.start, args.size))
+        route = pick_route(report, goal, args.start, args.heading)
+        picture = write_figure(args.picture, route_picture(nav, goal, route, args.start, args.size))
         summary["picture"] = str(picture)
         print(f"\npicture: {picture}")
     return summary
@@ -886,7 +494,7 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
         )
     saved, n_envs = _saved(path)
     settings = _env_settings(args, saved)
-    buffer_path = Path(args.replay_buffer) if args.replay_buffer is not None else _model_paths(path)[1]
+    buffer_path = Path(args.replay_buffer) if args.replay_buffer is not None else model_paths(path)[1]
     if args.replay_buffer is not None and not buffer_path.is_file():
         raise CommandError(f"--replay-buffer: file not found: {buffer_path}")
     venv = _make_vec_env(settings, n_envs, args.seed)
@@ -938,8 +546,8 @@ def _cmd_draw(args: argparse.Namespace) -> dict[str, Any]:
             return model.predict(observations, deterministic=True)[0]
 
         report = evaluate_routes(nav, policy, goals=[goal])
-        route = _pick_route(report, goal, args.start, args.heading)
-    picture = write_figure(args.picture, _route_picture(nav, goal, route, args.start, args.size))
+        route = pick_route(report, goal, args.start, args.heading)
+    picture = write_figure(args.picture, route_picture(nav, goal, route, args.start, args.size))
     described = "" if route is None else f"; route from node {route.start} facing {COMPASS_LETTERS[route.heading]}"
     print(f"map of {settings.env_id} (goal {goal}){described}: {picture}")
     return {
@@ -974,28 +582,6 @@ def _common_flags() -> argparse.ArgumentParser:
         "--verbose", action="count", default=0, help="a line per route evaluation and closure; twice: SB3's tables"
     )
     return parser
-
-
-# Re-adaptation levers a training run may switch on: DCQN options and env options (all off in DCQN's defaults)
-LEVERS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    "revision": ({"experience_revision": True}, {}),
-    "blocked": ({"blocked_action_target": True}, {}),
-    "per": ({"prioritized_replay": True}, {}),
-    "boost": ({"adaptation_boost": {"trigger": "episode_length"}}, {}),
-    "visible": ({}, {"visible_closures": True}),
-}
-# The demo's: the levers that re-adapted fastest together in benchmarks/closures_one_at_a_time.py
-DEMO_LEVERS = ("revision", "blocked", "per")
-
-
-def _with_levers(entry: ZooEntry, levers: Sequence[str]) -> ZooEntry:
-    """The entry with the levers' DCQN options and env options added."""
-    hyperparams, env_kwargs = dict(entry.hyperparams), dict(entry.env_kwargs)
-    for lever in levers:
-        options, env_options = LEVERS[lever]
-        hyperparams.update(options)
-        env_kwargs.update(env_options)
-    return replace(entry, hyperparams=hyperparams, env_kwargs=env_kwargs)
 
 
 def _training_flags() -> argparse.ArgumentParser:
