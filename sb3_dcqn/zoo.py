@@ -26,6 +26,10 @@ Two problems of rl_zoo3 2.9 are worked around here: ``enjoy`` imports ``requests
 declaring it, and ``record_video`` ignores the ``env_kwargs`` saved in the run's ``config.yml`` (CampusNav's
 ``view_dim``), so the model's observation space would not match the env's.
 
+This module works with any Gymnasium env and registers none: the ``dcqn-zoo`` console script
+(:mod:`sb3_dcqn.campusnav.zoo`) registers the CampusNav ids first; for other packages' envs pass the zoo's
+``--gym-packages``.
+
 Requires the ``zoo`` extra: ``pip install "sb3-dcqn[zoo]"``.
 """
 
@@ -144,7 +148,6 @@ def policy_kwargs_namespace() -> dict[str, Any]:
     """Names that ``policy_kwargs`` strings in ``dcqn.yml`` may use (the zoo evaluates those strings)."""
     from torch import nn
 
-    import campusnav_env  # noqa: F401  (registers the CampusNav ids with gymnasium)
     from sb3_dcqn.fusion import EmbeddingFusionExtractor
 
     return {"EmbeddingFusionExtractor": EmbeddingFusionExtractor, "nn": nn}
