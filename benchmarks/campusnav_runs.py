@@ -1,11 +1,11 @@
-"""What the CampusNav benchmarks share: the tasks, the agents compared, and training until the map is solved.
+"""What the CampusNav benchmarks share: the tasks, the agents compared, and the lever sets of the closure benchmarks.
 
 A *task* is a map and its goals (the built-in campus with one or four goals, or a generated campus of a few hundred
 intersections) with the shipped YAML entry that trains on it. A *variant* is an agent: DCQN as shipped, DCQN without
 the heading-relative critics (the network SB3's DQN can have too), SB3's DQN with the same settings, and DCQN with
-the paper's settings. :func:`train_until_solved` trains one agent inside one ``learn()`` call, evaluating the greedy
-routes from every (start, heading) every ``eval_freq`` steps, and stops at the first evaluation at the thresholds or
-when the training-time budget is spent (evaluation time excluded).
+the paper's settings. A *lever set* is a combination of DCQN's re-adaptation levers (:mod:`sb3_dcqn.campusnav.levers`).
+Training until solved, the solved bar and the train -> close -> recover loop are the glue's
+(:mod:`sb3_dcqn.campusnav.experiments`, :mod:`sb3_dcqn.campusnav.solved`); ``train_until_solved`` is re-exported here.
 """
 
 from __future__ import annotations
@@ -28,11 +28,8 @@ from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.experiments import SolveResult as SolveResult
 from sb3_dcqn.campusnav.experiments import TrainingBudget as TrainingBudget
 from sb3_dcqn.campusnav.experiments import train_until_solved as train_until_solved
+from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, with_levers
 from sb3_dcqn.zoo import ZooEntry, default_hyperparams_path, load_zoo_entry, paper_hyperparams_path
-
-# The issue's threshold for a solved map
-SUCCESS_THRESHOLD = 0.99
-SPL_THRESHOLD = 0.98
 
 
 @dataclass(frozen=True)
@@ -154,57 +151,30 @@ VARIANTS = {
 
 
 # ------------------------------------------------------------------------------------------------ closure experiments
-@dataclass(frozen=True)
-class Lever:
-    """
-    A re-adaptation lever of DCQN (``benchmarks/closures_*.py``): algorithm options and env options on top of the
-    shipped entry.
-
-    :param name: Name in tables
-    :param overrides: DCQN keyword arguments added to (or replacing) the entry's
-    :param env_kwargs: Env keyword arguments added to the entry's (e.g. ``visible_closures=True``)
-    """
-
-    name: str
-    overrides: dict[str, Any] = field(default_factory=dict)
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-
-    def entry(self, task: Task) -> ZooEntry:
-        """The shipped DCQN entry for ``task`` with this lever's options."""
-        entry = Variant(self.name, overrides=self.overrides).entry(task)
-        return ZooEntry(entry.n_timesteps, entry.hyperparams, {**entry.env_kwargs, **self.env_kwargs}, entry.n_envs)
+def lever_entry(lever_set: LeverSet, task: Task) -> ZooEntry:
+    """The shipped DCQN entry for ``task`` with a lever set's DCQN and env options (``sb3_dcqn.campusnav.levers``)."""
+    return with_levers(VARIANTS["DCQN"].entry(task), lever_set.levers)
 
 
-_ALL_LEVERS = {
-    "experience_revision": True,
-    "prioritized_replay": True,
-    "adaptation_boost": {"trigger": "revision"},
-}
-LEVERS = {
-    "baseline": Lever("baseline (DCQN as shipped)"),
-    "revision": Lever("experience revision", {"experience_revision": True}),
-    "per": Lever("prioritised replay", {"prioritized_replay": True}),
-    # Alone, the boost cannot be triggered by revisions: longer episodes are the sign that the world changed
-    "boost": Lever("boost (episode-length trigger)", {"adaptation_boost": {"trigger": "episode_length"}}),
-    "boost_td": Lever("boost (TD-error trigger)", {"adaptation_boost": {"trigger": "td_error"}}),
-    "visible": Lever("visible closures", env_kwargs={"visible_closures": True}),
-    "revision_boost": Lever(
-        "revision + boost (revision trigger)",
-        {"experience_revision": True, "adaptation_boost": {"trigger": "revision"}},
+# The closure benchmarks' rows: combinations of the levers of sb3_dcqn.campusnav.levers (the keys are the runs files'
+# "lever" field: keep them). The adaptation boost is gone from DCQN (it re-adapted slower than no lever at all); its
+# runs stay in the runs files as history and no longer show in the tables.
+LEVER_SETS = {
+    "baseline": LeverSet("baseline (DCQN as shipped)"),
+    "revision": LeverSet(LEVERS["revision"].name, ("revision",)),
+    "per": LeverSet(LEVERS["per"].name, ("per",)),
+    "visible": LeverSet(LEVERS["visible"].name, ("visible",)),
+    "blocked": LeverSet(LEVERS["blocked"].name, ("blocked",)),
+    "revision_blocked": LeverSet("revision + blocked-action target", ("revision", "blocked")),
+    "revision_blocked_visible": LeverSet(
+        "revision + blocked-action target + visible closures", ("revision", "blocked", "visible")
     ),
-    "all": Lever("all levers (revision, PER, boost on revision, visible)", _ALL_LEVERS, {"visible_closures": True}),
-    "blocked": Lever("blocked-action target", {"blocked_action_target": True}),
-    "revision_blocked": Lever(
-        "revision + blocked-action target", {"experience_revision": True, "blocked_action_target": True}
+    "revision_blocked_per": LeverSet(
+        "revision + blocked-action target + prioritised replay", ("revision", "blocked", "per")
     ),
-    "revision_blocked_visible": Lever(
-        "revision + blocked-action target + visible closures",
-        {"experience_revision": True, "blocked_action_target": True},
-        {"visible_closures": True},
-    ),
-    "revision_blocked_per": Lever(
-        "revision + blocked-action target + prioritised replay",
-        {"experience_revision": True, "blocked_action_target": True, "prioritized_replay": True},
+    # What "all" was without the boost
+    "revision_per_visible": LeverSet(
+        "revision + prioritised replay + visible closures", ("revision", "per", "visible")
     ),
 }
 

@@ -423,7 +423,8 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
         recovery_budget=recovery_budget,
         eval_freq=args.eval_freq,
         recovery_eval_freq=args.recovery_eval_freq,
-        keep_training=args.keep_training,
+        stop_when_solved=not args.keep_training,
+        stop_when_recovered=not args.keep_training,
         verbose=args.verbose,
         progress=not args.no_progress,
     )
@@ -521,7 +522,8 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
         recovery_budget=args.timesteps,
         eval_freq=args.eval_freq,
         recovery_eval_freq=args.recovery_eval_freq,
-        keep_training=args.keep_training,
+        stop_when_solved=not args.keep_training,
+        stop_when_recovered=not args.keep_training,
         verbose=args.verbose,
         progress=not args.no_progress,
     )
@@ -649,9 +651,9 @@ def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str]) -> None
         nargs="*",
         choices=sorted(LEVERS),
         default=list(default),
-        help="re-adaptation levers: revision (experience revision), blocked (blocked-action target), per "
-        "(prioritised replay), boost (exploration/replay boost on longer episodes), visible (barriers in the views); "
-        f"default: {' '.join(default) or 'none'}; --levers alone: none",
+        help="re-adaptation levers: "
+        + ", ".join(f"{name} ({lever.name})" for name, lever in LEVERS.items())
+        + f"; default: {' '.join(default) or 'none'}; --levers alone: none",
     )
 
 

@@ -37,7 +37,6 @@ LEVERS: dict[str, Lever] = {
     "revision": Lever("experience revision", {"experience_revision": True}),
     "blocked": Lever("blocked-action target", {"blocked_action_target": True}),
     "per": Lever("prioritised replay", {"prioritized_replay": True}),
-    "boost": Lever("boost (episode-length trigger)", {"adaptation_boost": {"trigger": "episode_length"}}),
     "visible": Lever("visible closures", env_options={"visible_closures": True}),
 }
 # The demo's: the levers that re-adapted fastest together in benchmarks/closures_one_at_a_time.py
