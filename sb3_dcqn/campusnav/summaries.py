@@ -1,4 +1,5 @@
-"""What a run reports: score tables of route evaluations, the route table of a run with closures, JSON summaries."""
+"""What a run reports: score tables of route evaluations, the route table of a run with closures, the Markdown and
+JSON summaries."""
 
 from __future__ import annotations
 
@@ -6,10 +7,20 @@ import math
 from typing import Any
 
 from campusnav_env import RouteReport
-from campusnav_env.recovery import RouteEvaluation
+from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD, RouteEvaluation, recovery_table
 from sb3_dcqn.campusnav.experiments import TrainingOutcome
+from sb3_dcqn.campusnav.solved import is_solved, solved_bar
 
-__all__ = ["evaluation_json", "finite", "outcome_json", "phases", "route_table", "score_table"]
+__all__ = [
+    "evaluation_json",
+    "finite",
+    "outcome_json",
+    "phases",
+    "route_table",
+    "run_report",
+    "score_table",
+    "solved_text",
+]
 
 
 def cell(value: float, digits: int = 3) -> str:
@@ -110,3 +121,67 @@ def outcome_json(outcome: TrainingOutcome) -> dict[str, Any]:
         "refused": [list(pair) for record in outcome.closures.records for pair in record.refused],
         "unfired": [event.describe() for event in outcome.unfired],
     }
+
+
+def solved_text(outcome: TrainingOutcome, from_model: bool = False) -> str:
+    """
+    How the routes stood before the first closure, in words.
+
+    :param from_model: The run started from a trained model (``readapt``): report its routes before the first
+        closure instead of when training solved the map
+    """
+    bar = solved_bar()
+    before = outcome.before_closures()
+    if from_model:
+        if before is None:
+            return "the model was not evaluated before the closures"
+        verdict = "solved" if is_solved(before) else f"not solved ({bar})"
+        return (
+            f"the model before the first closure (step {before.step}): success {before.success_rate:.3f}, SPL "
+            f"{before.spl:.3f}, {verdict}"
+        )
+    solved = outcome.solved_at()
+    if solved is not None:
+        return (
+            f"solved ({bar}) at step {solved.step}, episode {solved.episode}, after {solved.train_seconds:.1f} s of "
+            "training"
+        )
+    return "not solved before the first closure" if outcome.recoveries else "not solved"
+
+
+def run_report(title: str, description: str, outcome: TrainingOutcome, files: dict[str, str], from_model: bool) -> str:
+    """
+    The Markdown summary of a training run (``summary.md``): what ran, the route table, the recovery table, refused
+    and unfired closures, and the files written.
+
+    :param title: The heading
+    :param description: The env, e.g. ``EnvSettings.describe()``
+    :param outcome: The run
+    :param files: Name -> path of every file written
+    :param from_model: The run started from a trained model (see :func:`solved_text`)
+    """
+    lines = [
+        f"# {title}",
+        "",
+        f"{description}; {outcome.steps} env steps, {len(outcome.progress.episode_rewards)} episodes, "
+        f"{outcome.seconds:.0f} s in all; {solved_text(outcome, from_model)}.",
+        "",
+        "Routes of the greedy policy from every (start, heading):",
+        "",
+        route_table(outcome),
+    ]
+    if outcome.closures.records:
+        lines += [
+            "",
+            f"Recovery (success >= {DEFAULT_SUCCESS_THRESHOLD}, SPL >= {DEFAULT_SPL_THRESHOLD}; seconds of training, "
+            "evaluations excluded):",
+            "",
+            recovery_table(outcome.recoveries),
+        ]
+    refused = [f"{what}: {why}" for record in outcome.closures.records for what, why in record.refused]
+    if refused:
+        lines += ["", "Refused: " + "; ".join(refused)]
+    if outcome.unfired:
+        lines += ["", "Not reached within the budget: " + "; ".join(e.describe() for e in outcome.unfired)]
+    lines += ["", "Files:", "", *(f"- {name}: {path}" for name, path in files.items())]
+    return "\n".join(lines) + "\n"
