@@ -155,7 +155,7 @@ def _env_creator(env_id: str) -> Any:
     import gymnasium as gym
     from gymnasium.envs.registration import load_env_creator
 
-    import campusnav_env  # (registers the CampusNav ids)
+    import campusnav_env  # noqa: F401  (registers the CampusNav ids)
     from campusnav_env import CampusNavEnv
 
     try:
@@ -170,7 +170,6 @@ def _env_creator(env_id: str) -> Any:
             raise CommandError(f"--env {env_id}: cannot load {spec.entry_point!r} ({error})") from None
     if isinstance(creator, type) and not issubclass(creator, CampusNavEnv):
         raise CommandError(f"--env {env_id}: not a CampusNav env ({creator.__name__})")
-    del campusnav_env
     return creator
 
 
