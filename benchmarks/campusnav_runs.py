@@ -1,37 +1,35 @@
-"""What the CampusNav benchmarks share: the tasks, the agents compared, and training until the map is solved.
+"""What the CampusNav benchmarks share: the tasks, the agents compared, and the lever sets of the closure benchmarks.
 
 A *task* is a map and its goals (the built-in campus with one or four goals, or a generated campus of a few hundred
 intersections) with the shipped YAML entry that trains on it. A *variant* is an agent: DCQN as shipped, DCQN without
 the heading-relative critics (the network SB3's DQN can have too), SB3's DQN with the same settings, and DCQN with
-the paper's settings. :func:`train_until_solved` trains one agent inside one ``learn()`` call, evaluating the greedy
-routes from every (start, heading) every ``eval_freq`` steps, and stops at the first evaluation at the thresholds or
-when the training-time budget is spent (evaluation time excluded).
+the paper's settings. A *lever set* is a combination of DCQN's re-adaptation levers (:mod:`sb3_dcqn.campusnav.levers`).
+Training until solved, the solved bar and the train -> close -> recover loop are the glue's
+(:mod:`sb3_dcqn.campusnav.experiments`, :mod:`sb3_dcqn.campusnav.solved`); ``train_until_solved`` is re-exported here.
 """
 
 from __future__ import annotations
 
 import copy
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
 from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 import campusnav_env  # noqa: F401  (registers the CampusNav ids)
-from campusnav_env.callbacks import RouteEvaluationCallback
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.maps.campus import generate_campus
-from campusnav_env.recovery import RouteEvaluation
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
-from sb3_dcqn.zoo import ZooEntry, default_hyperparams_path, load_zoo_entry, paper_hyperparams_path
 
-# The issue's threshold for a solved map
-SUCCESS_THRESHOLD = 0.99
-SPL_THRESHOLD = 0.98
+# Training until solved lives in the glue; re-exported for the scripts that import it from here (scale.py)
+from sb3_dcqn.campusnav.experiments import SolveResult as SolveResult
+from sb3_dcqn.campusnav.experiments import TrainingBudget as TrainingBudget
+from sb3_dcqn.campusnav.experiments import train_until_solved as train_until_solved
+from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, with_levers
+from sb3_dcqn.zoo import ZooEntry, default_hyperparams_path, load_zoo_entry, paper_hyperparams_path
 
 
 @dataclass(frozen=True)
@@ -152,135 +150,31 @@ VARIANTS = {
 }
 
 
-class TrainingBudget(BaseCallback):
-    """Stops training once ``evaluation`` has counted ``seconds`` of training (its evaluations excluded)."""
-
-    def __init__(self, evaluation: RouteEvaluationCallback, seconds: float) -> None:
-        super().__init__()
-        self.evaluation = evaluation
-        self.seconds = seconds
-
-    def _on_step(self) -> bool:
-        return self.evaluation.train_seconds < self.seconds
-
-
-@dataclass(frozen=True)
-class SolveResult:
-    """
-    One training run to the threshold.
-
-    :param solved_at: The first evaluation at the thresholds, or ``None`` (a miss)
-    :param evaluations: Every evaluation of the run
-    :param wall_seconds: Wall time of ``learn()``, evaluations included
-    :param evaluation_seconds: Of which the evaluations took
-    """
-
-    solved_at: RouteEvaluation | None
-    evaluations: list[RouteEvaluation]
-    wall_seconds: float
-    evaluation_seconds: float = 0.0
-
-    def curve(self) -> list[dict[str, float]]:
-        return [
-            {"step": e.step, "episode": e.episode, "seconds": e.train_seconds, "success": e.success_rate, "spl": e.spl}
-            for e in self.evaluations
-        ]
-
-
-def train_until_solved(
-    model: BaseAlgorithm,
-    max_steps: int,
-    budget_seconds: float,
-    eval_freq: int,
-    evaluation: RouteEvaluationCallback | None = None,
-    **learn_kwargs: Any,
-) -> SolveResult:
-    """
-    Train until the greedy routes from every start meet the thresholds, the step cap or the time budget.
-
-    :param model: The agent (its env is evaluated: the first training env)
-    :param max_steps: Step cap
-    :param budget_seconds: Training-time cap, evaluations excluded
-    :param eval_freq: Evaluate every this many env steps
-    :param evaluation: An evaluation callback of your own (default: one at the issue's thresholds)
-    :return: the first evaluation at the thresholds (or ``None``) and all evaluations
-    """
-    if evaluation is None:
-        evaluation = RouteEvaluationCallback(
-            eval_freq=eval_freq,
-            success_threshold=SUCCESS_THRESHOLD,
-            spl_threshold=SPL_THRESHOLD,
-            stop_when_solved=True,
-            every_goal=True,
-        )
-    start = time.perf_counter()
-    model.learn(
-        max_steps, callback=CallbackList([evaluation, TrainingBudget(evaluation, budget_seconds)]), **learn_kwargs
-    )
-    wall = time.perf_counter() - start
-    solved = next(
-        (
-            e
-            for e in evaluation.evaluations
-            if e.meets(evaluation.success_threshold, evaluation.spl_threshold, evaluation.every_goal)
-        ),
-        None,
-    )
-    return SolveResult(solved, list(evaluation.evaluations), wall, evaluation.excluded_seconds)
-
-
 # ------------------------------------------------------------------------------------------------ closure experiments
-@dataclass(frozen=True)
-class Lever:
-    """
-    A re-adaptation lever of DCQN (``benchmarks/closures_*.py``): algorithm options and env options on top of the
-    shipped entry.
-
-    :param name: Name in tables
-    :param overrides: DCQN keyword arguments added to (or replacing) the entry's
-    :param env_kwargs: Env keyword arguments added to the entry's (e.g. ``visible_closures=True``)
-    """
-
-    name: str
-    overrides: dict[str, Any] = field(default_factory=dict)
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-
-    def entry(self, task: Task) -> ZooEntry:
-        """The shipped DCQN entry for ``task`` with this lever's options."""
-        entry = Variant(self.name, overrides=self.overrides).entry(task)
-        return ZooEntry(entry.n_timesteps, entry.hyperparams, {**entry.env_kwargs, **self.env_kwargs}, entry.n_envs)
+def lever_entry(lever_set: LeverSet, task: Task) -> ZooEntry:
+    """The shipped DCQN entry for ``task`` with a lever set's DCQN and env options (``sb3_dcqn.campusnav.levers``)."""
+    return with_levers(VARIANTS["DCQN"].entry(task), lever_set.levers)
 
 
-_ALL_LEVERS = {
-    "experience_revision": True,
-    "prioritized_replay": True,
-    "adaptation_boost": {"trigger": "revision"},
-}
-LEVERS = {
-    "baseline": Lever("baseline (DCQN as shipped)"),
-    "revision": Lever("experience revision", {"experience_revision": True}),
-    "per": Lever("prioritised replay", {"prioritized_replay": True}),
-    # Alone, the boost cannot be triggered by revisions: longer episodes are the sign that the world changed
-    "boost": Lever("boost (episode-length trigger)", {"adaptation_boost": {"trigger": "episode_length"}}),
-    "boost_td": Lever("boost (TD-error trigger)", {"adaptation_boost": {"trigger": "td_error"}}),
-    "visible": Lever("visible closures", env_kwargs={"visible_closures": True}),
-    "revision_boost": Lever(
-        "revision + boost (revision trigger)",
-        {"experience_revision": True, "adaptation_boost": {"trigger": "revision"}},
+# The closure benchmarks' rows: combinations of the levers of sb3_dcqn.campusnav.levers (the keys are the runs files'
+# "lever" field: keep them). The adaptation boost is gone from DCQN (it re-adapted slower than no lever at all); its
+# runs stay in the runs files as history and no longer show in the tables.
+LEVER_SETS = {
+    "baseline": LeverSet("baseline (DCQN as shipped)"),
+    "revision": LeverSet(LEVERS["revision"].name, ("revision",)),
+    "per": LeverSet(LEVERS["per"].name, ("per",)),
+    "visible": LeverSet(LEVERS["visible"].name, ("visible",)),
+    "blocked": LeverSet(LEVERS["blocked"].name, ("blocked",)),
+    "revision_blocked": LeverSet("revision + blocked-action target", ("revision", "blocked")),
+    "revision_blocked_visible": LeverSet(
+        "revision + blocked-action target + visible closures", ("revision", "blocked", "visible")
     ),
-    "all": Lever("all levers (revision, PER, boost on revision, visible)", _ALL_LEVERS, {"visible_closures": True}),
-    "blocked": Lever("blocked-action target", {"blocked_action_target": True}),
-    "revision_blocked": Lever(
-        "revision + blocked-action target", {"experience_revision": True, "blocked_action_target": True}
+    "revision_blocked_per": LeverSet(
+        "revision + blocked-action target + prioritised replay", ("revision", "blocked", "per")
     ),
-    "revision_blocked_visible": Lever(
-        "revision + blocked-action target + visible closures",
-        {"experience_revision": True, "blocked_action_target": True},
-        {"visible_closures": True},
-    ),
-    "revision_blocked_per": Lever(
-        "revision + blocked-action target + prioritised replay",
-        {"experience_revision": True, "blocked_action_target": True, "prioritized_replay": True},
+    # What "all" was without the boost
+    "revision_per_visible": LeverSet(
+        "revision + prioritised replay + visible closures", ("revision", "per", "visible")
     ),
 }
 

@@ -1,15 +1,16 @@
 """Eleven roads closing at once: how fast DCQN recovers, with and without its re-adaptation levers (the paper's 11).
 
-For every seed and lever (``campusnav_runs.LEVERS``) an agent trains on CampusNav-v0 until the map is solved
-(``campusnav_runs.train_until_solved``), then keeps training (same model, ``reset_num_timesteps=False``) for
-``--window`` env steps after 11 random roads close at once. The roads are drawn once per seed from the open map
-(:meth:`~campusnav_env.maps.navigation.NavigationGraph.sample_closures` with ``numpy.random.default_rng(seed)``, the
-draw of ``ClosureEvent(close_random=11, seed=seed)``), keeping the goal reachable from every node, and every lever
-faces the same roads. A :class:`~campusnav_env.callbacks.RoadClosureCallback` closes them and drives a
+For every seed and lever set (``campusnav_runs.LEVER_SETS``) an agent trains on CampusNav-v0 until the map is solved,
+then keeps training (same model) for ``--window`` env steps after 11 random roads close at once: the glue's loop
+(:func:`sb3_dcqn.campusnav.experiments.train_with_closures`, through ``closures_one_at_a_time.train_then_close``). The
+roads are drawn once per seed from the open map (:meth:`~campusnav_env.maps.navigation.NavigationGraph.sample_closures`
+with ``numpy.random.default_rng(seed)``, the draw of ``ClosureEvent(close_random=11, seed=seed)``), keeping the goal
+reachable from every node, and every lever set faces the same roads. A
+:class:`~campusnav_env.callbacks.RoadClosureCallback` closes them and drives a
 :class:`~campusnav_env.callbacks.RouteEvaluationCallback`: the greedy routes from every (start, heading) are evaluated
-right after the closure, then every ``--recovery-eval-freq`` training episodes until success and SPL are back at
-0.99 and 0.95 (:mod:`campusnav_env.recovery`); the recovery is counted in training episodes, env steps and training
-seconds (evaluations excluded) from the closure.
+right after the closure, then every ``--recovery-eval-freq`` training episodes until back at the recovery thresholds
+(:mod:`campusnav_env.recovery`), and at the end of the window; the recovery is counted in training episodes, env steps
+and training seconds (evaluations excluded) from the closure.
 
 Every finished run is appended to a JSON-lines file (a rerun skips what is done). The tables (the levers asked for
 and any other lever already in the runs file) are printed and written to ``benchmarks/results/closures_eleven.md``,
@@ -19,8 +20,8 @@ closure) of every run.
 
 Usage::
 
-    python benchmarks/closures_eleven.py                          # 6 levers, seeds 0 and 1
-    python benchmarks/closures_eleven.py --levers baseline all --seeds 0 1 2 --window 20000
+    python benchmarks/closures_eleven.py                          # 6 lever sets, seeds 0 and 1
+    python benchmarks/closures_eleven.py --levers baseline revision_per_visible --seeds 0 1 2 --window 20000
     python benchmarks/closures_eleven.py --quick                  # smoke run: pixel features, tiny budgets
 """
 
@@ -34,11 +35,12 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from campusnav_runs import LEVERS, SPL_THRESHOLD, SUCCESS_THRESHOLD, TASKS, machine_line, quick_env_kwargs
+from campusnav_runs import LEVER_SETS, TASKS, lever_entry, machine_line, quick_env_kwargs
 from closures_one_at_a_time import (
+    QUICK_LEVERS,
     closure_benchmark_parser,
+    end_of_window,
     figure_lever,
-    lever_options,
     medians,
     number,
     roads_text,
@@ -48,11 +50,19 @@ from closures_one_at_a_time import (
     solve_text,
     train_then_close,
 )
-from report import append_run, command_line, read_runs, write_results  # benchmarks/report.py, beside this script
+from report import (  # benchmarks/report.py, beside this script
+    append_run,
+    command_line,
+    markdown_table,
+    measured_on,
+    read_runs,
+    write_results,
+)
 
 from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD
+from sb3_dcqn.campusnav.solved import solved_bar
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "closures_eleven.py"
@@ -62,8 +72,8 @@ GOAL_EPISODES = 150
 PAPER_EPISODES = 500
 Road = tuple[int, int]
 
-# The levers of the results file: the single levers, all of them, and the two fastest combinations
-ELEVEN_LEVERS = ("baseline", "revision", "per", "boost", "visible", "all", "revision_blocked", "revision_blocked_per")
+# The lever sets of the results file: the single levers and the two fastest combinations
+ELEVEN_LEVERS = ("baseline", "revision", "per", "visible", "revision_blocked", "revision_blocked_per")
 
 
 def eleven_roads(graph: NavigationGraph, goal: int, seed: int, n_roads: int = N_ROADS) -> list[Road]:
@@ -96,7 +106,7 @@ def recovery_curves(runs: Sequence[dict[str, Any]], levers: Sequence[str], title
             if not len(curve):
                 continue
             style = styles[seeds.index(run["seed"]) % len(styles)]
-            label = f"{LEVERS[lever].name}, seed {run['seed']}"
+            label = f"{LEVER_SETS[lever].name}, seed {run['seed']}"
             for ax, column in zip(axes, (2, 3), strict=True):
                 ax.plot(curve[:, 0], curve[:, column], style, color=colours[i % len(colours)], lw=1.3, label=label)
     for ax, name, threshold in zip(
@@ -114,43 +124,68 @@ def recovery_curves(runs: Sequence[dict[str, Any]], levers: Sequence[str], title
 
 
 def summary_table(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list[str]:
-    lines = [
-        "| lever | seeds | solved before the closure at (per seed) | recovered | median episodes | median env steps | "
-        f"median training s | goal (median <= {GOAL_EPISODES} ep) | paper (< {PAPER_EPISODES} ep) |",
-        "|---|---|---|---|---|---|---|---|---|",
+    header = [
+        "lever",
+        "seeds",
+        "solved before the closure at (per seed)",
+        "recovered",
+        "median episodes",
+        "median env steps",
+        "median training s",
+        f"goal (median <= {GOAL_EPISODES} ep)",
+        f"paper (< {PAPER_EPISODES} ep)",
     ]
+    rows = []
     for lever in levers:
         mine = [r for r in runs if r["lever"] == lever]
         if not mine:
             continue
         closures = [c for r in mine for c in r["recoveries"]]
         episodes, steps, seconds = medians(closures)
-        lines.append(
-            f"| {LEVERS[lever].name} | {len(mine)} | {'; '.join(solve_text(r) for r in mine)} | "
-            f"{sum(c['recovered'] for c in closures)} / {len(closures)} | {number(episodes)} | {number(steps)} | "
-            f"{number(seconds, 1)} | {'met' if episodes <= GOAL_EPISODES else '**missed**'} | "
-            f"{'met' if episodes < PAPER_EPISODES else '**missed**'} |"
+        rows.append(
+            [
+                LEVER_SETS[lever].name,
+                len(mine),
+                "; ".join(solve_text(r) for r in mine),
+                f"{sum(c['recovered'] for c in closures)} / {len(closures)}",
+                number(episodes),
+                number(steps),
+                number(seconds, 1),
+                "met" if episodes <= GOAL_EPISODES else "**missed**",
+                "met" if episodes < PAPER_EPISODES else "**missed**",
+            ]
         )
-    return lines
+    return markdown_table(header, rows)
 
 
 def run_table(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list[str]:
-    lines = [
-        "| lever | seed | routes affected | success / SPL right after | recovery episodes | env steps | training s | "
-        "success / SPL at the end of the window (episodes in it) |",
-        "|---|---|---|---|---|---|---|---|",
+    header = [
+        "lever",
+        "seed",
+        "routes affected",
+        "success / SPL right after",
+        "recovery episodes",
+        "env steps",
+        "training s",
+        "success / SPL at the end of the window (episodes in it)",
     ]
+    rows = []
     for lever in levers:
         for run in sorted((r for r in runs if r["lever"] == lever), key=lambda r: r["seed"]):
             for c in run["recoveries"]:
-                after = "-" if c["success_after"] is None else f"{c['success_after']:.3f} / {c['spl_after']:.3f}"
-                end = "-" if c["success_end"] is None else f"{c['success_end']:.3f} / {c['spl_end']:.3f}"
-                affected = "-" if c["routes_affected"] is None else str(c["routes_affected"])
-                lines.append(
-                    f"| {LEVERS[lever].name} | {run['seed']} | {affected} | {after} | {number(c['episodes'])} | "
-                    f"{number(c['steps'])} | {number(c['seconds'], 1)} | {end} ({c['window_episodes']}) |"
+                rows.append(
+                    [
+                        LEVER_SETS[lever].name,
+                        run["seed"],
+                        "-" if c["routes_affected"] is None else c["routes_affected"],
+                        "-" if c["success_after"] is None else f"{c['success_after']:.3f} / {c['spl_after']:.3f}",
+                        number(c["episodes"]),
+                        number(c["steps"]),
+                        number(c["seconds"], 1),
+                        f"{end_of_window(c)} ({c['window_episodes']})",
+                    ]
                 )
-    return lines
+    return markdown_table(header, rows)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -163,7 +198,7 @@ def main(argv: list[str] | None = None) -> None:
     stem = "closures_eleven" + ("_quick" if args.quick else "")
     out: Path = args.out or RESULTS_DIR / f"{stem}.md"
     runs_file: Path = args.runs_file or out.with_name(f"{out.stem}_runs.jsonl")
-    levers = ["baseline", "all"] if args.quick and args.levers == list(ELEVEN_LEVERS) else args.levers
+    levers = QUICK_LEVERS if args.quick and args.levers == list(ELEVEN_LEVERS) else args.levers
     task = TASKS["campus"]
     env_kwargs: dict[str, Any] = {}
     window = args.window
@@ -175,7 +210,7 @@ def main(argv: list[str] | None = None) -> None:
         seeds = seeds[:1]
     settings = {"window": window, "recovery_eval_freq": args.recovery_eval_freq, "quick": args.quick}
 
-    probe = task.make_env(LEVERS["baseline"].entry(task), **env_kwargs).unwrapped
+    probe = task.make_env(lever_entry(LEVER_SETS["baseline"], task), **env_kwargs).unwrapped
     goal_node = probe.goal_nodes[0]  # type: ignore[attr-defined]
     roads = {seed: eleven_roads(probe.graph, goal_node, seed) for seed in seeds}  # type: ignore[attr-defined]
     for seed, drawn in roads.items():
@@ -190,17 +225,19 @@ def main(argv: list[str] | None = None) -> None:
     started = time.perf_counter()
     for lever, seed in todo:
         begin = time.perf_counter()
-        run = train_then_close(task, LEVERS[lever], seed, [roads[seed]], window, args.recovery_eval_freq, env_kwargs)
+        run = train_then_close(
+            task, LEVER_SETS[lever], seed, [roads[seed]], window, args.recovery_eval_freq, env_kwargs
+        )
         record = run_record(run, lever=lever, seed=seed, **settings, wall_seconds=round(time.perf_counter() - begin, 1))
         append_run(runs_file, record)
         stored.append(record)
         print(
-            f"{LEVERS[lever].name}, seed {seed}: solved {solve_text(record)}; recovery after "
+            f"{LEVER_SETS[lever].name}, seed {seed}: solved {solve_text(record)}; recovery after "
             f"{number(record['recoveries'][0]['episodes'])} episodes; {record['wall_seconds']:.0f} s",
             flush=True,
         )
         if (lever, seed) == (figure_lever(levers), seeds[0]):
-            title = f"CampusNav-v0, {LEVERS[lever].name}, seed {seed}: {N_ROADS} roads closed at once"
+            title = f"CampusNav-v0, {LEVER_SETS[lever].name}, seed {seed}: {N_ROADS} roads closed at once"
             figures += run_figures(run, prefix, lever, title)
     total = time.perf_counter() - started
 
@@ -214,11 +251,11 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         f"# {N_ROADS} roads closing at once: recovery per re-adaptation lever (the paper's 11 random closures)",
         "",
-        machine_line(),
+        machine_line() if todo else measured_on(out, machine_line()),
         "",
         f"Setup: {task.description}{' (smoke run: pixel features of 64x48 views, tiny budgets)' if args.quick else ''},"
         f" DCQN's shipped entry (`hyperparams/dcqn.yml`) plus each lever's options. Each (lever, seed) trains from "
-        f"scratch until solved (success >= {SUCCESS_THRESHOLD}, SPL >= {SPL_THRESHOLD} from every (start, heading), "
+        f"scratch until solved ({solved_bar()} from every (start, heading), "
         f"evaluated every {task.eval_freq} steps; cap {task.max_steps} steps / {task.budget_seconds:.0f} s of "
         f"training), then keeps training (same model) for {window} env steps after {N_ROADS} roads close at once.",
         "",
@@ -233,7 +270,7 @@ def main(argv: list[str] | None = None) -> None:
         f"within the window: *not recovered* (infinitely slow in the medians). Goal: <= {GOAL_EPISODES} episodes "
         f"(the paper: < {PAPER_EPISODES} episodes).",
         "",
-        "Levers: " + "; ".join(f"{LEVERS[k].name}: `{lever_options(LEVERS[k])}`" for k in levers) + ".",
+        "Levers: " + "; ".join(f"{LEVER_SETS[k].name}: `{LEVER_SETS[k].options_text()}`" for k in levers) + ".",
         "",
         "## Per lever (median over seeds)",
         "",

@@ -1,14 +1,14 @@
 """Roads closing one at a time: how fast DCQN recovers, with and without its re-adaptation levers (paper Fig. 7b/9).
 
-For every seed and lever (``campusnav_runs.LEVERS``: DCQN as shipped, experience revision, prioritised replay, the
-adaptation boost, visible closures, all of them together) an agent trains on CampusNav-v0 until the map is solved
-(``campusnav_runs.train_until_solved``), then keeps training (same model, ``reset_num_timesteps=False``) while roads
-close one at a time, cumulatively: a closure, then ``--window`` env steps in which the recovery is measured, then the
-next closure. A :class:`~campusnav_env.callbacks.RoadClosureCallback` closes the roads and drives a
+For every seed and lever set (``campusnav_runs.LEVER_SETS``: DCQN as shipped, each of its re-adaptation levers, and
+combinations of them) an agent trains on CampusNav-v0 until the map is solved, then keeps training (same model) while
+roads close one at a time, cumulatively: a closure, then ``--window`` env steps in which the recovery is measured,
+then the next closure. The loop is the glue's (:func:`sb3_dcqn.campusnav.experiments.train_with_closures`, the one
+``dcqn-campusnav`` runs): a :class:`~campusnav_env.callbacks.RoadClosureCallback` closes the roads and drives a
 :class:`~campusnav_env.callbacks.RouteEvaluationCallback`: the greedy routes from every (start, heading) are evaluated
-right after each closure, then every ``--recovery-eval-freq`` training episodes until success and SPL are back at
-0.99 and 0.95 (:mod:`campusnav_env.recovery`); the recovery is counted in training episodes, env steps and training
-seconds (evaluations excluded) from the closure.
+right after each closure, then every ``--recovery-eval-freq`` training episodes until back at the recovery thresholds
+(:mod:`campusnav_env.recovery`), and at the end of each window; the recovery is counted in training episodes, env
+steps and training seconds (evaluations excluded) from the closure.
 
 Every lever faces the same closures: the roads are chosen from the map, never from an agent's routes: the road most
 used by the shortest paths from every intersection to the goal, then the busiest on the shortest paths with that one
@@ -22,8 +22,8 @@ lever. The tables show the levers asked for and any other lever already in the r
 
 Usage::
 
-    python benchmarks/closures_one_at_a_time.py                        # 6 levers, seeds 0 and 1, 3 closures
-    python benchmarks/closures_one_at_a_time.py --levers baseline all --seeds 0 1 2 --window 8000
+    python benchmarks/closures_one_at_a_time.py                        # 8 lever sets, seeds 0 and 1, 3 closures
+    python benchmarks/closures_one_at_a_time.py --levers baseline revision_per_visible --seeds 0 1 2 --window 8000
     python benchmarks/closures_one_at_a_time.py --quick                # smoke run: pixel features, tiny budgets
 """
 
@@ -40,26 +40,23 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from campusnav_runs import (
-    LEVERS,
-    SPL_THRESHOLD,
-    SUCCESS_THRESHOLD,
-    TASKS,
-    VARIANTS,
-    Lever,
-    SolveResult,
-    Task,
-    machine_line,
-    quick_env_kwargs,
-    train_until_solved,
+from campusnav_runs import LEVER_SETS, TASKS, VARIANTS, Task, lever_entry, machine_line, quick_env_kwargs
+from report import (  # benchmarks/report.py, beside this script
+    append_run,
+    command_line,
+    markdown_table,
+    measured_on,
+    read_runs,
+    write_results,
 )
-from report import append_run, command_line, read_runs, write_results  # benchmarks/report.py, beside this script
 
-from campusnav_env.callbacks import RoadClosureCallback, RouteEvaluationCallback
 from campusnav_env.closures import ClosureEvent, busiest_road
 from campusnav_env.figures import closure_route_panels, figure_image, training_curves, write_figure
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD, Recovery, median_recovery
+from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingOutcome, train_with_closures
+from sb3_dcqn.campusnav.levers import LeverSet
+from sb3_dcqn.campusnav.solved import solved_bar
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "closures_one_at_a_time.py"
@@ -67,14 +64,14 @@ DEFAULT_LEVERS = (
     "baseline",
     "revision",
     "per",
-    "boost",
     "visible",
-    "all",
     "blocked",
     "revision_blocked",
     "revision_blocked_visible",
     "revision_blocked_per",
 )
+# A smoke run's: DCQN as shipped and the demo's levers
+QUICK_LEVERS = ["baseline", "revision_blocked_per"]
 # The issue's goal per closure, and the paper's result
 GOAL_EPISODES = 50
 GOAL_SECONDS = 10.0
@@ -108,85 +105,41 @@ def busiest_closures(graph: NavigationGraph, goal: int, n_closures: int) -> list
     return roads
 
 
-@dataclass
-class ClosureRun:
-    """
-    One agent trained until solved, then trained on while roads close.
-
-    :param solve: The training to the solved map
-    :param evaluation: The route evaluations of the whole run (solving and closures)
-    :param closures: The closure callback (``records``, ``recoveries``)
-    :param graph: The training env's navigation graph (the map of the route panels)
-    :param episode_rewards: Return of every training episode (the ``Monitor``'s)
-    :param episode_lengths: Length of every training episode
-    :param closure_wall_seconds: Wall time of the training with closures, evaluations included
-    """
-
-    solve: SolveResult
-    evaluation: RouteEvaluationCallback
-    closures: RoadClosureCallback
-    graph: NavigationGraph
-    episode_rewards: list[float]
-    episode_lengths: list[float]
-    closure_wall_seconds: float
-
-    @property
-    def recoveries(self) -> list[Recovery]:
-        return self.closures.recoveries
-
-
 def train_then_close(
     task: Task,
-    lever: Lever,
+    lever_set: LeverSet,
     seed: int,
     closures: Sequence[Sequence[Road]],
     window: int,
     recovery_eval_freq: int,
     env_kwargs: dict[str, Any] | None = None,
-) -> ClosureRun:
+) -> TrainingOutcome:
     """
-    Train one agent until the map is solved, then keep training while ``closures`` close one event after another.
+    Train one agent until the map is solved, then keep training while ``closures`` close one event after another
+    (the glue's :func:`~sb3_dcqn.campusnav.experiments.train_with_closures`: each window trained out, recovered or not).
 
     :param task: The map, goal, step cap and time budget of the training to the solved map
-    :param lever: DCQN's options (and the env's) for this run
+    :param lever_set: DCQN's options (and the env's) for this run
     :param seed: Seed of the agent
-    :param closures: The roads of each closure event (one event every ``window`` env steps, the first right away)
+    :param closures: The roads of each closure event (the first once solved, then one every ``window`` env steps)
     :param window: Env steps of training after each closure
     :param recovery_eval_freq: While recovering, evaluate the routes every this many training episodes
     :param env_kwargs: Env keyword arguments on top of the entry's (e.g. the cheap settings of a smoke run)
     :return: the run
     """
-    entry = lever.entry(task)
-    env = task.make_env(entry, **(env_kwargs or {}))
-    model = VARIANTS["DCQN"].make_model(env, entry, seed)
-    evaluation = RouteEvaluationCallback(
+    entry = lever_entry(lever_set, task)
+    model = VARIANTS["DCQN"].make_model(task.make_env(entry, **(env_kwargs or {})), entry, seed)
+    plan = ClosurePlan(later=[ClosureEvent(at=0, unit="step", close=tuple(roads)) for roads in closures])
+    return train_with_closures(
+        model,
+        plan,
+        budget=task.max_steps,
+        budget_seconds=task.budget_seconds,
+        recovery_budget=window,
         eval_freq=task.eval_freq,
-        success_threshold=SUCCESS_THRESHOLD,
-        spl_threshold=SPL_THRESHOLD,
-        stop_when_solved=True,
-    )
-    solve = train_until_solved(model, task.max_steps, task.budget_seconds, task.eval_freq, evaluation=evaluation)
-    # The same evaluation goes on (its episodes, steps and seconds count from the start, like the Monitor's), now at
-    # the recovery thresholds and without stopping
-    evaluation.stop_when_solved = False
-    evaluation.success_threshold = DEFAULT_SUCCESS_THRESHOLD
-    evaluation.spl_threshold = DEFAULT_SPL_THRESHOLD
-    offset = evaluation.steps
-    events = [ClosureEvent(at=offset + k * window, unit="step", close=tuple(roads)) for k, roads in enumerate(closures)]
-    callback = RoadClosureCallback(events, evaluation=evaluation, recovery_eval_freq=recovery_eval_freq)
-    start = time.perf_counter()
-    model.learn(window * len(events), callback=callback, reset_num_timesteps=False)
-    closure_wall = time.perf_counter() - start
-    vec_env = model.get_env()
-    assert vec_env is not None
-    return ClosureRun(
-        solve=solve,
-        evaluation=evaluation,
-        closures=callback,
-        graph=env.unwrapped.graph,  # type: ignore[attr-defined]
-        episode_rewards=list(vec_env.env_method("get_episode_rewards")[0]),
-        episode_lengths=list(vec_env.env_method("get_episode_lengths")[0]),
-        closure_wall_seconds=closure_wall,
+        recovery_eval_freq=recovery_eval_freq,
+        stop_when_recovered=False,
+        progress=False,
     )
 
 
@@ -194,7 +147,7 @@ def _finite(value: float, digits: int = 3) -> float | None:
     return None if math.isinf(value) else round(float(value), digits)
 
 
-def recovery_record(number: int, recovery: Recovery, run: ClosureRun) -> dict[str, Any]:
+def recovery_record(number: int, recovery: Recovery, run: TrainingOutcome) -> dict[str, Any]:
     """What the runs file keeps of one closure: the roads, the recovery and the evaluations of its window."""
     closure = recovery.closure
     evaluations = run.evaluation.evaluations
@@ -224,19 +177,18 @@ def recovery_record(number: int, recovery: Recovery, run: ClosureRun) -> dict[st
     }
 
 
-def run_record(run: ClosureRun, **fields: Any) -> dict[str, Any]:
+def run_record(run: TrainingOutcome, **fields: Any) -> dict[str, Any]:
     """What the runs file keeps of one run: ``fields`` (lever, seed, settings), the solve and the recoveries."""
-    solved = run.solve.solved_at
-    last = run.solve.evaluations[-1] if run.solve.evaluations else None
-    reached = solved or last
+    solved = run.solved_at()
+    reached = solved or run.before_closures()
     return {
         **fields,
         "solved": solved is not None,
         "solve_steps": None if reached is None else reached.step,
         "solve_episodes": None if reached is None else reached.episode,
         "solve_seconds": None if reached is None else round(reached.train_seconds, 3),
-        "solve_wall_seconds": round(run.solve.wall_seconds, 3),
-        "closure_wall_seconds": round(run.closure_wall_seconds, 3),
+        "solve_wall_seconds": round(run.first_phase_seconds, 3),
+        "closure_wall_seconds": round(run.seconds - run.first_phase_seconds, 3),
         "recoveries": [recovery_record(k, r, run) for k, r in enumerate(run.recoveries, start=1)],
     }
 
@@ -279,12 +231,6 @@ def number(value: float | None, digits: int = 0) -> str:
 
 def roads_text(roads: Sequence[Sequence[int]]) -> str:
     return ", ".join(f"{u}-{v}" for u, v in roads)
-
-
-def lever_options(lever: Lever) -> str:
-    """A lever's options as written in the results (``"as shipped"`` for none)."""
-    options = {**lever.overrides, **lever.env_kwargs}
-    return ", ".join(f"{key}={value}" for key, value in options.items()) or "as shipped"
 
 
 def solve_text(run: dict[str, Any]) -> str:
@@ -337,7 +283,7 @@ def recovery_bars(
     if goal is not None:
         ax.axhline(goal, color="tab:red", ls="--", lw=1, label=f"goal: {goal:.0f} episodes")
     ax.plot([], [], "x", color="black", label="a seed never recovered (hatched: the median)")
-    ax.set_xticks(range(len(levers)), [LEVERS[lever].name for lever in levers], rotation=15, ha="right", fontsize=8)
+    ax.set_xticks(range(len(levers)), [LEVER_SETS[lever].name for lever in levers], rotation=15, ha="right", fontsize=8)
     ax.set_ylim(0, top)
     ax.set_ylabel("training episodes to recovery")
     ax.set_title(title, fontsize=10)
@@ -346,14 +292,15 @@ def recovery_bars(
     return figure_image(figure)
 
 
-def run_figures(run: ClosureRun, prefix: Path, lever: str, title: str) -> list[Path]:
+def run_figures(run: TrainingOutcome, prefix: Path, lever: str, title: str) -> list[Path]:
     """
     The route panels and the training curves of one run, next to the results file: ``<prefix>_routes_<lever>.png``
     and ``<prefix>_training_<lever>.png`` (named by lever, so that a run of other levers leaves them alone).
     """
-    panels = closure_route_panels(run.graph, run.evaluation.evaluations, run.recoveries, size=520)
+    panels = closure_route_panels(run.closures.graph, run.evaluation.evaluations, run.recoveries, size=520)
+    progress = run.progress
     curves = training_curves(
-        run.episode_rewards, run.episode_lengths, run.recoveries, run.evaluation.evaluations, title=title
+        progress.episode_rewards, progress.episode_lengths, run.recoveries, run.evaluation.evaluations, title=title
     )
     return [
         write_figure(prefix.with_name(f"{prefix.name}_routes_{lever}.png"), panels),
@@ -371,18 +318,26 @@ def shown_levers(levers: Sequence[str], stored: Sequence[dict[str, Any]], seeds:
     The levers of the tables: those asked for, then any other lever whose runs (same settings and seeds) are in the
     runs file, so that an invocation with other levers adds rows instead of replacing the tables.
     """
-    others = {r["lever"] for r in stored if r["seed"] in seeds and r["lever"] in LEVERS and r["lever"] not in levers}
-    return [*levers, *(lever for lever in LEVERS if lever in others)]
+    known = [r["lever"] for r in stored if r["seed"] in seeds and r["lever"] in LEVER_SETS]
+    others = {lever for lever in known if lever not in levers}
+    return [*levers, *(lever for lever in LEVER_SETS if lever in others)]
 
 
 # ------------------------------------------------------------------------------------------------ this benchmark
 def summary_table(runs: Sequence[dict[str, Any]], levers: Sequence[str], goal_episodes: float) -> list[str]:
-    lines = [
-        f"| lever | seeds | solved before the closures at (per seed) | closures recovered | median episodes | "
-        f"median env steps | median training s | closures within the goal | goal (median <= {goal_episodes:.0f} ep "
-        f"and <= {GOAL_SECONDS:.0f} s) | paper (< {PAPER_EPISODES} ep) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+    header = [
+        "lever",
+        "seeds",
+        "solved before the closures at (per seed)",
+        "closures recovered",
+        "median episodes",
+        "median env steps",
+        "median training s",
+        "closures within the goal",
+        f"goal (median <= {goal_episodes:.0f} ep and <= {GOAL_SECONDS:.0f} s)",
+        f"paper (< {PAPER_EPISODES} ep)",
     ]
+    rows = []
     for lever in levers:
         mine = [r for r in runs if r["lever"] == lever]
         if not mine:
@@ -394,34 +349,60 @@ def summary_table(runs: Sequence[dict[str, Any]], levers: Sequence[str], goal_ep
             for c in closures
         )
         met = episodes <= goal_episodes and seconds <= GOAL_SECONDS
-        paper = episodes < PAPER_EPISODES
-        lines.append(
-            f"| {LEVERS[lever].name} | {len(mine)} | {'; '.join(solve_text(r) for r in mine)} | "
-            f"{sum(c['recovered'] for c in closures)} / {len(closures)} | {number(episodes)} | {number(steps)} | "
-            f"{number(seconds, 1)} | {within} / {len(closures)} | {'met' if met else '**missed**'} | "
-            f"{'met' if paper else '**missed**'} |"
+        rows.append(
+            [
+                LEVER_SETS[lever].name,
+                len(mine),
+                "; ".join(solve_text(r) for r in mine),
+                f"{sum(c['recovered'] for c in closures)} / {len(closures)}",
+                number(episodes),
+                number(steps),
+                number(seconds, 1),
+                f"{within} / {len(closures)}",
+                "met" if met else "**missed**",
+                "met" if episodes < PAPER_EPISODES else "**missed**",
+            ]
         )
-    return lines
+    return markdown_table(header, rows)
 
 
 def closure_table(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list[str]:
-    lines = [
-        "| lever | seed | closure | road | routes affected | success right after | recovery episodes | env steps | "
-        "training s | success / SPL at the end of the window (episodes in it) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+    header = [
+        "lever",
+        "seed",
+        "closure",
+        "road",
+        "routes affected",
+        "success right after",
+        "recovery episodes",
+        "env steps",
+        "training s",
+        "success / SPL at the end of the window (episodes in it)",
     ]
+    rows = []
     for lever in levers:
         for run in sorted((r for r in runs if r["lever"] == lever), key=lambda r: r["seed"]):
             for c in run["recoveries"]:
-                after = "-" if c["success_after"] is None else f"{c['success_after']:.3f}"
-                end = "-" if c["success_end"] is None else f"{c['success_end']:.3f} / {c['spl_end']:.3f}"
-                affected = "-" if c["routes_affected"] is None else str(c["routes_affected"])
-                lines.append(
-                    f"| {LEVERS[lever].name} | {run['seed']} | {c['closure']} | {roads_text(c['roads'])} | "
-                    f"{affected} | {after} | {number(c['episodes'])} | {number(c['steps'])} | "
-                    f"{number(c['seconds'], 1)} | {end} ({c['window_episodes']}) |"
+                rows.append(
+                    [
+                        LEVER_SETS[lever].name,
+                        run["seed"],
+                        c["closure"],
+                        roads_text(c["roads"]),
+                        "-" if c["routes_affected"] is None else c["routes_affected"],
+                        "-" if c["success_after"] is None else f"{c['success_after']:.3f}",
+                        number(c["episodes"]),
+                        number(c["steps"]),
+                        number(c["seconds"], 1),
+                        f"{end_of_window(c)} ({c['window_episodes']})",
+                    ]
                 )
-    return lines
+    return markdown_table(header, rows)
+
+
+def end_of_window(closure: dict[str, Any]) -> str:
+    """A closure record's success / SPL at the end of its window."""
+    return "-" if closure["success_end"] is None else f"{closure['success_end']:.3f} / {closure['spl_end']:.3f}"
 
 
 def closure_benchmark_parser(
@@ -431,7 +412,7 @@ def closure_benchmark_parser(
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     parser.add_argument(
-        "--levers", nargs="+", choices=sorted(LEVERS), default=list(levers), help="default: " + " ".join(levers)
+        "--levers", nargs="+", choices=sorted(LEVER_SETS), default=list(levers), help="default: " + " ".join(levers)
     )
     parser.add_argument("--window", type=int, default=window, help=window_help)
     parser.add_argument(
@@ -456,7 +437,7 @@ def main(argv: list[str] | None = None) -> None:
     stem = "closures_one_at_a_time" + ("_quick" if args.quick else "")
     out: Path = args.out or RESULTS_DIR / f"{stem}.md"
     runs_file: Path = args.runs_file or out.with_name(f"{out.stem}_runs.jsonl")
-    levers = ["baseline", "all"] if args.quick and args.levers == list(DEFAULT_LEVERS) else args.levers
+    levers = QUICK_LEVERS if args.quick and args.levers == list(DEFAULT_LEVERS) else args.levers
     task = TASKS["campus"]
     env_kwargs: dict[str, Any] = {}
     window = args.window
@@ -468,7 +449,7 @@ def main(argv: list[str] | None = None) -> None:
         seeds = seeds[:1]
     settings = {"window": window, "recovery_eval_freq": args.recovery_eval_freq, "quick": args.quick}
 
-    probe = task.make_env(LEVERS["baseline"].entry(task), **env_kwargs).unwrapped
+    probe = task.make_env(lever_entry(LEVER_SETS["baseline"], task), **env_kwargs).unwrapped
     goal_node = probe.goal_nodes[0]  # type: ignore[attr-defined]
     roads = busiest_closures(probe.graph, goal_node, args.closures)  # type: ignore[attr-defined]
     goal_roads = [r for r in probe.graph.map.roads if goal_node in r]  # type: ignore[attr-defined]
@@ -484,19 +465,19 @@ def main(argv: list[str] | None = None) -> None:
     for lever, seed in todo:
         begin = time.perf_counter()
         run = train_then_close(
-            task, LEVERS[lever], seed, [[road] for road in roads], window, args.recovery_eval_freq, env_kwargs
+            task, LEVER_SETS[lever], seed, [[road] for road in roads], window, args.recovery_eval_freq, env_kwargs
         )
         record = run_record(run, lever=lever, seed=seed, **settings, wall_seconds=round(time.perf_counter() - begin, 1))
         append_run(runs_file, record)
         stored.append(record)
         recovered = ", ".join(number(c["episodes"]) for c in record["recoveries"])
         print(
-            f"{LEVERS[lever].name}, seed {seed}: solved {solve_text(record)}; recovery episodes per closure: "
+            f"{LEVER_SETS[lever].name}, seed {seed}: solved {solve_text(record)}; recovery episodes per closure: "
             f"{recovered}; {record['wall_seconds']:.0f} s",
             flush=True,
         )
         if (lever, seed) == (figure_lever(levers), seeds[0]):
-            title = f"CampusNav-v0, {LEVERS[lever].name}, seed {seed}: roads closing one at a time"
+            title = f"CampusNav-v0, {LEVER_SETS[lever].name}, seed {seed}: roads closing one at a time"
             figures += run_figures(run, prefix, lever, title)
     total = time.perf_counter() - started
 
@@ -510,11 +491,11 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         "# Roads closing one at a time: recovery per re-adaptation lever (the paper's Fig. 7b/9)",
         "",
-        machine_line(),
+        machine_line() if todo else measured_on(out, machine_line()),
         "",
         f"Setup: {task.description}{' (smoke run: pixel features of 64x48 views, tiny budgets)' if args.quick else ''},"
         f" DCQN's shipped entry (`hyperparams/dcqn.yml`) plus each lever's options. Each (lever, seed) trains from "
-        f"scratch until solved (success >= {SUCCESS_THRESHOLD}, SPL >= {SPL_THRESHOLD} from every (start, heading), "
+        f"scratch until solved ({solved_bar()} from every (start, heading), "
         f"evaluated every {task.eval_freq} steps; cap {task.max_steps} steps / {task.budget_seconds:.0f} s of "
         f"training), then keeps training (same model) while {len(roads)} roads close one at a time, cumulatively: "
         f"one closure, then {window} env steps of training, then the next.",
@@ -533,7 +514,7 @@ def main(argv: list[str] | None = None) -> None:
         f"Goal: <= {GOAL_EPISODES} episodes and <= {GOAL_SECONDS:.0f} s per closure (the paper: < {PAPER_EPISODES} "
         "episodes).",
         "",
-        "Levers: " + "; ".join(f"{LEVERS[k].name}: `{lever_options(LEVERS[k])}`" for k in levers) + ".",
+        "Levers: " + "; ".join(f"{LEVER_SETS[k].name}: `{LEVER_SETS[k].options_text()}`" for k in levers) + ".",
         "",
         "## Per lever (median over closures and seeds)",
         "",

@@ -19,10 +19,10 @@ landmarks. Agents:
 - ``oracle``: greedy on the exact Q* (value iteration on the known map): the shortest routes, no training.
 
 Evaluation, the same for every agent: the greedy route from every (start, heading) (success, SPL; the first
-evaluation at success >= 0.99 and SPL >= 0.98 gives the time to a solved goal), and 100 test episodes per goal from
-random starts (the same starts for every agent: drawn from the goal and the seed), capped at 200 steps, a failed
-episode counting 200: success, mean steps, SPL. Actor-critic agents are also tested sampling their actions (Zhu et
-al.'s agent acts by sampling). Routes are evaluated every ``--eval-every`` env steps during training.
+evaluation at the solved bar, ``sb3_dcqn.campusnav.solved``, gives the time to a solved goal), and 100 test episodes
+per goal from random starts (the same starts for every agent: drawn from the goal and the seed), capped at 200
+steps, a failed episode counting 200: success, mean steps, SPL. Actor-critic agents are also tested sampling their
+actions (Zhu et al.'s agent acts by sampling). Routes are evaluated every ``--eval-every`` env steps during training.
 
 Runs (agent x goal x seed) go to ``--workers`` processes (default: one per core) of one torch thread each; each
 finished run is appended to a JSON-lines file, so an interrupted benchmark keeps its results and a rerun skips what is
@@ -65,6 +65,7 @@ from campusnav_env.maps.campus import GOALS
 from campusnav_env.optimal_values import optimal_q_values
 from campusnav_env.route_evaluation import Policy, RouteReport, evaluate_routes
 from sb3_dcqn import DCQN
+from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -72,7 +73,6 @@ N_GOALS = 14
 TEST_EPISODES = 100
 TEST_STEP_CAP = 200
 PAPER_AC_STEP_RATIO = 4.5
-SUCCESS_THRESHOLD, SPL_THRESHOLD = 0.99, 0.98
 # Long enough never to be reached: the budget ends training (DCQN's exploration is kept at the YAML's steps)
 NO_STEP_CAP = 10_000_000
 ACTOR_CRITICS = ("A2C (target-driven AC)", "PPO")
@@ -169,9 +169,7 @@ class BudgetHarness:
 
     def solved_at(self) -> dict[str, float] | None:
         """The first evaluation at the thresholds, if any."""
-        return next(
-            (e for e in self.evaluations if e["success"] >= SUCCESS_THRESHOLD and e["spl"] >= SPL_THRESHOLD), None
-        )
+        return next((e for e in self.evaluations if e["success"] >= SOLVED_SUCCESS and e["spl"] >= SOLVED_SPL), None)
 
 
 class _HarnessCallback(BaseCallback):
@@ -440,7 +438,7 @@ def solved_seconds(run: dict[str, Any]) -> float | None:
     """Training seconds to the first route evaluation at the thresholds, the one after training included."""
     if run["solved_at"] is not None:
         return run["solved_at"]["seconds"]
-    if run["route_success"] >= SUCCESS_THRESHOLD and run["route_spl"] >= SPL_THRESHOLD:
+    if run["route_success"] >= SOLVED_SUCCESS and run["route_spl"] >= SOLVED_SPL:
         return run["train_seconds"]
     return None
 
@@ -455,10 +453,11 @@ def summary_lines(runs: list[dict[str, Any]], eval_every: int) -> list[str]:
         f"agent, capped at {TEST_STEP_CAP} steps (a failure counts {TEST_STEP_CAP}). Figures are means over goals; "
         "with several seeds, mean ± standard deviation over the seeds' means. Routes from every (start, heading) are "
         f"evaluated every {eval_every:,} env steps and after training; time to solved: training seconds at the first "
-        "evaluation with success >= 0.99 and SPL >= 0.98.",
+        f"evaluation with success >= {SOLVED_SUCCESS} and SPL >= {SOLVED_SPL}.",
         "",
         "| agent | env steps in the budget | test success | test mean steps | test SPL | route success "
-        "(every start) | route SPL | goals solved (success 0.99, SPL 0.98) | median time to solved |",
+        f"(every start) | route SPL | goals solved (success {SOLVED_SUCCESS}, SPL {SOLVED_SPL}) | "
+        "median time to solved |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, key, mine in _rows(runs):

@@ -1,9 +1,9 @@
 """Learning speed: training time to a solved map, DCQN against SB3's DQN in the same run, several seeds and maps.
 
 A map is *solved* at the first route evaluation (the greedy policy from every (start, heading) pair to every goal,
-run every ``eval_freq`` env steps inside one ``learn()`` call) with success >= 0.99 and SPL >= 0.98. The figure is the
-training wall time to that evaluation, evaluation time excluded, with the env steps and episodes it took. A run that
-spends its step cap or time budget unsolved is a miss and is reported as one.
+run every ``eval_freq`` env steps inside one ``learn()`` call) at the solved bar (``sb3_dcqn.campusnav.solved``). The
+figure is the training wall time to that evaluation, evaluation time excluded, with the env steps and episodes it
+took. A run that spends its step cap or time budget unsolved is a miss and is reported as one.
 
 Tasks (``--tasks``): ``campus`` (CampusNav-v0: 101 intersections, goal Dreese Lab), ``multi`` (CampusNavMulti-v0: the
 four goals), ``campus200`` and ``campus500`` (generated campuses of 200 and 500 intersections, goal Dreese Lab). All
@@ -35,11 +35,13 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from campusnav_runs import TASKS, VARIANTS, train_until_solved  # beside this script
+from campusnav_runs import TASKS, VARIANTS  # beside this script
 from matplotlib.figure import Figure
 from report import append_run, publish, read_runs, write_results
 
 from campusnav_env.figures import figure_image, write_figure
+from sb3_dcqn.campusnav.experiments import train_until_solved
+from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 DEFAULT_VARIANTS = ("DCQN", "DCQN, no heading_key", "DQN")
@@ -188,7 +190,7 @@ def plot_curves(runs: list[dict[str, Any]], tasks: list[str], path: Path) -> Non
                 label=label,
                 alpha=0.8,
             )
-        axis.axhline(0.99, color="grey", linestyle=":", linewidth=1)
+        axis.axhline(SOLVED_SUCCESS, color="grey", linestyle=":", linewidth=1)
         axis.axvline(TASKS[task_name].goal_seconds, color="grey", linestyle="--", linewidth=1)
         axis.set_title(TASKS[task_name].description)
         axis.set_xlabel("training seconds (evaluation excluded)")
@@ -259,11 +261,11 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         "# Learning speed: training time to a solved map",
         "",
-        "Solved: the greedy policy from every (start, heading) pair to every goal reaches it with success >= 0.99 and "
-        "SPL >= 0.98, evaluated every few thousand env steps inside one `learn()` call (resolution: one evaluation "
-        "interval). Time: training wall time to that evaluation, evaluation excluded. A miss counts as infinitely "
-        "slow in the median. Features: EfficientNet-Lite0 (1280-d), projected to 64 per view (shipped `env_kwargs`), "
-        "except the paper-settings variant (full 1280-d).",
+        "Solved: the greedy policy from every (start, heading) pair to every goal reaches it with success >= "
+        f"{SOLVED_SUCCESS} and SPL >= {SOLVED_SPL}, evaluated every few thousand env steps inside one `learn()` call "
+        "(resolution: one evaluation interval). Time: training wall time to that evaluation, evaluation excluded. "
+        "A miss counts as infinitely slow in the median. Features: EfficientNet-Lite0 (1280-d), projected to 64 per "
+        "view (shipped `env_kwargs`), except the paper-settings variant (full 1280-d).",
         "",
         f"Machine: {platform.machine()} ({platform.processor() or 'cpu'}), {os.cpu_count()} cores, shared with other "
         "work (timings are noisy), 1 torch thread, one run at a time, no GPU.",

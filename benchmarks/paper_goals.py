@@ -3,7 +3,7 @@
 Agents, one set per seed: one multi-goal agent (``TASKS["multi"]``, the CampusNavMulti-v0 entry of
 ``hyperparams/dcqn.yml``: Dreese Lab, Town house, Cinema and Intramural fields) and one single-goal agent per goal
 (the CampusNav-v0 entry, with ``goals=<name>`` passed to the env). Each trains until the greedy routes from every
-(start, heading) to its goals are at success >= 0.99 and SPL >= 0.98 (``campusnav_runs.train_until_solved``), or its
+(start, heading) to its goals are at the solved bar (``sb3_dcqn.campusnav.experiments.train_until_solved``), or its
 task's step cap or time budget is spent.
 
 Then, per agent and goal:
@@ -38,16 +38,7 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from campusnav_runs import (
-    SPL_THRESHOLD,
-    SUCCESS_THRESHOLD,
-    TASKS,
-    VARIANTS,
-    Task,
-    machine_line,
-    quick_env_kwargs,
-    train_until_solved,
-)
+from campusnav_runs import TASKS, VARIANTS, Task, machine_line, quick_env_kwargs
 from report import append_run, command_line, read_runs, write_results  # benchmarks/report.py, beside this script
 from stable_baselines3.common.base_class import BaseAlgorithm
 
@@ -55,6 +46,8 @@ from campusnav_env.env import CampusNavEnv
 from campusnav_env.figures import figure_image, training_curves, write_figure
 from campusnav_env.maps.campus import GOALS
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
+from sb3_dcqn.campusnav.experiments import train_until_solved
+from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "paper_goals.py"
@@ -377,7 +370,7 @@ def main(argv: list[str] | None = None) -> None:
         + ", ".join(GOALS)
         + ") and one single-goal agent per goal (CampusNav-v0 entry, `goals=<name>`)"
         + (" (smoke run: pixel features of 64x48 views, tiny budgets)" if args.quick else "")
-        + f". Each trains until solved: success >= {SUCCESS_THRESHOLD} and SPL >= {SPL_THRESHOLD} over every "
+        + f". Each trains until solved: success >= {SOLVED_SUCCESS} and SPL >= {SOLVED_SPL} over every "
         "(start, heading) and goal, or its task's step cap / training-time budget.",
         "",
         "## Training",

@@ -40,6 +40,18 @@ def command_line(script: str, argv: list[str] | None) -> str:
     return f"Command: `{shlex.join(words)}`"
 
 
+def measured_on(path: Path, default: str) -> str:
+    """
+    The ``Machine:`` line of an existing results file, else ``default``: tables rebuilt from stored runs keep naming
+    the machine that measured them.
+    """
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            if line.startswith("Machine: "):
+                return line
+    return default
+
+
 def write_results(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` atomically, so an interrupted run never leaves half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)

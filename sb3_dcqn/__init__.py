@@ -1,10 +1,31 @@
-"""DCQN (double-critic deep Q-learning) for Stable-Baselines3."""
+"""DCQN (double-critic deep Q-learning) for Stable-Baselines3.
 
-from sb3_dcqn.dcqn import DCQN
-from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
-from sb3_dcqn.targets import blocked_actions, dcqn_td_target
+The names below are imported on first use (PEP 562), so that ``import sb3_dcqn.campusnav.cli`` (the command line,
+whose ``--help`` must be fast) does not import torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from sb3_dcqn.dcqn import DCQN
+    from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
+    from sb3_dcqn.targets import blocked_actions, dcqn_td_target
 
 __version__ = "0.1.0"
+
+_MODULE_OF = {
+    "DCQN": "sb3_dcqn.dcqn",
+    "blocked_actions": "sb3_dcqn.targets",
+    "dcqn_td_target": "sb3_dcqn.targets",
+    "CnnPolicy": "sb3_dcqn.policies",
+    "DCQNPolicy": "sb3_dcqn.policies",
+    "MlpPolicy": "sb3_dcqn.policies",
+    "MultiInputPolicy": "sb3_dcqn.policies",
+    "TwinQNetwork": "sb3_dcqn.policies",
+}
 
 __all__ = [
     "DCQN",
@@ -17,3 +38,15 @@ __all__ = [
     "blocked_actions",
     "dcqn_td_target",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _MODULE_OF:
+        value = getattr(importlib.import_module(_MODULE_OF[name]), name)
+        globals()[name] = value  # once imported, a plain attribute
+        return value
+    raise AttributeError(f"module 'sb3_dcqn' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

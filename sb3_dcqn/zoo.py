@@ -26,11 +26,17 @@ Two problems of rl_zoo3 2.9 are worked around here: ``enjoy`` imports ``requests
 declaring it, and ``record_video`` ignores the ``env_kwargs`` saved in the run's ``config.yml`` (CampusNav's
 ``view_dim``), so the model's observation space would not match the env's.
 
+This module works with any Gymnasium env and registers none: the ``dcqn-zoo`` console script
+(:mod:`sb3_dcqn.campusnav.zoo`) registers the CampusNav ids first; for other packages' envs pass the zoo's
+``--gym-packages``.
+
 Requires the ``zoo`` extra: ``pip install "sb3-dcqn[zoo]"``.
 """
 
 from __future__ import annotations
 
+import difflib
+import inspect
 import runpy
 import sys
 import types
@@ -87,15 +93,23 @@ def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
         (:func:`policy_kwargs_namespace`)
     :raises FileNotFoundError: if the file does not exist
     :raises KeyError: if the env has no entry, or the entry no ``n_timesteps``
-    :raises ValueError: if ``policy_kwargs`` cannot be evaluated or ``env_kwargs`` is not a mapping
+    :raises ValueError: if the file is not valid YAML (naming the line) or not a table of entries, if
+        ``policy_kwargs`` cannot be evaluated or ``env_kwargs`` is not a mapping
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"hyperparameter file not found: {path}")
-    with open(path) as file:
-        table = yaml.safe_load(file) or {}
+    try:
+        with open(path) as file:
+            table = yaml.safe_load(file) or {}
+    except yaml.YAMLError as error:
+        raise ValueError(f"{path}: not valid YAML ({describe_yaml_error(error)})") from None
+    if not isinstance(table, dict):
+        raise ValueError(f"{path}: not a zoo-format hyperparameter file (expected env ids mapped to their settings)")
     if env_id not in table:
-        raise KeyError(f"{path}: no entry for {env_id!r} (entries: {sorted(table)})")
+        raise KeyError(f"{path}: no entry for {env_id!r} (entries: {sorted(map(str, table))})")
+    if not isinstance(table[env_id], dict):
+        raise ValueError(f"{path}: entry {env_id!r} is not a mapping of hyperparameters")
     entry = dict(table[env_id])
     if "n_timesteps" not in entry:
         raise KeyError(f"{path}: entry {env_id!r} has no 'n_timesteps'")
@@ -113,6 +127,71 @@ def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
         except Exception as error:
             raise ValueError(f"{path}: {env_id!r}: cannot evaluate policy_kwargs {entry['policy_kwargs']!r}") from error
     return ZooEntry(n_timesteps, entry, dict(env_kwargs), n_envs)
+
+
+def describe_yaml_error(error: yaml.YAMLError) -> str:
+    """Where a YAML file fails to parse, in words: ``"line 3, column 7: mapping values are not allowed here"``."""
+    mark = getattr(error, "problem_mark", None)
+    problem = getattr(error, "problem", None) or str(error)
+    return problem if mark is None else f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
+
+
+def check_hyperparams(hyperparams: dict[str, Any], algo: type, where: str) -> None:
+    """
+    Check an entry's keys against what the algorithm and its policy take, before anything is built (a misspelt key
+    would otherwise be a ``TypeError`` from deep inside the constructor).
+
+    :param hyperparams: ``ZooEntry.hyperparams`` (``policy`` and ``policy_kwargs`` included)
+    :param algo: The algorithm class (e.g. ``DCQN``)
+    :param where: What to name in the message, e.g. ``"dcqn.yml: entry 'CampusNav-v0'"``
+    :raises ValueError: naming ``where``, the key and the closest known name
+    """
+    check_keywords(hyperparams, algo, where, f"{algo.__name__} hyperparameter", skip=("env",))
+    policy = hyperparams.get("policy")
+    aliases = getattr(algo, "policy_aliases", {})
+    if isinstance(policy, str) and policy not in aliases:
+        raise ValueError(f"{where}: unknown policy {policy!r} (policies: {', '.join(aliases)})")
+    policy_class = aliases.get(policy, policy) if isinstance(policy, str) else policy
+    policy_kwargs = hyperparams.get("policy_kwargs")
+    if isinstance(policy_class, type) and isinstance(policy_kwargs, dict):
+        skip = ("observation_space", "action_space", "lr_schedule")
+        check_keywords(policy_kwargs, policy_class, where, "policy_kwargs key", skip=skip)
+
+
+def check_keywords(given: dict[str, Any], cls: type, where: str, what: str, skip: tuple[str, ...] = ()) -> None:
+    """
+    Check that every key of ``given`` is a keyword argument of ``cls(...)`` (following ``**kwargs`` up its base
+    classes; a class that takes any keyword passes).
+
+    :param given: The keyword arguments
+    :param cls: The class they are for
+    :param where: What to name in the message
+    :param what: What a key is, in words (``"DCQN hyperparameter"``)
+    :param skip: Arguments that may not be given this way
+    :raises ValueError: naming ``where``, the key and the closest known name
+    """
+    known = _keywords(cls)
+    if known is None:
+        return
+    known -= {"self", *skip}
+    for key in given:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), sorted(known), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ValueError(f"{where}: unknown {what} {key!r}{hint}")
+
+
+def _keywords(cls: type) -> set[str] | None:
+    """The keyword arguments ``cls(...)`` takes, following ``**kwargs`` up the base classes (``None``: any)."""
+    names: set[str] = set()
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = inspect.signature(vars(klass)["__init__"]).parameters.values()
+        names |= {p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        if not any(p.kind is p.VAR_KEYWORD for p in parameters):
+            return names
+    return None
 
 
 def _import_zoo() -> Any:
@@ -144,7 +223,6 @@ def policy_kwargs_namespace() -> dict[str, Any]:
     """Names that ``policy_kwargs`` strings in ``dcqn.yml`` may use (the zoo evaluates those strings)."""
     from torch import nn
 
-    import campusnav_env  # noqa: F401  (registers the CampusNav ids with gymnasium)
     from sb3_dcqn.fusion import EmbeddingFusionExtractor
 
     return {"EmbeddingFusionExtractor": EmbeddingFusionExtractor, "nn": nn}

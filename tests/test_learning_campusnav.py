@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from sb3_dcqn.campusnav_job import build_parser, run
+from sb3_dcqn.campusnav.cli import build_parser, run
 
 pytestmark = pytest.mark.slow
 

@@ -53,7 +53,7 @@ PLOTS_INSTALLED = all(importlib.util.find_spec(name) is not None for name in ("s
 
 
 def run_zoo(args: list[str], cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
-    code = "import sys; from sb3_dcqn.zoo import main; main(sys.argv[1:])"
+    code = "import sys; from sb3_dcqn.campusnav.zoo import main; main(sys.argv[1:])"  # the dcqn-zoo script
     return subprocess.run(
         [sys.executable, "-c", code, *args],
         cwd=cwd,

@@ -1,6 +1,6 @@
 """A tqdm progress bar for SB3 training that also keeps every training episode's return and length.
 
-Used by the ``dcqn-campusnav`` command line (:mod:`sb3_dcqn.campusnav_job`); it works with any SB3 algorithm and any
+Used by the ``dcqn-campusnav`` command line (:mod:`sb3_dcqn.campusnav.cli`); it works with any SB3 algorithm and any
 ``VecEnv`` whose envs are wrapped in a ``Monitor`` (as ``make_vec_env`` does). Unlike SB3's ``progress_bar=True`` it
 needs only tqdm (no rich), writes to stderr, names the training phase, shows the episodes so far and, given a
 :class:`~campusnav_env.callbacks.RouteEvaluationCallback`, the latest route evaluation's success rate and SPL::

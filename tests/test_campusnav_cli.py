@@ -2,13 +2,16 @@
 
 Every subcommand runs end to end on the built-in campus with the cheap ``pixels`` encoder on 64 x 48 views (the feature
 cache is built once for the module) and a few hundred steps: ``demo`` (also as the command without a subcommand),
-``train`` with a schedule file and with closure flags, ``readapt``, ``evaluate`` and ``draw``; bad input gives errors
-that name the flag, file or road. The shipped hyperparameter file's entry is checked here too.
+``train`` with a schedule file and with closure flags, ``readapt``, ``evaluate``, ``draw`` and ``roads``; bad input
+gives errors that name the flag, file or road (the rough edges a new user met: tests/test_campusnav_cli_errors.py).
+The shipped hyperparameter file's entry is checked here too.
 """
 
 from __future__ import annotations
 
 import json
+import re
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,7 +19,7 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_dcqn import DCQN
-from sb3_dcqn.campusnav_job import CommandError, build_parser, main, run
+from sb3_dcqn.campusnav.cli import CommandError, build_parser, main, run
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
 from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
 
@@ -59,6 +62,12 @@ def tiny_conf(tmp_path: Path) -> Path:
     path = tmp_path / "tiny.yml"
     path.write_text(TINY_CONF)
     return path
+
+
+def write_model_lookalike(path: Path) -> None:
+    """A zip with the entry a saved model has: it passes the command line's first look at a model file."""
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("data", "{}")
 
 
 def cli(*argv: str) -> dict:
@@ -105,7 +114,7 @@ def test_demo_is_the_default_and_closes_the_busiest_road_twice(
     printed = capsys.readouterr()
     assert "| phase | env step |" in printed.out and "| trained |" in printed.out
     assert "| closure | roads |" in printed.out and "| **median** |" in printed.out
-    assert str(out / "routes.png") in printed.out
+    assert str(out / "routes.png") in printed.out and str(out / "summary.json") in printed.out
     assert "train:" in printed.err and "step" in printed.err  # the progress bar
     for name in ("routes.png", "curves.png", "dcqn_campusnav.zip", "dcqn_campusnav.env.json"):
         assert (out / name).is_file(), name
@@ -149,6 +158,9 @@ def test_train_readapt_evaluate_and_draw(tmp_path: Path, tiny_conf: Path, capsys
     readapted = cli("readapt", str(model), "--close-random", "2", "--timesteps", "200", "--no-progress")
     printed = capsys.readouterr()
     assert "| closure | roads |" in printed.out and "replay buffer:" in printed.err
+    # readapt trains no model to solved: it reports how the loaded model's routes stood before the first closure
+    assert "not solved before the first closure" not in printed.out
+    assert re.search(r"the model before the first closure \(step \d+\): success \d\.\d{3}, SPL \d\.\d{3}", printed.out)
     assert readapted["num_timesteps"] > 450 and len(readapted["closures"][0]["closed"]) == 2
     assert (out / "readapt" / "dcqn_campusnav.zip").is_file() and (out / "readapt" / "routes.png").is_file()
     assert model.read_bytes() == before
@@ -166,7 +178,7 @@ def test_train_readapt_evaluate_and_draw(tmp_path: Path, tiny_conf: Path, capsys
     # draw a model's route from a start, and the bare map
     drawn = cli("draw", "--model", str(model), "--start", "3", "--picture", str(tmp_path / "route.png"))
     assert (tmp_path / "route.png").is_file() and drawn["route"]["start"] == 3
-    cli("draw", *FAST, "--close", *ROAD, "--picture", str(tmp_path / "map.png"))
+    cli("draw", *FAST, "--close", *ROAD, "--node-ids", "--picture", str(tmp_path / "map.png"))
     assert (tmp_path / "map.png").is_file()
 
     # a model evaluated on other observations than it was trained on (64 dimensions per view, not 16)
@@ -211,10 +223,12 @@ def test_train_with_closure_flags_and_two_envs(tmp_path: Path, tiny_conf: Path) 
         (["evaluate", "{tmp}/model.zip", "--close", "1", "99"], "--close 1 99: no road between nodes 1 and 99"),
         (["draw", "--start", "500", "--picture", "{tmp}/x.png"], "--start: start 500 out of range"),
         (["draw", "--goal", "Nowhere", "--picture", "{tmp}/x.png"], "--goal 'Nowhere': not a goal"),
+        (["roads", "500"], "roads: node 500 out of range"),
+        (["roads", "14", "--close", "1", "99"], "--close 1 99: no road between nodes 1 and 99"),
     ],
 )
 def test_bad_input_names_the_flag_file_or_road(tmp_path: Path, argv: list[str], message: str) -> None:
-    (tmp_path / "model.zip").write_bytes(b"")  # errors come before the model is read
+    write_model_lookalike(tmp_path / "model.zip")  # these errors come before the model is loaded
     argv = [arg.replace("{tmp}", str(tmp_path)) for arg in argv]
     if argv[0] == "train":
         argv += ["--out", str(tmp_path / "out")]
@@ -233,3 +247,16 @@ def test_main_prints_errors_and_exits_with_status_2(tmp_path: Path, capsys: pyte
     with pytest.raises(SystemExit):
         main(["train", "--levers", "telepathy"])
     assert "--levers: invalid choice: 'telepathy'" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------------ roads
+def test_roads_lists_an_intersections_roads_with_directions_and_closures(capsys: pytest.CaptureFixture[str]) -> None:
+    listed = cli("roads", *FAST, ROAD[0], "--close", *ROAD)
+    printed = capsys.readouterr().out
+    roads = {tuple(road["road"]): road for road in listed["roads"]}
+    # Node 14 of the built-in campus has three roads, in its N, E and S slots; the closed one says so
+    assert set(roads) == {(14, 25), (14, 15), (14, 4)}
+    assert [roads[(14, other)]["direction"] for other in (25, 15, 4)] == ["N", "E", "S"]
+    assert roads[(14, 15)]["closed"] and not roads[(14, 25)]["closed"]
+    assert "  14 15  E  closed" in printed and "  14 25  N  open" in printed
+    assert "'--close U V' closes one" in printed

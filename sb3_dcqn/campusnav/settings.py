@@ -1,0 +1,111 @@
+"""The env a model trains on (:class:`EnvSettings`, as ``<model>.env.json`` stores it) and the envs made from it.
+
+Importing this module is cheap (no torch, no CampusNav): the command line reads its defaults at start-up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from campusnav_env import CampusNavEnv
+
+__all__ = ["DEFAULT_ENCODER", "DEFAULT_ENV", "EnvSettings", "campus_of", "make_env", "make_training_envs"]
+
+DEFAULT_ENV = "CampusNav-v0"
+DEFAULT_ENCODER = "efficientnet-lite0"
+
+
+@dataclass(frozen=True)
+class EnvSettings:
+    """
+    The env a model is trained on, as the command line builds it (and as ``<model>.env.json`` stores it).
+
+    :param env_id: Gymnasium id (``CampusNav-v0``, ``CampusNavMulti-v0``)
+    :param env_kwargs: ``env_kwargs`` of the hyperparameter entry (e.g. ``view_dim``)
+    :param encoder: View encoder name
+    :param encoder_weights: Weights file of the encoder (ResNet-50), if any
+    :param render_size: Street-view size ``(width, height)``; ``None``: the renderer's default (640 x 480)
+    """
+
+    env_id: str
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    encoder: str = DEFAULT_ENCODER
+    encoder_weights: str | None = None
+    render_size: tuple[int, int] | None = None
+
+    def make_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for ``gym.make``."""
+        from campusnav_env.rendering.street_view import RenderSettings
+
+        kwargs: dict[str, Any] = {**self.env_kwargs, "encoder": self.encoder}
+        if self.encoder_weights is not None:
+            kwargs["encoder_kwargs"] = {"weights_path": self.encoder_weights}
+        if self.render_size is not None:
+            kwargs["render_settings"] = RenderSettings(width=self.render_size[0], height=self.render_size[1])
+        return kwargs
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "env": self.env_id,
+            "env_kwargs": self.env_kwargs,
+            "encoder": self.encoder,
+            "encoder_weights": self.encoder_weights,
+            "render_size": None if self.render_size is None else list(self.render_size),
+        }
+
+    @classmethod
+    def from_json(cls, document: dict[str, Any]) -> EnvSettings:
+        size = document.get("render_size")
+        return cls(
+            env_id=str(document["env"]),
+            env_kwargs=dict(document.get("env_kwargs") or {}),
+            encoder=str(document.get("encoder", DEFAULT_ENCODER)),
+            encoder_weights=document.get("encoder_weights"),
+            render_size=None if size is None else (int(size[0]), int(size[1])),
+        )
+
+    def describe(self) -> str:
+        """E.g. ``"CampusNav-v0, encoder pixels, views 64x48"``."""
+        size = "640x480" if self.render_size is None else f"{self.render_size[0]}x{self.render_size[1]}"
+        return f"{self.env_id}, encoder {self.encoder}, views {size}"
+
+
+def campus_of(env: gym.Env) -> CampusNavEnv:
+    """
+    The ``CampusNavEnv`` inside ``env`` (its wrappers removed).
+
+    :raises TypeError: if it is another env
+    """
+    from campusnav_env import CampusNavEnv
+
+    nav = env.unwrapped
+    if not isinstance(nav, CampusNavEnv):
+        raise TypeError(f"not a CampusNav env ({type(nav).__name__})")
+    return nav
+
+
+def make_env(settings: EnvSettings) -> CampusNavEnv:
+    """One env, for evaluating and drawing."""
+    import gymnasium as gym
+
+    import campusnav_env  # noqa: F401  (registers the CampusNav ids)
+
+    return campus_of(gym.make(settings.env_id, **settings.make_kwargs()))
+
+
+def make_training_envs(settings: EnvSettings, n_envs: int, seed: int) -> DummyVecEnv:
+    """Training envs (each in a ``Monitor``); the route evaluation shares the first one."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    import campusnav_env  # noqa: F401  (registers the CampusNav ids)
+
+    venv = make_vec_env(settings.env_id, n_envs=n_envs, seed=seed, env_kwargs=settings.make_kwargs())
+    assert isinstance(venv, DummyVecEnv)
+    campus_of(venv.envs[0])
+    return venv

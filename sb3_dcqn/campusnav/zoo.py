@@ -1,0 +1,22 @@
+"""The ``dcqn-zoo`` console script: :func:`sb3_dcqn.zoo.main` with the CampusNav ids registered.
+
+:mod:`sb3_dcqn.zoo` works with any Gymnasium env and registers none; this entry point imports :mod:`campusnav_env`
+first, so that ``dcqn-zoo train --algo dcqn --env CampusNav-v0`` finds the env (as ``--gym-packages campusnav_env``
+would).
+"""
+
+from __future__ import annotations
+
+__all__ = ["main"]
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of ``dcqn-zoo``: register the CampusNav ids, then run :func:`sb3_dcqn.zoo.main`."""
+    import campusnav_env  # noqa: F401  (registers the CampusNav ids with gymnasium)
+    from sb3_dcqn import zoo
+
+    zoo.main(argv)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,262 @@
+"""The rough edges of ``dcqn-campusnav`` that a new user met, each fed through the command line as that user did.
+
+Every bad input ends with a message that names the file, key, line, flag or road, and exit status 2, before anything
+is trained or written, and nothing saved is lost. ``--help`` is plain text and quick: the command line's module
+imports neither torch nor SB3 nor CampusNav. Pictures are titled with start, goal, closures and score, and road ids
+can be found from the command line (``roads NODE``, ``draw --node-ids``).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sb3_dcqn.campusnav import cli as campusnav_cli
+from sb3_dcqn.campusnav import pictures
+from sb3_dcqn.campusnav.cli import build_parser, main, run
+
+FAST = ("--encoder", "pixels", "--render-size", "64", "48")
+GOOD_CONF = """\
+CampusNav-v0:
+  n_timesteps: 200
+  policy: 'MultiInputPolicy'
+  env_kwargs:
+    view_dim: 16
+  learning_rate: !!float 1e-3
+  buffer_size: 500
+  learning_starts: 100
+"""
+DEAD_END = ("0", "11")  # node 0 of the built-in campus has this road only: closing it cuts Dreese Lab off from it
+REST_MARKUP = ("``", ":mod:", ":func:", ":class:", ":meth:", ":data:")
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("cache")
+
+
+@pytest.fixture(autouse=True)
+def _shared_feature_cache(cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    monkeypatch.setenv("CAMPUSNAV_CACHE", str(cache_dir))
+    yield
+
+
+@pytest.fixture(scope="module")
+def saved_model(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    """The bytes of a real saved DCQN model (CartPole: the errors below come before its env matters)."""
+    from sb3_dcqn import DCQN
+
+    path = tmp_path_factory.mktemp("model") / "model.zip"
+    DCQN("MlpPolicy", "CartPole-v1", policy_kwargs={"net_arch": [8]}).save(path)
+    return path.read_bytes()
+
+
+def fails(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[str, str]:
+    """Run the command line, expect exit status 2 and return (stdout, the error line)."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    printed = capsys.readouterr()
+    return printed.out, printed.err
+
+
+def files_under(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+# ------------------------------------------------------------------------------------------------ hyperparameter files
+def test_a_misspelt_hyperparameter_names_the_file_and_the_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    conf = tmp_path / "mine.yml"
+    conf.write_text(GOOD_CONF.replace("learning_rate", "learnig_rate"))
+    out = tmp_path / "out"
+    _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(out)], capsys)
+    assert f"--conf: {conf}: entry 'CampusNav-v0': unknown DCQN hyperparameter 'learnig_rate'" in error
+    assert "did you mean 'learning_rate'?" in error
+    assert not out.exists()  # before any work
+
+
+def test_a_misspelt_policy_or_env_kwargs_key_names_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    conf = tmp_path / "mine.yml"
+    conf.write_text(GOOD_CONF + "  policy_kwargs: 'dict(net_arc=[16])'\n")
+    _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(tmp_path / "out")], capsys)
+    assert "unknown policy_kwargs key 'net_arc' (did you mean 'net_arch'?)" in error
+    conf.write_text(GOOD_CONF.replace("view_dim", "view_dimm"))
+    _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(tmp_path / "out")], capsys)
+    assert "unknown env_kwargs key 'view_dimm' (did you mean 'view_dim'?)" in error
+    assert not (tmp_path / "out").exists()
+
+
+def test_invalid_yaml_names_the_file_and_the_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    conf = tmp_path / "broken.yml"
+    conf.write_text("CampusNav-v0:\n  n_timesteps: 200\n  policy: [MultiInputPolicy\n  buffer_size: 500\n")
+    _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(tmp_path / "out")], capsys)
+    assert f"--conf: {conf}: not valid YAML (line " in error and "Traceback" not in error
+    schedule = tmp_path / "closures.yml"
+    schedule.write_text("closures:\n  - {at: 100, close: [[14, 15]]\n")
+    _, error = fails(["train", *FAST, "--closures", str(schedule), "--out", str(tmp_path / "out")], capsys)
+    assert f"--closures: {schedule}" in error and "line 3" in error and "Traceback" not in error
+    assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------------------------------------ output paths
+def test_an_output_folder_under_a_file_is_refused_before_training(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("mine\n")
+    _, error = fails(["train", *FAST, "--out", str(a_file / "run")], capsys)
+    assert f"--out {a_file / 'run'}: is inside {a_file}, a file, not a folder" in error
+    _, error = fails(["demo", *FAST, "--out", str(a_file)], capsys)
+    assert f"--out {a_file}: is a file, not a folder" in error
+    assert a_file.read_text() == "mine\n"
+
+
+def test_a_picture_path_under_a_file_is_refused_before_the_scores(
+    tmp_path: Path, saved_model: bytes, capsys: pytest.CaptureFixture[str]
+) -> None:
+    model = tmp_path / "model.zip"
+    model.write_bytes(saved_model)
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("mine\n")
+    printed, error = fails(["evaluate", str(model), *FAST, "--picture", str(a_file / "routes.png")], capsys)
+    assert f"--picture {a_file / 'routes.png'}: is inside {a_file}, a file, not a folder" in error
+    assert "| all |" not in printed  # checked before the model was evaluated
+    _, error = fails(["draw", *FAST, "--picture", str(tmp_path)], capsys)
+    assert f"--picture {tmp_path}: is a folder" in error
+    assert a_file.read_text() == "mine\n" and model.read_bytes() == saved_model
+
+
+def test_readapt_to_an_output_folder_under_a_file_keeps_the_model(
+    tmp_path: Path, saved_model: bytes, capsys: pytest.CaptureFixture[str]
+) -> None:
+    model = tmp_path / "model.zip"
+    model.write_bytes(saved_model)
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("mine\n")
+    _, error = fails(["readapt", str(model), "--close", "14", "15", "--out", str(a_file / "again")], capsys)
+    assert f"--out {a_file / 'again'}: is inside {a_file}" in error
+    assert model.read_bytes() == saved_model and a_file.read_text() == "mine\n"
+
+
+# ------------------------------------------------------------------------------------------------ model files
+@pytest.mark.parametrize("command", ["evaluate", "readapt", "draw"])
+def test_a_truncated_model_is_not_a_readable_model_file(
+    tmp_path: Path, saved_model: bytes, command: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    model = tmp_path / "model.zip"
+    model.write_bytes(saved_model[: len(saved_model) // 2])
+    before = files_under(tmp_path)
+    argv = {
+        "evaluate": ["evaluate", str(model)],
+        "readapt": ["readapt", str(model), "--close", "14", "15"],
+        "draw": ["draw", "--model", str(model), "--picture", str(tmp_path / "map.png")],
+    }[command]
+    _, error = fails([*argv, *FAST], capsys)
+    assert f"{model}: not a readable model file" in error
+    assert "pass the --env" not in error  # not a matter of env flags
+    assert files_under(tmp_path) == before
+
+
+# ------------------------------------------------------------------------------------------------ closures
+def test_a_closure_that_cuts_the_goal_off_gives_the_command_lines_advice(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, error = fails(["draw", *FAST, "--close", *DEAD_END, "--picture", str(tmp_path / "map.png")], capsys)
+    assert f"--close {DEAD_END[0]} {DEAD_END[1]}: closing road (0, 11) would cut protected node 81" in error
+    assert "force=True" not in error and "dcqn-campusnav roads NODE" in error
+    _, error = fails(["train", *FAST, "--close", *DEAD_END, "--out", str(tmp_path / "out")], capsys)
+    assert "--close: " in error and "would cut protected node 81" in error and "force=True" not in error
+    assert not (tmp_path / "map.png").exists() and not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------------------------------------ help
+def test_help_is_plain_text_and_imports_neither_torch_nor_campusnav() -> None:
+    code = (
+        "import contextlib, io, sys\n"
+        "from sb3_dcqn.campusnav import cli\n"
+        "texts = io.StringIO()\n"
+        "for argv in ([], *([command] for command in sys.argv[1:])):\n"
+        "    with contextlib.redirect_stdout(texts), contextlib.suppress(SystemExit):\n"
+        "        cli.build_parser().parse_args([*argv, '--help'])\n"
+        "heavy = [m for m in ('torch', 'stable_baselines3', 'campusnav_env', 'gymnasium') if m in sys.modules]\n"
+        "print(repr(heavy)); print(texts.getvalue())\n"
+    )
+    commands = ["demo", "train", "evaluate", "readapt", "draw", "roads"]
+    done = subprocess.run(
+        [sys.executable, "-c", code, *commands], capture_output=True, text=True, timeout=120, check=True
+    )
+    heavy, _, texts = done.stdout.partition("\n")
+    assert heavy == "[]"
+    for markup in REST_MARKUP:
+        assert markup not in texts, markup
+    assert "Subcommands ('dcqn-campusnav SUBCOMMAND --help'" in texts
+    for command in commands:
+        assert f"usage: dcqn-campusnav {command}" in texts
+
+
+def test_help_names_every_encoder_and_the_recovery_thresholds() -> None:
+    from campusnav_env.features.encoders import ENCODER_NAMES
+    from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD
+
+    for name in ENCODER_NAMES:
+        assert name in campusnav_cli.ENCODER_HELP, name
+    assert (
+        f"success rate >= {DEFAULT_SUCCESS_THRESHOLD} and SPL >= {DEFAULT_SPL_THRESHOLD}" in campusnav_cli.DESCRIPTION
+    )
+
+
+def test_an_unknown_encoder_is_refused_with_the_choices(capsys: pytest.CaptureFixture[str]) -> None:
+    _, error = fails(["draw", "--encoder", "jpeg"], capsys)
+    assert "--encoder: invalid choice: 'jpeg' (choose from efficientnet-lite0, resnet50, pixels, thumbnail)" in error
+
+
+# ------------------------------------------------------------------------------------------------ pictures
+def test_pictures_are_titled_with_start_goal_closures_and_score(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    drawn: list[dict[str, Any]] = []
+
+    def record(graph: Any, **kwargs: Any) -> np.ndarray:
+        drawn.append(kwargs)
+        return np.zeros((64, 64, 3), dtype=np.uint8)
+
+    monkeypatch.setattr(pictures, "draw_map", record)
+    run(build_parser().parse_args(["draw", *FAST, "--close", "14", "15", "--start", "3", "--node-ids",
+                                   "--picture", str(tmp_path / "map.png")]))  # fmt: skip
+    (kwargs,) = drawn
+    assert kwargs["node_ids"] is True
+    assert kwargs["title"] == "from node 3 to Dreese Lab (node 81); closed: 14-15"
+
+
+def test_route_title_names_the_route_and_its_score() -> None:
+    from campusnav_env import CampusNavEnv
+    from campusnav_env.rendering.street_view import RenderSettings
+    from campusnav_env.route_evaluation import evaluate_routes
+
+    nav = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(width=64, height=48), progress=False)
+    nav.close_road(14, 15)
+    report = evaluate_routes(nav, lambda observations: np.zeros(len(observations["heading"]), dtype=np.int64))
+    route = pictures.pick_route(report, "Dreese Lab", 3, 0)
+    assert route is not None
+    title = pictures.route_title(nav, "Dreese Lab", route, 3, report)
+    outcome = f"{route.steps} steps" if route.success else "fails"
+    score = report.for_goal("Dreese Lab")
+    assert title == (
+        f"from node 3 facing N to Dreese Lab (node 81); closed: 14-15; greedy route: {outcome} (shortest "
+        f"{route.shortest}); all routes to Dreese Lab: success {score.success_rate:.3f}, SPL {score.spl:.3f}"
+    )
+
+
+def test_draw_writes_node_ids_and_a_title(tmp_path: Path) -> None:
+    # Renders for real: needs draw_map's node_ids= and title= (campusnav_env.rendering.map_view)
+    picture = tmp_path / "map.png"
+    summary = run(build_parser().parse_args(["draw", *FAST, "--node-ids", "--picture", str(picture)]))
+    assert picture.is_file() and summary["picture"] == str(picture)

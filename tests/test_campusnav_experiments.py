@@ -1,0 +1,126 @@
+"""The experiment layer (``sb3_dcqn.campusnav``): one solved bar, one levers table, one train -> close -> recover loop.
+
+The loop runs on the built-in campus with cheap ``pixels`` views and tiny networks: the first phase stops at the solved
+bar or its step budget, each later closure is followed by its window (trained out when not stopping on recovery), and
+the outcome holds everything the closure benchmarks and the command line report. The benchmarks keep no copy of the
+bar, the levers' options or the loop.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from campusnav_env import CampusNavEnv
+from campusnav_env.closures import ClosureEvent
+from campusnav_env.rendering.street_view import RenderSettings
+from sb3_dcqn import DCQN
+from sb3_dcqn.campusnav.experiments import ClosurePlan, train_with_closures
+from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, lever_options, options_text, with_levers
+from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS, is_solved
+from sb3_dcqn.zoo import ZooEntry
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+# The scripts that train to the solved bar or run closures through the glue (scale.py and throughput.py: elsewhere)
+GLUE_USERS = (
+    "campusnav_runs.py",
+    "closures_one_at_a_time.py",
+    "closures_eleven.py",
+    "compare.py",
+    "learning_speed.py",
+    "paper_goals.py",
+)
+
+
+@pytest.fixture(autouse=True)
+def _feature_cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    monkeypatch.setenv("CAMPUSNAV_CACHE", str(tmp_path_factory.getbasetemp() / "experiments-cache"))
+    yield
+
+
+def tiny_model(seed: int = 0) -> DCQN:
+    env = CampusNavEnv(
+        encoder="pixels", render_settings=RenderSettings(width=64, height=48), view_dim=16, max_steps=30, progress=False
+    )
+    return DCQN(
+        "MultiInputPolicy",
+        env,
+        learning_starts=50,
+        buffer_size=2_000,
+        batch_size=16,
+        train_freq=4,
+        policy_kwargs={"net_arch": [16]},
+        seed=seed,
+        device="cpu",
+    )
+
+
+def test_the_solved_bar_is_success_099_and_spl_098_for_every_goal() -> None:
+    assert (SOLVED_SUCCESS, SOLVED_SPL) == (0.99, 0.98)
+
+    class Evaluation:
+        def __init__(self) -> None:
+            self.asked: tuple[float, float, bool] | None = None
+
+        def meets(self, success: float, spl: float, every_goal: bool = False) -> bool:
+            self.asked = (success, spl, every_goal)
+            return True
+
+    evaluation = Evaluation()
+    assert is_solved(evaluation)  # type: ignore[arg-type]
+    assert evaluation.asked == (0.99, 0.98, True)
+
+
+def test_levers_combine_their_dcqn_and_env_options_in_order() -> None:
+    assert set(LEVERS) == {"revision", "blocked", "per", "visible"}  # the adaptation boost is gone
+    dcqn_options, env_options = lever_options(("revision", "blocked", "visible"))
+    assert dcqn_options == {"experience_revision": True, "blocked_action_target": True}
+    assert env_options == {"visible_closures": True}
+    # The results files' option text (run records are matched on it): DCQN options first, then the env's
+    text = "experience_revision=True, blocked_action_target=True, visible_closures=True"
+    assert options_text(("revision", "blocked", "visible")) == text
+    assert LeverSet("baseline").options_text() == "as shipped"
+    entry = with_levers(ZooEntry(100, {"policy": "MlpPolicy"}, {"view_dim": 16}), ("per", "visible"))
+    assert entry.hyperparams == {"policy": "MlpPolicy", "prioritized_replay": True}
+    assert entry.env_kwargs == {"view_dim": 16, "visible_closures": True}
+    with pytest.raises(KeyError, match="unknown lever 'boost'"):
+        LeverSet("boost", ("boost",))
+
+
+def test_closures_one_at_a_time_train_each_window_out_when_not_stopping_on_recovery() -> None:
+    model = tiny_model()
+    plan = ClosurePlan(
+        later=[ClosureEvent(at=0, unit="step", close=((14, 15),)), ClosureEvent(at=0, unit="step", close=((3, 4),))]
+    )
+    outcome = train_with_closures(
+        model, plan, budget=200, recovery_budget=120, eval_freq=100, stop_when_recovered=False, progress=False
+    )
+    first = outcome.closures.records[0].step
+    assert first >= 100  # the first phase ran (its budget, or up to the solved bar)
+    assert [record.closed for record in outcome.closures.records] == [((14, 15),), ((3, 4),)]
+    # Each window trained out: the second closure 120 steps after the first, the run 120 steps after it
+    assert outcome.closures.records[1].step - first == 120 and outcome.steps == first + 240
+    assert len(outcome.recoveries) == 2 and outcome.before_closures() is not None
+    assert outcome.evaluation.evaluations[-1].step == model.num_timesteps  # evaluated at the end of the last window
+    assert 0 < outcome.first_phase_seconds < outcome.seconds
+    assert len(outcome.progress.episode_rewards) == len(outcome.progress.episode_lengths) > 0
+
+
+def test_the_first_phase_stops_at_its_training_seconds() -> None:
+    outcome = train_with_closures(
+        tiny_model(), ClosurePlan(), budget=5_000, recovery_budget=0, eval_freq=1_000, budget_seconds=0.5,
+        progress=False,
+    )  # fmt: skip
+    assert 0 < outcome.steps < 5_000 and outcome.solved_at() is None
+
+
+@pytest.mark.parametrize("script", GLUE_USERS)
+def test_benchmarks_keep_no_copy_of_the_bar_the_levers_or_the_loop(script: str) -> None:
+    text = (BENCHMARKS / script).read_text()
+    assert not re.search(r"\b0\.9[89]\b", text), "the solved bar is sb3_dcqn.campusnav.solved's"
+    for option in ("experience_revision", "blocked_action_target", "prioritized_replay", "visible_closures"):
+        assert option not in text, f"{option}: the levers table is sb3_dcqn.campusnav.levers'"
+    assert "RoadClosureCallback(" not in text, "the closure loop is sb3_dcqn.campusnav.experiments'"
