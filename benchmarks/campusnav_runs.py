@@ -157,8 +157,8 @@ def lever_entry(lever_set: LeverSet, task: Task) -> ZooEntry:
 
 
 # The closure benchmarks' rows: combinations of the levers of sb3_dcqn.campusnav.levers (the keys are the runs files'
-# "lever" field: keep them). The adaptation boost is gone from DCQN (it re-adapted slower than no lever at all); its
-# runs stay in the runs files as history and no longer show in the tables.
+# "lever" field: keep them). The adaptation boost left DCQN for an SB3 callback (sb3_dcqn.adaptation_boost): the runs
+# made with DCQN's old option ("boost", "all") stay in the runs files as history; the callback's have keys of their own.
 LEVER_SETS = {
     "baseline": LeverSet("baseline (DCQN as shipped)"),
     "revision": LeverSet(LEVERS["revision"].name, ("revision",)),
@@ -172,10 +172,15 @@ LEVER_SETS = {
     "revision_blocked_per": LeverSet(
         "revision + blocked-action target + prioritised replay", ("revision", "blocked", "per")
     ),
-    # What "all" was without the boost
+    # What "all" was without the boost, and with the boost as a callback
     "revision_per_visible": LeverSet(
         "revision + prioritised replay + visible closures", ("revision", "per", "visible")
     ),
+    "revision_per_visible_boost": LeverSet(
+        "revision + prioritised replay + visible closures + boost (revision trigger)",
+        ("revision", "per", "visible", "boost_on_revision"),
+    ),
+    "boost_callback": LeverSet("adaptation boost (episode-length trigger, callback)", ("boost",)),
 }
 
 

@@ -55,7 +55,7 @@ from campusnav_env.figures import closure_route_panels, figure_image, training_c
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD, Recovery, median_recovery
 from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingOutcome, train_with_closures
-from sb3_dcqn.campusnav.levers import LeverSet
+from sb3_dcqn.campusnav.levers import LeverSet, lever_callbacks
 from sb3_dcqn.campusnav.solved import solved_bar
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
@@ -139,6 +139,7 @@ def train_then_close(
         eval_freq=task.eval_freq,
         recovery_eval_freq=recovery_eval_freq,
         stop_when_recovered=False,
+        callbacks=lever_callbacks(lever_set.levers),
         progress=False,
     )
 

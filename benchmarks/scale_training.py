@@ -1,8 +1,9 @@
 """Scale, training: DCQN with the shipped ``CampusNav-v0`` settings until the map is solved, per size.
 
-Until success >= 0.99 and SPL >= 0.98 from every (start, heading) (``campusnav_runs.train_until_solved``; time:
-training seconds, evaluations excluded) or the ``--budget``; env step and reset costs, evaluation time, peak RSS,
-replay-buffer bytes, a profile of one route evaluation. Features: those of the size's full EfficientNet build, else
+Until success >= 0.99 and SPL >= 0.98 from every (start, heading)
+(``sb3_dcqn.campusnav.experiments.train_until_solved``; time: training seconds, evaluations excluded) or the
+``--budget``; env step and reset costs, evaluation time, peak RSS, replay-buffer bytes, a profile of one route
+evaluation. Features: those of the size's full EfficientNet build, else
 the pixel build. Run by ``scale.py`` (stage ``train``); alone::
 
     python benchmarks/scale_training.py --sizes 101 --budget 60 --runs-file /tmp/train.jsonl --out /tmp/train.md
@@ -69,10 +70,11 @@ def measure_training(n_nodes: int, plan: Plan) -> dict[str, Any]:
     :param plan: The run (budget, evaluation frequency and step cap of this size)
     :return: the stage's record for this size
     """
-    from campusnav_runs import TASKS, VARIANTS, train_until_solved
+    from campusnav_runs import TASKS, VARIANTS
 
     from campusnav_env.env import CampusNavEnv
     from campusnav_env.route_evaluation import evaluate_routes
+    from sb3_dcqn.campusnav.experiments import train_until_solved
 
     record: dict[str, Any] = {"stage": STAGE, "size": n_nodes, "import_rss_mb": rss_mb()}
     budget, eval_freq, max_steps = plan.budgets[n_nodes], plan.eval_freq[n_nodes], plan.max_steps[n_nodes]
@@ -195,12 +197,12 @@ def train_table(trains: dict[int, dict[str, Any]]) -> list[str]:
 
 def training_section(trains: dict[int, dict[str, Any]]) -> list[str]:
     """The results section: what counts as solved, and the table."""
-    from campusnav_runs import SPL_THRESHOLD, SUCCESS_THRESHOLD
+    from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
     return [
         "## Time to the threshold (DCQN, shipped CampusNav-v0 settings)",
         "",
-        f"Success >= {SUCCESS_THRESHOLD} and SPL >= {SPL_THRESHOLD} from every (start, heading), evaluated every N "
+        f"Success >= {SOLVED_SUCCESS} and SPL >= {SOLVED_SPL} from every (start, heading), evaluated every N "
         "env steps inside one "
         "`learn()` call (`campusnav_runs.train_until_solved`); time: training seconds, evaluations excluded; a run "
         "that spends its budget is reported with its last evaluation. Replay buffer: the arrays SB3 reserves "

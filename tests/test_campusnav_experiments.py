@@ -18,8 +18,9 @@ from campusnav_env import CampusNavEnv
 from campusnav_env.closures import ClosureEvent
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
+from sb3_dcqn.adaptation_boost import AdaptationBoost
 from sb3_dcqn.campusnav.experiments import ClosurePlan, train_with_closures
-from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, lever_options, options_text, with_levers
+from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, lever_callbacks, lever_options, options_text, with_levers
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS, is_solved
 from sb3_dcqn.zoo import ZooEntry
 
@@ -75,7 +76,8 @@ def test_the_solved_bar_is_success_099_and_spl_098_for_every_goal() -> None:
 
 
 def test_levers_combine_their_dcqn_and_env_options_in_order() -> None:
-    assert set(LEVERS) == {"revision", "blocked", "per", "visible"}  # the adaptation boost is gone
+    # The adaptation boost is a callback, not a DCQN option
+    assert set(LEVERS) == {"revision", "blocked", "per", "visible", "boost", "boost_on_revision"}
     dcqn_options, env_options = lever_options(("revision", "blocked", "visible"))
     assert dcqn_options == {"experience_revision": True, "blocked_action_target": True}
     assert env_options == {"visible_closures": True}
@@ -86,8 +88,18 @@ def test_levers_combine_their_dcqn_and_env_options_in_order() -> None:
     entry = with_levers(ZooEntry(100, {"policy": "MlpPolicy"}, {"view_dim": 16}), ("per", "visible"))
     assert entry.hyperparams == {"policy": "MlpPolicy", "prioritized_replay": True}
     assert entry.env_kwargs == {"view_dim": 16, "visible_closures": True}
-    with pytest.raises(KeyError, match="unknown lever 'boost'"):
-        LeverSet("boost", ("boost",))
+    with pytest.raises(KeyError, match="unknown lever 'moon'"):
+        LeverSet("moon", ("moon",))
+
+
+def test_the_boost_lever_adds_a_callback_and_no_dcqn_option() -> None:
+    assert lever_options(("revision", "boost_on_revision")) == ({"experience_revision": True}, {})
+    assert lever_callbacks(("revision", "per")) == []
+    (boost,) = lever_callbacks(("revision", "boost_on_revision"))
+    assert isinstance(boost, AdaptationBoost) and boost.trigger == "revision"
+    assert lever_callbacks(("boost",))[0] is not lever_callbacks(("boost",))[0]  # a fresh callback for each run
+    text = "experience_revision=True, callback AdaptationBoost(trigger='revision')"
+    assert options_text(("revision", "boost_on_revision")) == text
 
 
 def test_closures_one_at_a_time_train_each_window_out_when_not_stopping_on_recovery() -> None:

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_dcqn.campusnav.levers import DEMO_LEVERS, LEVERS
+from sb3_dcqn.campusnav.levers import DEMO_LEVERS, LEVERS, lever_callbacks
 from sb3_dcqn.campusnav.settings import DEFAULT_ENCODER, DEFAULT_ENV, EnvSettings
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
@@ -524,6 +524,7 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
         recovery_eval_freq=args.recovery_eval_freq,
         stop_when_solved=not args.keep_training,
         stop_when_recovered=not args.keep_training,
+        callbacks=lever_callbacks(args.levers),
         verbose=args.verbose,
         progress=not args.no_progress,
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -223,6 +224,7 @@ def train_with_closures(
     budget_seconds: float = math.inf,
     stop_when_solved: bool = True,
     stop_when_recovered: bool = True,
+    callbacks: Sequence[BaseCallback] = (),
     verbose: int = 0,
     progress: bool = True,
 ) -> TrainingOutcome:
@@ -246,6 +248,8 @@ def train_with_closures(
     :param budget_seconds: Training seconds of the first phase at most (evaluations excluded)
     :param stop_when_solved: End the first phase at the first evaluation at the solved bar (before any closure)
     :param stop_when_recovered: End a phase once recovered from its closures (else train its budget out)
+    :param callbacks: More callbacks for every phase (the levers' adaptation boost:
+        :func:`~sb3_dcqn.campusnav.levers.lever_callbacks`)
     :param verbose: 1: a line per route evaluation and closure event
     :param progress: Show a progress bar on stderr
     :return: the callbacks, with everything they recorded
@@ -267,14 +271,14 @@ def train_with_closures(
     closures.init_callback(model)  # learns the map, so that closures can be applied before any training
 
     def learn(steps: int, phase: str, expected_events: int = 0, seconds: float = math.inf) -> None:
-        callbacks: list[BaseCallback] = [closures, bar]
+        phase_callbacks: list[BaseCallback] = [closures, bar, *callbacks]
         if stop_when_solved or stop_when_recovered:
             expected = len(closures.records) + expected_events
-            callbacks.append(_StopWhenDone(closures, expected, stop_when_solved, stop_when_recovered))
+            phase_callbacks.append(_StopWhenDone(closures, expected, stop_when_solved, stop_when_recovered))
         if math.isfinite(seconds):
-            callbacks.append(TrainingBudget(evaluation, seconds))
+            phase_callbacks.append(TrainingBudget(evaluation, seconds))
         bar.phase = phase
-        model.learn(steps, callback=callbacks, reset_num_timesteps=False)
+        model.learn(steps, callback=phase_callbacks, reset_num_timesteps=False)
 
     if budget > 0:
         learn(budget, "train", len(plan.scheduled.events), budget_seconds)

@@ -13,9 +13,20 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from stable_baselines3.common.callbacks import BaseCallback
+
     from sb3_dcqn.zoo import ZooEntry
 
-__all__ = ["DEMO_LEVERS", "LEVERS", "Lever", "LeverSet", "lever_options", "options_text", "with_levers"]
+__all__ = [
+    "DEMO_LEVERS",
+    "LEVERS",
+    "Lever",
+    "LeverSet",
+    "lever_callbacks",
+    "lever_options",
+    "options_text",
+    "with_levers",
+]
 
 
 @dataclass(frozen=True)
@@ -26,11 +37,14 @@ class Lever:
     :param name: What it is, in words (tables, help)
     :param dcqn_options: DCQN keyword arguments it sets
     :param env_options: Env keyword arguments it sets
+    :param boost_options: Keyword arguments of an :class:`~sb3_dcqn.adaptation_boost.AdaptationBoost` callback it
+        adds to training (``None``: none)
     """
 
     name: str
     dcqn_options: dict[str, Any] = field(default_factory=dict)
     env_options: dict[str, Any] = field(default_factory=dict)
+    boost_options: dict[str, Any] | None = None
 
 
 LEVERS: dict[str, Lever] = {
@@ -38,6 +52,9 @@ LEVERS: dict[str, Lever] = {
     "blocked": Lever("blocked-action target", {"blocked_action_target": True}),
     "per": Lever("prioritised replay", {"prioritized_replay": True}),
     "visible": Lever("visible closures", env_options={"visible_closures": True}),
+    # An SB3 callback, not a DCQN option; alone it cannot be triggered by revisions: longer episodes are the sign
+    "boost": Lever("adaptation boost (episode-length trigger)", boost_options={"trigger": "episode_length"}),
+    "boost_on_revision": Lever("adaptation boost (revision trigger)", boost_options={"trigger": "revision"}),
 }
 # The demo's: the levers that re-adapted fastest together in benchmarks/closures_one_at_a_time.py
 DEMO_LEVERS = ("revision", "blocked", "per")
@@ -61,11 +78,31 @@ def lever_options(levers: Sequence[str]) -> tuple[dict[str, Any], dict[str, Any]
     return dcqn_options, env_options
 
 
+def lever_callbacks(levers: Sequence[str]) -> list[BaseCallback]:
+    """
+    The training callbacks of a combination of levers (the adaptation boost's), new objects for one run.
+
+    :param levers: Lever names (keys of :data:`LEVERS`)
+    :return: the callbacks, in the order of ``levers``
+    """
+    lever_options(levers)  # unknown names fail here
+    boosts = [LEVERS[name].boost_options for name in levers if LEVERS[name].boost_options is not None]
+    if not boosts:
+        return []
+    from sb3_dcqn.adaptation_boost import AdaptationBoost
+
+    return [AdaptationBoost(**options) for options in boosts if options is not None]
+
+
 def options_text(levers: Sequence[str]) -> str:
     """A combination's options as the results files write them: ``"experience_revision=True, ..."`` or
     ``"as shipped"``."""
     dcqn_options, env_options = lever_options(levers)
-    return ", ".join(f"{key}={value}" for key, value in {**dcqn_options, **env_options}.items()) or "as shipped"
+    words = [f"{key}={value}" for key, value in {**dcqn_options, **env_options}.items()]
+    for name in levers:
+        if (boost := LEVERS[name].boost_options) is not None:
+            words.append("callback AdaptationBoost(" + ", ".join(f"{k}={v!r}" for k, v in boost.items()) + ")")
+    return ", ".join(words) or "as shipped"
 
 
 def with_levers(entry: ZooEntry, levers: Sequence[str]) -> ZooEntry:
