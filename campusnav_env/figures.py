@@ -39,7 +39,8 @@ from campusnav_env.atomic_files import write_png
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph, road_key
 from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation
-from campusnav_env.rendering.map_view import CLOSED_RGB, PAGE_RGB, TEXT_RGB, draw_map, title_band
+from campusnav_env.rendering.map_view import draw_map, title_band
+from campusnav_env.rendering.palette import BORDER_RGB, CLOSED_RGB, PAGE_RGB, RECOVERED_RGB, TEXT_RGB
 from campusnav_env.route_evaluation import Route
 
 if TYPE_CHECKING:
@@ -48,8 +49,6 @@ if TYPE_CHECKING:
 __all__ = ["ClosurePanel", "closure_panels", "closure_route_panels", "panel_title", "training_curves", "write_figure"]
 
 COMPASS_LETTERS = ("N", "E", "S", "W")
-RECOVERED_RGB = (20, 120, 60)
-BORDER_RGB = (200, 200, 204)
 _SHADE = {True: "tab:green", False: "tab:red"}  # training span after a closure: recovered or not
 Road = tuple[int, int]
 

@@ -25,34 +25,26 @@ import numpy as np
 
 from campusnav_env.maps.compass import view_bearings
 from campusnav_env.maps.navigation import NavigationGraph
-from campusnav_env.rendering.palette import landmark_colour
+from campusnav_env.rendering.palette import (
+    AGENT_RGB,
+    BACKGROUND_RGB,
+    CLOSED_RGB,
+    GOAL_RGB,
+    NODE_ID_RGB,
+    NODE_RGB,
+    PAGE_RGB,
+    PATH_RGB,
+    ROAD_RGB,
+    ROUTE_COLOURS,
+    TEXT_RGB,
+    landmark_colour,
+)
 
 if TYPE_CHECKING:
     from campusnav_env.maps.road_graph import RoadGraph
 
 __all__ = ["ROUTE_COLOURS", "LegendEntry", "MapLabel", "MapLayout", "draw_map", "map_layout", "title_band"]
 
-BACKGROUND_RGB = (246, 245, 240)
-ROAD_RGB = (168, 168, 172)
-NODE_RGB = (96, 96, 100)
-CLOSED_RGB = (220, 30, 36)
-PATH_RGB = (30, 100, 220)
-AGENT_RGB = (0, 150, 80)
-GOAL_RGB = (250, 196, 20)
-TEXT_RGB = (30, 30, 34)
-NODE_ID_RGB = (70, 70, 90)
-PAGE_RGB = (255, 255, 255)
-# Distinct colours of extra routes (matplotlib's tab10 without the path blue and the closure red).
-ROUTE_COLOURS = (
-    (255, 127, 14),
-    (148, 103, 189),
-    (44, 160, 44),
-    (140, 86, 75),
-    (227, 119, 194),
-    (23, 190, 207),
-    (188, 189, 34),
-    (127, 127, 127),
-)
 _SHIFT = 4  # fractional bits of the drawing coordinates (sub-pixel accuracy)
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 RGB = tuple[int, int, int]

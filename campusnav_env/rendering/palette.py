@@ -1,6 +1,7 @@
 """
 Every colour of the rendered world: ground and road surfaces, facades, windows, roofs, tree crowns, cars, closure
-barriers, and the landmark palette that the 3D views and the top-down map share (:func:`landmark_colour`).
+barriers, the landmark palette that the 3D views and the top-down map share (:func:`landmark_colour`), and the
+top-down map's and the figures' own colours (roads, closures, routes, text).
 
 Colours are RGB tuples on the 0..255 scale.
 """
@@ -13,25 +14,38 @@ import cv2
 import numpy as np
 
 __all__ = [
+    "AGENT_RGB",
     "ASPHALT_RGB",
+    "BACKGROUND_RGB",
     "BARRIER_LEG_RGB",
     "BARRIER_RED_RGB",
     "BARRIER_WHITE_RGB",
+    "BORDER_RGB",
     "CAR_PALETTE",
+    "CLOSED_RGB",
     "CONE_ORANGE_RGB",
     "CROWN_PALETTE",
     "FACADE_PALETTE",
     "FACADE_SIGN_INK_RGB",
     "FACADE_SIGN_RGB",
+    "GOAL_RGB",
     "GRASS_RGB",
     "LANDMARK_COLOURS",
     "LIT_WINDOW_RGB",
     "MARKING_RGB",
+    "NODE_ID_RGB",
+    "NODE_RGB",
+    "PAGE_RGB",
     "PARK_GREEN",
+    "PATH_RGB",
+    "RECOVERED_RGB",
     "RGB",
+    "ROAD_RGB",
     "ROOF_PALETTE",
+    "ROUTE_COLOURS",
     "SIDEWALK_RGB",
     "SPORTS_GREEN",
+    "TEXT_RGB",
     "TRUNK_RGB",
     "WINDOW_PALETTE",
     "landmark_colour",
@@ -96,6 +110,31 @@ CAR_PALETTE = (
     (40, 90, 60),
     (210, 170, 60),
 )
+
+# The top-down map (rendering/map_view.py) and the figures built on it (figures.py)
+BACKGROUND_RGB = (246, 245, 240)
+ROAD_RGB = (168, 168, 172)
+NODE_RGB = (96, 96, 100)
+CLOSED_RGB = (220, 30, 36)
+PATH_RGB = (30, 100, 220)
+AGENT_RGB = (0, 150, 80)
+GOAL_RGB = (250, 196, 20)
+TEXT_RGB = (30, 30, 34)
+NODE_ID_RGB = (70, 70, 90)
+PAGE_RGB = (255, 255, 255)
+# Distinct colours of extra routes (matplotlib's tab10 without the path blue and the closure red).
+ROUTE_COLOURS = (
+    (255, 127, 14),
+    (148, 103, 189),
+    (44, 160, 44),
+    (140, 86, 75),
+    (227, 119, 194),
+    (23, 190, 207),
+    (188, 189, 34),
+    (127, 127, 127),
+)
+RECOVERED_RGB = (20, 120, 60)
+BORDER_RGB = (200, 200, 204)
 
 
 def landmark_colour(name: str) -> RGB:
