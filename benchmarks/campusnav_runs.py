@@ -5,7 +5,7 @@ intersections) with the shipped YAML entry that trains on it. A *variant* is an 
 the heading-relative critics (the network SB3's DQN can have too), SB3's DQN with the same settings, and DCQN with
 the paper's settings. A *lever set* is a combination of DCQN's re-adaptation levers (:mod:`sb3_dcqn.campusnav.levers`).
 Training until solved, the solved bar and the train -> close -> recover loop are the glue's
-(:mod:`sb3_dcqn.campusnav.experiments`, :mod:`sb3_dcqn.campusnav.solved`); ``train_until_solved`` is re-exported here.
+(:mod:`sb3_dcqn.campusnav.experiments`, :mod:`sb3_dcqn.campusnav.solved`).
 """
 
 from __future__ import annotations
@@ -23,11 +23,6 @@ from campusnav_env.env import CampusNavEnv
 from campusnav_env.maps.campus import generate_campus
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
-
-# Training until solved lives in the glue; re-exported for the scripts that import it from here (scale.py)
-from sb3_dcqn.campusnav.experiments import SolveResult as SolveResult
-from sb3_dcqn.campusnav.experiments import TrainingBudget as TrainingBudget
-from sb3_dcqn.campusnav.experiments import train_until_solved as train_until_solved
 from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, with_levers
 from sb3_dcqn.zoo import ZooEntry, default_hyperparams_path, load_zoo_entry, paper_hyperparams_path
 

@@ -203,8 +203,8 @@ def training_section(trains: dict[int, dict[str, Any]]) -> list[str]:
         "## Time to the threshold (DCQN, shipped CampusNav-v0 settings)",
         "",
         f"Success >= {SOLVED_SUCCESS} and SPL >= {SOLVED_SPL} from every (start, heading), evaluated every N "
-        "env steps inside one "
-        "`learn()` call (`campusnav_runs.train_until_solved`); time: training seconds, evaluations excluded; a run "
+        "env steps inside one `learn()` call (`sb3_dcqn.campusnav.experiments.train_until_solved`); time: training "
+        "seconds, evaluations excluded; a run "
         "that spends its budget is reported with its last evaluation. Replay buffer: the arrays SB3 reserves "
         "(`np.zeros`, touched as they fill) and the share filled.",
         "",

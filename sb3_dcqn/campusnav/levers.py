@@ -87,12 +87,12 @@ def lever_callbacks(levers: Sequence[str]) -> list[BaseCallback]:
     :return: the callbacks, in the order of ``levers``
     """
     lever_options(levers)  # unknown names fail here
-    boosts = [LEVERS[name].boost_options for name in levers if LEVERS[name].boost_options is not None]
+    boosts = [options for name in levers if (options := LEVERS[name].boost_options) is not None]
     if not boosts:
         return []
     from sb3_dcqn.adaptation_boost import AdaptationBoost
 
-    return [AdaptationBoost(**options) for options in boosts if options is not None]
+    return [AdaptationBoost(**options) for options in boosts]
 
 
 def options_text(levers: Sequence[str]) -> str:
