@@ -121,6 +121,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+    views_key = "views"  # the observation key of the current views (features mode)
 
     def __init__(
         self,
@@ -291,7 +292,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         if "goal" in options:
             self._goal_index = self._goal_index_of(options["goal"])
         else:
-            self._goal_index = int(self.np_random.integers(len(self.goal_nodes)))
+            self._goal_index = self._draw_goal_index()
         goal = self.goal_nodes[self._goal_index]
         distances = self.node_distances(goal)
         if "start" in options:
@@ -454,11 +455,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         goal_node = self.goal_nodes[self._goal_index_of(goal)]
         self._show_closures()
         if self.observation_mode == "features":
-            return {
-                "views": self._node_views[nodes],
-                "goal_views": np.repeat(self._open_views[goal_node][None], nodes.size, axis=0),
-                "heading": np.eye(4, dtype=np.float32)[headings],
-            }
+            return self._feature_observations(nodes, headings, np.full(nodes.size, goal_node))
         # Current views rolled to front, right, back, left: the order itself tells the heading
         order = (headings[:, None] + np.arange(4)[None, :]) % 4
         current = self._node_views[nodes[:, None], order]  # (B, 4, C, h, w)
@@ -466,13 +463,28 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         goal_row = np.concatenate(list(self._open_views[goal_node]), axis=2)  # (C, h, 4w), compass order
         return np.concatenate([top, np.broadcast_to(goal_row, top.shape)], axis=2)
 
+    def _feature_observations(
+        self, nodes: np.ndarray, headings: np.ndarray, goal_nodes: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """Feature observations at ``(nodes[i], headings[i])`` heading for ``goal_nodes[i]`` (closures shown)."""
+        return {
+            "views": self._node_views[nodes],
+            "goal_views": self._open_views[goal_nodes],
+            "heading": np.eye(4, dtype=np.float32)[headings],
+        }
+
+    def _draw_goal_index(self) -> int:
+        """The goal of an episode whose ``reset`` options name none: uniform over the env's goals."""
+        return int(self.np_random.integers(len(self.goal_nodes)))
+
     def states_of(self, observations: dict[str, np.ndarray]) -> np.ndarray:
         """
         The state indices (rows of ``graph.transition_table``) that a batch of feature observations show: the inverse of
         :meth:`observations_at`, for tools that need the true state (tabular baselines, the visited pairs of a replay
         buffer). Observations must come from this env's current views.
 
-        :param observations: A dict batch as returned by :meth:`observations_at` (``"views"`` and ``"heading"`` used)
+        :param observations: A dict batch as returned by :meth:`observations_at` (the current views, :attr:`views_key`,
+            and ``"heading"`` used)
         :return: int64 state indices, one per observation
         :raises ValueError: in image mode, or if some views are not this env's views of any intersection
         """
@@ -484,7 +496,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             rows = self._node_views.reshape(self._node_views.shape[0], -1)
             self._node_of_views = {row.tobytes(): node for node, row in enumerate(rows)}
             self._node_of_views_shows = self._shown_closures
-        views = np.asarray(observations["views"], dtype=np.float32)
+        views = np.asarray(observations[self.views_key], dtype=np.float32)
         views = views.reshape(-1, self._node_views[0].size)
         try:
             nodes = np.array([self._node_of_views[row.tobytes()] for row in views], dtype=np.int64)

@@ -2,19 +2,24 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from gymnasium.envs.registration import register, registry
 
 from campusnav_env.maps.campus import GOALS
 
-ENTRY_POINT = "campusnav_env.env:CampusNavEnv"
-ENV_IDS = {
-    "CampusNav-v0": {"goals": [GOALS[0]]},  # single goal: Dreese Lab
-    "CampusNavMulti-v0": {"goals": list(GOALS)},  # the paper's four goals
+CAMPUSNAV = "campusnav_env.env:CampusNavEnv"
+CAMPUSNAV_GOAL = "campusnav_env.goal_env:CampusNavGoalEnv"
+# id -> (entry point, default arguments)
+ENV_IDS: dict[str, tuple[str, dict[str, Any]]] = {
+    "CampusNav-v0": (CAMPUSNAV, {"goals": [GOALS[0]]}),  # single goal: Dreese Lab
+    "CampusNavMulti-v0": (CAMPUSNAV, {"goals": list(GOALS)}),  # the paper's four goals
+    "CampusNavGoal-v0": (CAMPUSNAV_GOAL, {}),  # any intersection as the goal (goal-env convention, for HER)
 }
 
 
 def register_envs() -> None:
-    """Register ``CampusNav-v0`` and ``CampusNavMulti-v0`` (idempotent). The env truncates after ``max_steps``."""
-    for env_id, kwargs in ENV_IDS.items():
+    """Register ``CampusNav-v0``, ``CampusNavMulti-v0`` and ``CampusNavGoal-v0`` (idempotent)."""
+    for env_id, (entry_point, kwargs) in ENV_IDS.items():
         if env_id not in registry:
-            register(id=env_id, entry_point=ENTRY_POINT, kwargs=kwargs)
+            register(id=env_id, entry_point=entry_point, kwargs=kwargs)

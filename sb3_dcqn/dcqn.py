@@ -13,9 +13,11 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import LinearSchedule, get_parameters_by_name, polyak_update
+from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from torch.nn import functional as F
 
 from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
+from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
 from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
 from sb3_dcqn.targets import blocked_actions, dcqn_td_target
 
@@ -56,7 +58,10 @@ class DCQN(OffPolicyAlgorithm):
         Set to ``-1`` means to do as many gradient steps as steps done in the environment
         during the rollout.
     :param replay_buffer_class: Replay buffer class to use (for instance ``HerReplayBuffer``).
-        If ``None``, it will be automatically selected.
+        If ``None``, it will be automatically selected. ``HerReplayBuffer`` is served by
+        :class:`~sb3_dcqn.her_buffer.DCQNHerReplayBuffer` (same arguments): relabelled transitions that reach their
+        new goal are terminal (``replay_buffer_kwargs=dict(terminal_relabels=False)`` for SB3's dones) and goals
+        the env does not allow as relabelling targets are never used
     :param replay_buffer_kwargs: Keyword arguments to pass to the replay buffer on creation.
     :param optimize_memory_usage: Enable a memory efficient variant of the replay buffer
         at a cost of more complexity.
@@ -187,6 +192,8 @@ class DCQN(OffPolicyAlgorithm):
             self._setup_model()
 
     def _setup_model(self) -> None:
+        if self.replay_buffer_class is HerReplayBuffer:
+            self.replay_buffer_class = DCQNHerReplayBuffer
         if self.experience_revision or self.prioritized_replay:
             self._select_readaptation_buffer()
         super()._setup_model()
@@ -218,7 +225,8 @@ class DCQN(OffPolicyAlgorithm):
         elif not issubclass(self.replay_buffer_class, (DCQNReplayBuffer, DCQNDictReplayBuffer)):
             raise ValueError(
                 "experience_revision and prioritized_replay need DCQNReplayBuffer or DCQNDictReplayBuffer, got "
-                f"replay_buffer_class={self.replay_buffer_class.__name__}"
+                f"replay_buffer_class={self.replay_buffer_class.__name__} (with hindsight relabelling, a stored "
+                "transition stands for every goal it is relabelled with: use blocked_action_target instead)"
             )
         self.replay_buffer_kwargs = {
             **self.replay_buffer_kwargs,

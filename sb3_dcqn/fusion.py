@@ -3,6 +3,10 @@
 The current views and the goal views go through one shared (siamese) linear layer into the same embedding space; the
 two embeddings (plus any other observation keys, such as the heading) are concatenated and a fusion layer forms the
 joint state representation that the critics read.
+
+It reads CampusNav's keys (``"views"``, ``"goal_views"``) or SB3's goal-env convention (``"observation"``,
+``"desired_goal"``; the ``"achieved_goal"`` is left out there: it pictures the current place, which the current views
+already show, and it is what hindsight relabelling compares, not a policy input).
 """
 
 from __future__ import annotations
@@ -23,8 +27,9 @@ class EmbeddingFusionExtractor(BaseFeaturesExtractor):
         features of the four views) and optionally other Box entries, which are flattened into the fusion input.
     :param embed_dim: Size of the shared embedding of each of current and goal views
     :param features_dim: Size of the fused state (output)
-    :param current_key: Observation key of the current views
-    :param goal_key: Observation key of the goal views
+    :param current_key: Observation key of the current views (default: ``"views"``, or ``"observation"`` in a goal env)
+    :param goal_key: Observation key of the goal views (default: ``"goal_views"``, or ``"desired_goal"``)
+    :param ignored_keys: Observation keys left out of the fusion (default: ``"achieved_goal"`` in a goal env)
     :param activation_fn: Activation after the embedding and the fusion layers
     """
 
@@ -33,12 +38,17 @@ class EmbeddingFusionExtractor(BaseFeaturesExtractor):
         observation_space: gym.spaces.Dict,
         embed_dim: int = 512,
         features_dim: int = 512,
-        current_key: str = "views",
-        goal_key: str = "goal_views",
+        current_key: str | None = None,
+        goal_key: str | None = None,
         activation_fn: type[nn.Module] = nn.ReLU,
+        ignored_keys: tuple[str, ...] | None = None,
     ) -> None:
         if not isinstance(observation_space, spaces.Dict):
             raise TypeError(f"EmbeddingFusionExtractor needs a Dict observation space, got {observation_space}")
+        goal_env = "views" not in observation_space.spaces and "desired_goal" in observation_space.spaces
+        current_key = current_key or ("observation" if goal_env else "views")
+        goal_key = goal_key or ("desired_goal" if goal_env else "goal_views")
+        ignored = set(("achieved_goal",) if goal_env and ignored_keys is None else (ignored_keys or ()))
         for key in (current_key, goal_key):
             if key not in observation_space.spaces:
                 raise KeyError(
@@ -54,7 +64,7 @@ class EmbeddingFusionExtractor(BaseFeaturesExtractor):
         super().__init__(observation_space, features_dim)
         self.current_key = current_key
         self.goal_key = goal_key
-        self.extra_keys = sorted(k for k in observation_space.spaces if k not in (current_key, goal_key))
+        self.extra_keys = sorted(k for k in observation_space.spaces if k not in {current_key, goal_key, *ignored})
         view_dim = int(np.prod(current_space.shape))
         extra_dim = sum(int(np.prod(observation_space[k].shape)) for k in self.extra_keys)
         self.embedding = nn.Sequential(nn.Flatten(), nn.Linear(view_dim, embed_dim), activation_fn())
