@@ -5,7 +5,8 @@ algorithm (DCQN, DQN, PPO, ...), with one env or several (``DummyVecEnv`` or ``S
 
 - :class:`RouteEvaluationCallback` runs :func:`~campusnav_env.route_evaluation.evaluate_routes` (the greedy policy
   from every start to every goal) every ``eval_freq`` steps or episodes and logs ``eval/success_rate``, ``eval/spl``,
-  ``eval/coverage``, ``eval/mean_steps`` and ``eval/optimality_gap``, overall and per goal (``eval/<goal>/...``).
+  ``eval/coverage``, ``eval/mean_steps`` and ``eval/optimality_gap``, overall and per goal (``eval/<goal>/...``, up
+  to 16 goals); named goal sets (e.g. goals never trained on) under ``eval/<set>/...``.
 - :class:`RoadClosureCallback` closes and reopens roads on a :class:`~campusnav_env.closures.ClosureSchedule`, in
   every training env (``VecEnv.env_method``) and in the evaluation env alike, logs each event (``closure/...``) and,
   with a route evaluation attached, evaluates right after each closure and then every ``recovery_eval_freq``
@@ -26,7 +27,7 @@ Example::
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -53,11 +54,13 @@ from campusnav_env.recovery import (
     RouteEvaluation,
     measure_recoveries,
 )
-from campusnav_env.route_evaluation import evaluate_routes
+from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 
 __all__ = ["RoadClosureCallback", "RouteEvaluationCallback"]
 
 _SUMMARY_KEYS = ("success_rate", "spl", "coverage", "mean_steps", "optimality_gap")
+# Goal sets up to this size are also logged goal by goal
+PER_GOAL_LOG_LIMIT = 16
 
 
 class _TrainingProgress(BaseCallback):
@@ -113,8 +116,12 @@ class RouteEvaluationCallback(_TrainingProgress):
         its closures to it too)
     :param eval_freq: Evaluate every ``eval_freq`` env steps (``unit="step"``) or training episodes
     :param unit: ``"step"`` or ``"episode"``
-    :param goals: Goal names to evaluate (default: all of the env's goals)
+    :param goals: Goals to evaluate, by name or node id (default: all of the env's goals)
     :param max_steps: Step limit per route (default: the env's ``max_steps``)
+    :param log_name: Log the scores under ``eval/<log_name>/...`` instead of ``eval/...`` (e.g. ``"unseen_goals"``)
+    :param other_goals: More named goal sets evaluated at the same times, logged under ``eval/<name>/...`` and kept in
+        each evaluation's ``others``; only ``goals`` decide whether the map is solved (e.g. ``{"train_goals": [...]}``
+        next to held-out ``goals``)
     :param success_threshold: Success rate at which the map counts as solved
     :param spl_threshold: SPL at which the map counts as solved
     :param stop_when_solved: Stop training at the first evaluation at both thresholds
@@ -129,8 +136,10 @@ class RouteEvaluationCallback(_TrainingProgress):
         eval_env: gym.Env | CampusNavEnv | None = None,
         eval_freq: int = 2_000,
         unit: str = "step",
-        goals: Sequence[str] | None = None,
+        goals: Sequence[str | int] | None = None,
         max_steps: int | None = None,
+        log_name: str | None = None,
+        other_goals: Mapping[str, Sequence[str | int]] | None = None,
         success_threshold: float = DEFAULT_SUCCESS_THRESHOLD,
         spl_threshold: float = DEFAULT_SPL_THRESHOLD,
         stop_when_solved: bool = False,
@@ -148,6 +157,11 @@ class RouteEvaluationCallback(_TrainingProgress):
         self.unit = unit
         self.goals = goals
         self.max_steps = max_steps
+        self.log_name = log_name
+        self.other_goals = dict(other_goals or {})
+        clash = sorted(set(self.other_goals) & {log_name})
+        if clash:
+            raise ValueError(f"other_goals: the name {clash[0]!r} is already log_name's")
         self.success_threshold = success_threshold
         self.spl_threshold = spl_threshold
         self.stop_when_solved = stop_when_solved
@@ -212,18 +226,18 @@ class RouteEvaluationCallback(_TrainingProgress):
             return model.predict(observations, deterministic=True)[0]
 
         report = evaluate_routes(self.eval_env, policy, goals=self.goals, max_steps=self.max_steps)
+        others = {
+            name: evaluate_routes(self.eval_env, policy, goals=goals, max_steps=self.max_steps)
+            for name, goals in self.other_goals.items()
+        }
         step = self.model.num_timesteps
-        evaluation = RouteEvaluation(step=step, episode=self.episodes, train_seconds=self.train_seconds, report=report)
+        evaluation = RouteEvaluation(
+            step=step, episode=self.episodes, train_seconds=self.train_seconds, report=report, others=others
+        )
         self.evaluations.append(evaluation)
-        summary = report.summary()
-        for key in _SUMMARY_KEYS:
-            self.logger.record(f"eval/{key}", summary[key])
-        goals = sorted({route.goal for route in report.routes})
-        if len(goals) > 1:
-            for goal in goals:
-                per_goal = report.for_goal(goal).summary()
-                for key in _SUMMARY_KEYS:
-                    self.logger.record(f"eval/{goal}/{key}", per_goal[key])
+        self._log_report("eval" if self.log_name is None else f"eval/{self.log_name}", report)
+        for name, other in others.items():
+            self._log_report(f"eval/{name}", other)
         self.logger.record("eval/train_seconds", evaluation.train_seconds)
         self.logger.dump(step)
         if self.verbose >= 1:
@@ -234,6 +248,19 @@ class RouteEvaluationCallback(_TrainingProgress):
             )
         self.excluded_seconds += time.perf_counter() - start
         return evaluation
+
+
+    def _log_report(self, prefix: str, report: RouteReport) -> None:
+        """Scores under ``prefix``; per goal too for up to :data:`PER_GOAL_LOG_LIMIT` goals (not a hundred curves)."""
+        summary = report.summary()
+        for key in _SUMMARY_KEYS:
+            self.logger.record(f"{prefix}/{key}", summary[key])
+        goals = sorted({route.goal for route in report.routes})
+        if 1 < len(goals) <= PER_GOAL_LOG_LIMIT:
+            for goal in goals:
+                per_goal = report.for_goal(goal).summary()
+                for key in _SUMMARY_KEYS:
+                    self.logger.record(f"{prefix}/{goal}/{key}", per_goal[key])
 
 
 class RoadClosureCallback(EventCallback):

@@ -313,7 +313,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
                 raise RuntimeError(f"no intersection can reach the goal {self.goal_names[self._goal_index]!r}")
             start = int(self.np_random.choice(candidates))
         self._node = start
-        headings = self._headings_at(start)
+        headings = self.headings_at(start)
         if "heading" in options:
             heading = int(options["heading"])
             if heading not in headings:
@@ -421,19 +421,25 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     def heading(self) -> int:
         return self._heading
 
+    def resolve_goal(self, goal: str | int) -> tuple[str, int]:
+        """The name and node of one of this env's goals, given by name or node id (``KeyError`` if it is none)."""
+        index = self._goal_index_of(goal)
+        return self.goal_names[index], self.goal_nodes[index]
+
     def _goal_index_of(self, goal: str | int) -> int:
         if isinstance(goal, str):
             if goal not in self.goal_names:
                 raise KeyError(f"goal {goal!r} is not one of this env's goals {self.goal_names}")
             return self.goal_names.index(goal)
-        if int(goal) not in self.goal_nodes:
+        if isinstance(goal, bool) or int(goal) not in self.goal_nodes:
             raise KeyError(f"goal node {goal} is not one of this env's goal nodes {self.goal_nodes}")
         return self.goal_nodes.index(int(goal))
 
     def _state_index(self, node: int, heading: int) -> int:
         return int(self.graph.map.state_of[node, heading])
 
-    def _headings_at(self, node: int) -> list[int]:
+    def headings_at(self, node: int) -> list[int]:
+        """The headings the agent can have at ``node`` (one per road leaving it)."""
         return [int(h) for h in np.flatnonzero(self.graph.map.state_of[node] >= 0)]
 
     def observation_at(self, node: int, heading: int, goal: str | int) -> dict[str, np.ndarray] | np.ndarray:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # plain records: the evaluation (and the env behind it) is not imported at run time
@@ -44,12 +44,14 @@ class RouteEvaluation:
     :param episode: Training episodes so far
     :param train_seconds: Training wall time so far, evaluations excluded
     :param report: The routes and their scores
+    :param others: Routes to other named goal sets evaluated at the same time (e.g. goals never trained on)
     """
 
     step: int
     episode: int
     train_seconds: float
     report: RouteReport
+    others: dict[str, RouteReport] = field(default_factory=dict)
 
     @property
     def success_rate(self) -> float:

@@ -95,7 +95,7 @@ def evaluate_routes(
     env: CampusNavEnv,
     policy: Policy,
     *,
-    goals: Sequence[str] | None = None,
+    goals: Sequence[str | int] | None = None,
     max_steps: int | None = None,
     starts: Sequence[int] | np.ndarray | None = None,
     stop_loops: bool = True,
@@ -106,7 +106,8 @@ def evaluate_routes(
     :param env: The environment (its current closures apply); its episode state is not touched
     :param policy: Maps a batch of observations to a batch of actions, e.g.
         ``lambda obs: model.predict(obs, deterministic=True)[0]``
-    :param goals: Goal names (default: all of the env's goals)
+    :param goals: Goals by name or node id (default: all of the env's goals; with ``CampusNavGoal`` any
+        intersection); routes carry the goal's name
     :param max_steps: Step limit per route (default: the env's ``max_steps``)
     :param starts: Start states (rows of ``graph.transition_table``; repeats allowed, e.g. test episodes from random
         starts) instead of every state that can reach the goal; each must be able to reach every goal evaluated
@@ -119,8 +120,8 @@ def evaluate_routes(
     graph = env.graph
     state_nodes, state_headings = graph.map.state_nodes, graph.map.state_headings
     report = RouteReport()
-    for goal in goals or env.goal_names:
-        goal_node = env.goal_nodes[env.goal_names.index(goal)]
+    for asked in env.goal_names if goals is None or len(goals) == 0 else goals:
+        goal, goal_node = env.resolve_goal(asked)
         distances = env.node_distances(goal_node)
         if starts is None:
             goal_starts = np.flatnonzero((distances > 0)[state_nodes])  # state indices
