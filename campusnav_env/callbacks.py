@@ -249,7 +249,6 @@ class RouteEvaluationCallback(_TrainingProgress):
         self.excluded_seconds += time.perf_counter() - start
         return evaluation
 
-
     def _log_report(self, prefix: str, report: RouteReport) -> None:
         """Scores under ``prefix``; per goal too for up to :data:`PER_GOAL_LOG_LIMIT` goals (not a hundred curves)."""
         summary = report.summary()
@@ -314,7 +313,11 @@ class RoadClosureCallback(EventCallback):
             raise ValueError("recoveries need a RouteEvaluationCallback: pass evaluation=... to RoadClosureCallback")
         evaluation = self.evaluation
         return measure_recoveries(
-            self.records, evaluation.evaluations, evaluation.success_threshold, evaluation.spl_threshold
+            self.records,
+            evaluation.evaluations,
+            evaluation.success_threshold,
+            evaluation.spl_threshold,
+            evaluation.every_goal,
         )
 
     @property
@@ -363,7 +366,7 @@ class RoadClosureCallback(EventCallback):
         recovering, evaluation = self._recovering, self.evaluation
         if recovering is not None and evaluation and len(evaluation.evaluations) > recovering.evaluation_index:
             latest = evaluation.evaluations[-1]
-            if latest.meets(evaluation.success_threshold, evaluation.spl_threshold):
+            if latest.meets(evaluation.success_threshold, evaluation.spl_threshold, evaluation.every_goal):
                 self._log_recovery(recovering, latest)
         return continue_training
 

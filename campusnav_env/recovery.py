@@ -147,12 +147,14 @@ def measure_recoveries(
     evaluations: Sequence[RouteEvaluation],
     success_threshold: float = DEFAULT_SUCCESS_THRESHOLD,
     spl_threshold: float = DEFAULT_SPL_THRESHOLD,
+    every_goal: bool = False,
 ) -> list[Recovery]:
     """
     The recovery after every closure that changed the network (see the module docstring).
 
     :param closures: Closures in the order they happened
     :param evaluations: Route evaluations in the order they were made
+    :param every_goal: Recovered only when each goal is at the thresholds on its own
     :return: one :class:`Recovery` per closure that closed or reopened a road
     """
     recoveries = []
@@ -160,7 +162,7 @@ def measure_recoveries(
     for k, closure in enumerate(changed):
         end = changed[k + 1].evaluation_index if k + 1 < len(changed) else len(evaluations)
         window = list(evaluations[closure.evaluation_index : end])
-        recovered_at = next((e for e in window if e.meets(success_threshold, spl_threshold)), None)
+        recovered_at = next((e for e in window if e.meets(success_threshold, spl_threshold, every_goal)), None)
         recoveries.append(
             Recovery(
                 closure=closure,

@@ -30,6 +30,10 @@ class EmbeddingFusionExtractor(BaseFeaturesExtractor):
     :param current_key: Observation key of the current views (default: ``"views"``, or ``"observation"`` in a goal env)
     :param goal_key: Observation key of the goal views (default: ``"goal_views"``, or ``"desired_goal"``)
     :param ignored_keys: Observation keys left out of the fusion (default: ``"achieved_goal"`` in a goal env)
+    :param goal_view_dropout: In training, hide each of the goal's ``n_views`` views (zero it) with this probability,
+        keeping at least one: the critics learn goals from partial pictures (an augmentation for goals never
+        trained on). Evaluation and target critics see every view
+    :param n_views: Number of equal blocks (views) the goal vector is made of (CampusNav: four compass views)
     :param activation_fn: Activation after the embedding and the fusion layers
     """
 
@@ -42,6 +46,8 @@ class EmbeddingFusionExtractor(BaseFeaturesExtractor):
         goal_key: str | None = None,
         activation_fn: type[nn.Module] = nn.ReLU,
         ignored_keys: tuple[str, ...] | None = None,
+        goal_view_dropout: float = 0.0,
+        n_views: int = 4,
     ) -> None:
         if not isinstance(observation_space, spaces.Dict):
             raise TypeError(f"EmbeddingFusionExtractor needs a Dict observation space, got {observation_space}")
@@ -61,7 +67,13 @@ class EmbeddingFusionExtractor(BaseFeaturesExtractor):
                 f"EmbeddingFusionExtractor: {current_key!r} {current_space.shape} and {goal_key!r} {goal_space.shape} "
                 "must have the same shape to share the siamese embedding"
             )
+        if not 0.0 <= goal_view_dropout < 1.0:
+            raise ValueError(f"EmbeddingFusionExtractor: goal_view_dropout must be in [0, 1), got {goal_view_dropout}")
+        if goal_view_dropout and int(np.prod(goal_space.shape)) % n_views:
+            raise ValueError(f"EmbeddingFusionExtractor: {goal_key!r} {goal_space.shape} is not {n_views} equal views")
         super().__init__(observation_space, features_dim)
+        self.goal_view_dropout = goal_view_dropout
+        self.n_views = n_views
         self.current_key = current_key
         self.goal_key = goal_key
         self.extra_keys = sorted(k for k in observation_space.spaces if k not in {current_key, goal_key, *ignored})
@@ -72,9 +84,22 @@ class EmbeddingFusionExtractor(BaseFeaturesExtractor):
 
     def forward(self, observations: dict[str, th.Tensor]) -> th.Tensor:
         batch = observations[self.current_key].shape[0]
+        goal = observations[self.goal_key].float()
+        if self.training and self.goal_view_dropout > 0:
+            goal = self._hide_goal_views(goal)
         # One pass of the shared layer over current and goal views stacked along the batch
-        both = th.cat([observations[self.current_key], observations[self.goal_key]]).float()
+        both = th.cat([observations[self.current_key].float(), goal])
         embedded = self.embedding(both)
         parts = [embedded[:batch], embedded[batch:]]
         parts += [observations[k].float().reshape(batch, -1) for k in self.extra_keys]
         return self.fusion(th.cat(parts, dim=1))
+
+    def _hide_goal_views(self, goal: th.Tensor) -> th.Tensor:
+        """Zero each goal view with probability ``goal_view_dropout``, never all of one goal's views."""
+        batch = goal.shape[0]
+        hidden = th.rand(batch, self.n_views, device=goal.device) < self.goal_view_dropout
+        all_hidden = hidden.all(dim=1)
+        keep = th.randint(self.n_views, (batch,), device=goal.device)
+        hidden[all_hidden, keep[all_hidden]] = False
+        views = goal.reshape(batch, self.n_views, -1) * (~hidden).unsqueeze(-1)
+        return views.reshape(goal.shape)

@@ -75,3 +75,25 @@ def test_dcqn_with_the_fusion_extractor_gives_each_critic_its_own_unless_shared(
     assert shared.q_net.shares_features_extractor
     separate.learn(40)
     assert separate._n_updates > 0
+
+
+def test_goal_view_dropout_hides_whole_views_in_training_only() -> None:
+    space = spaces.Dict(
+        {
+            "observation": spaces.Box(-1, 1, (8,)),
+            "achieved_goal": spaces.Box(-1, 1, (8,)),
+            "desired_goal": spaces.Box(-1, 1, (8,)),
+        }
+    )
+    extractor = EmbeddingFusionExtractor(space, embed_dim=4, features_dim=4, goal_view_dropout=0.5)
+    assert extractor.current_key == "observation" and extractor.goal_key == "desired_goal"
+    assert extractor.extra_keys == []  # the achieved goal is not a policy input
+    goal = th.ones(2_000, 8)
+    hidden = extractor._hide_goal_views(goal).reshape(2_000, 4, 2)
+    blocks = hidden.sum(dim=2)
+    assert set(blocks.unique().tolist()) == {0.0, 2.0}  # a view is hidden whole or kept whole
+    assert (blocks > 0).any(dim=1).all()  # never every view of a goal
+    assert 0.35 < (blocks == 0).float().mean() < 0.5  # about half, less the views kept so that one stays
+    obs = {"observation": th.zeros(3, 8), "achieved_goal": th.zeros(3, 8), "desired_goal": th.ones(3, 8)}
+    extractor.eval()
+    th.testing.assert_close(extractor(obs), extractor(obs))  # evaluation sees every view: deterministic

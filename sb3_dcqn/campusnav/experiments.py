@@ -225,6 +225,8 @@ def train_with_closures(
     stop_when_solved: bool = True,
     stop_when_recovered: bool = True,
     callbacks: Sequence[BaseCallback] = (),
+    eval_goals: Sequence[str | int] | None = None,
+    every_goal: bool = False,
     verbose: int = 0,
     progress: bool = True,
 ) -> TrainingOutcome:
@@ -250,6 +252,9 @@ def train_with_closures(
     :param stop_when_recovered: End a phase once recovered from its closures (else train its budget out)
     :param callbacks: More callbacks for every phase (the levers' adaptation boost:
         :func:`~sb3_dcqn.campusnav.levers.lever_callbacks`)
+    :param eval_goals: The goals the route evaluation drives to (default: all of the env's goals; a goal-conditioned
+        env has one per intersection: pass a sample)
+    :param every_goal: Solved and recovered only when each goal is at the thresholds on its own
     :param verbose: 1: a line per route evaluation and closure event
     :param progress: Show a progress bar on stderr
     :return: the callbacks, with everything they recorded
@@ -260,8 +265,10 @@ def train_with_closures(
     evaluation = RouteEvaluationCallback(
         eval_freq=eval_freq,
         unit="step",
+        goals=eval_goals,
         success_threshold=DEFAULT_SUCCESS_THRESHOLD,
         spl_threshold=DEFAULT_SPL_THRESHOLD,
+        every_goal=every_goal,
         verbose=int(verbose >= 1),
     )
     closures = RoadClosureCallback(

@@ -1,0 +1,439 @@
+"""Any goal: a goal-conditioned DCQN with hindsight relabelling, on goals it trained on and goals it never saw.
+
+The agent trains on ``CampusNavGoal-v0`` (every intersection can be the goal, given as its four views) with SB3's
+``HerReplayBuffer`` (served by DCQN's ``DCQNHerReplayBuffer``: relabelled transitions that reach their goal are
+terminal), from the shipped ``CampusNavGoal-v0`` entry of ``hyperparams/dcqn.yml``. Protocols (``--protocols``):
+
+- ``all``: every intersection is a training goal. Measured: the time until the greedy policy from every (start,
+  heading) reaches every intersection (success >= 0.99, SPL >= 0.97), and until each of the paper's four goals is at
+  the solved bar (0.99 / 0.98) on its own.
+- ``lenient``: a seeded 20% of the intersections (the run's seed) are never an episode's goal; relabelling may still
+  use them (the agent is told, in hindsight, that it reached them). Measured: the time until the held-out goals are
+  at 0.99 / 0.98.
+- ``strict``: the held-out goals are never episode goals and never relabelling targets (the agent may drive through
+  them; it is never told that one is a goal; tested in ``tests/test_her_buffer.py``). Measured: success and SPL on the
+  held-out goals after the training budget, the best evaluation, and the per-goal spread.
+
+Every evaluation runs the greedy policy from every (start, heading) to every goal of its set (held-out goals, or all
+intersections), logged to TensorBoard as ``eval/unseen_goals/*`` (``eval/all_goals/*`` for ``all``) and, for 20
+training goals drawn with the run's seed, ``eval/train_goals/*``. Training seconds exclude evaluations.
+
+Levers (``--levers``, for the ablation table; each one option of the product): ``shipped``; ``sb3_dones`` (SB3's
+dones on relabelled transitions: what the terminal fix buys); ``relabel8`` (8 relabelled goals per transition instead
+of 4); ``goal_dropout`` (each goal view hidden with probability 0.25 in training: partial goal pictures).
+
+With ``--after`` the ``all`` runs go on, once trained: **appearance change** (the trained policy evaluated on every
+intersection with the goals pictured at dusk and with passing cars, the agent's own views unchanged) and
+**re-adaptation for every goal** (the busiest road of the routes to a sample of goals -- the paper's four plus 10
+drawn with the seed -- is closed; episodes of training until every goal of the sample is back at success 0.99 /
+SPL 0.95).
+
+Runs are appended to a JSON-lines file (``--runs-file``) as they finish; the tables are rebuilt from it. Usage::
+
+    python benchmarks/unseen_goals.py                                   # small: seed 0, 60 s per run
+    python benchmarks/unseen_goals.py --seeds 0 1 2 --budget 150 --after
+    python benchmarks/unseen_goals.py --protocols strict --levers shipped relabel8 goal_dropout --seeds 0 1 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import statistics
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from campusnav_runs import VARIANTS, Task, machine_line, quick_env_kwargs  # beside this script
+from report import append_run, markdown_table, measured_on, publish, read_runs
+from workers import run_in_workers, workers_argument
+
+from campusnav_env.callbacks import RouteEvaluationCallback
+from campusnav_env.closures import ClosureEvent
+from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
+from campusnav_env.maps.campus import GOALS
+from campusnav_env.recovery import RouteEvaluation
+from campusnav_env.rendering.street_view import RenderSettings
+from campusnav_env.route_evaluation import RouteReport, evaluate_routes
+from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingBudget, train_with_closures
+from sb3_dcqn.campusnav.settings import campus_of
+from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+HELD_OUT_FRACTION = 0.2
+ALL_GOALS_SPL = 0.97  # the issue's bar for every intersection as the goal (success SOLVED_SUCCESS)
+STRICT_SUCCESS, STRICT_SPL = 0.95, 0.90  # the issue's bar for goals never trained on (strict)
+RECOVERED_SUCCESS, RECOVERED_SPL = 0.99, 0.95
+TRAIN_GOAL_SAMPLE = 20
+CLOSURE_SAMPLE = 10  # random goals next to the paper's four in the re-adaptation sample
+EVAL_FREQ = 3_000
+
+PROTOCOLS = ("all", "lenient", "strict")
+# Each lever is one option of the product: (what it is, changes to the algorithm's keyword arguments)
+LEVERS: dict[str, tuple[str, dict[str, Any]]] = {
+    "shipped": ("as shipped", {}),
+    "sb3_dones": ("SB3's dones on relabelled transitions", {"replay_buffer_kwargs": {"terminal_relabels": False}}),
+    "relabel8": ("8 relabelled goals per transition", {"replay_buffer_kwargs": {"n_sampled_goal": 8}}),
+    "goal_dropout": (
+        "goal views hidden at random (p 0.25)",
+        {"policy_kwargs": {"features_extractor_kwargs": {"goal_view_dropout": 0.25}}},
+    ),
+}
+APPEARANCES = {
+    "dusk (19:30)": RenderSettings(time_of_day=19.5),
+    "passing cars": RenderSettings(cars=True),
+    "dusk + cars": RenderSettings(time_of_day=19.5, cars=True),
+}
+
+
+@dataclass(frozen=True)
+class Job:
+    protocol: str
+    lever: str
+    seed: int
+    budget: float
+    after: bool
+    quick: bool
+
+
+def goal_task(budget: float, quick: bool) -> Task:
+    return Task(
+        "goal",
+        "CampusNavGoal-v0 (101 intersections, any goal)",
+        "CampusNavGoal-v0",
+        "CampusNavGoal-v0",
+        max_steps=1_000_000,
+        budget_seconds=budget,
+        eval_freq=EVAL_FREQ,
+        env_kwargs=quick_env_kwargs() if quick else {},
+    )
+
+
+def split_for(protocol: str, seed: int) -> tuple[list[int], list[int]]:
+    """Training and held-out goals of a run (every intersection a training goal for ``all``)."""
+    training, held_out = held_out_split(101, HELD_OUT_FRACTION, seed)
+    return (training + held_out, []) if protocol == "all" else (training, held_out)
+
+
+def merge(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``changes`` merged in, dictionaries key by key."""
+    merged = copy.deepcopy(base)
+    for key, value in changes.items():
+        merged[key] = merge(merged.get(key) or {}, value) if isinstance(value, dict) else value
+    return merged
+
+
+def run_one(job: Job) -> dict[str, Any]:
+    """Train one agent under one protocol and lever and return the run's record."""
+    th.set_num_threads(1)
+    task = goal_task(job.budget, job.quick)
+    entry = VARIANTS["DCQN"].entry(task)
+    training, held_out = split_for(job.protocol, job.seed)
+    env_kwargs: dict[str, Any] = {"goals": training}
+    if job.protocol == "strict":
+        env_kwargs["held_out_goals"] = held_out  # never relabelling targets either
+    env = task.make_env(entry, **env_kwargs)
+    hyperparams = merge(entry.hyperparams, LEVERS[job.lever][1])
+    model = VARIANTS["DCQN"].make_model(env, replace(entry, hyperparams=hyperparams), job.seed)
+    goal_env = campus_of(env)
+    assert isinstance(goal_env, CampusNavGoalEnv)
+
+    rng = np.random.default_rng(job.seed)
+    train_sample = sorted(rng.choice(training, size=min(TRAIN_GOAL_SAMPLE, len(training)), replace=False).tolist())
+    if job.protocol == "all":
+        main_goals, log_name = list(range(101)), "all_goals"
+        others = {"paper_goals": list(GOALS)}
+        success, spl = SOLVED_SUCCESS, ALL_GOALS_SPL
+    else:
+        main_goals, log_name = held_out, "unseen_goals"
+        others = {"train_goals": train_sample}
+        success, spl = (SOLVED_SUCCESS, SOLVED_SPL) if job.protocol == "lenient" else (STRICT_SUCCESS, STRICT_SPL)
+    evaluation = RouteEvaluationCallback(
+        eval_freq=EVAL_FREQ,
+        goals=main_goals,
+        log_name=log_name,
+        other_goals=others,
+        success_threshold=success,
+        spl_threshold=spl,
+        stop_when_solved=job.protocol != "strict",  # strict runs spend their budget: the figure is the end state
+    )
+    start = time.perf_counter()
+    model.learn(task.max_steps, callback=[evaluation, TrainingBudget(evaluation, job.budget)])
+    record: dict[str, Any] = {
+        "protocol": job.protocol,
+        "lever": job.lever,
+        "seed": job.seed,
+        "quick": job.quick,
+        "budget": job.budget,
+        "held_out": held_out,
+        "steps": int(model.num_timesteps),
+        "train_seconds": evaluation.train_seconds,
+        "wall_seconds": time.perf_counter() - start,
+        "curve": [_point(e) for e in evaluation.evaluations],
+        "solved_seconds": _first_seconds(evaluation.evaluations, success, spl),
+        "final_per_goal": _per_goal(evaluation.evaluations[-1].report),
+    }
+    if job.protocol == "all":
+        record["paper_goals_seconds"] = _first_seconds(
+            evaluation.evaluations, SOLVED_SUCCESS, SOLVED_SPL, "paper_goals"
+        )
+        if job.after:
+            record["appearance"] = appearance_change(model, task, entry)
+            record["readapt"] = readapt_every_goal(model, job, rng)
+    return record
+
+
+def _point(evaluation: RouteEvaluation) -> dict[str, float]:
+    point = {
+        "step": evaluation.step,
+        "seconds": round(evaluation.train_seconds, 2),
+        "success": evaluation.success_rate,
+        "spl": evaluation.spl,
+    }
+    for name, report in evaluation.others.items():
+        point[f"{name}_success"], point[f"{name}_spl"] = report.success_rate, report.spl
+    return point
+
+
+def _first_seconds(
+    evaluations: list[RouteEvaluation], success: float, spl: float, other: str | None = None
+) -> float | None:
+    """Training seconds at the first evaluation at the bar (for ``other``: every goal of that set on its own)."""
+    for evaluation in evaluations:
+        if other is None and evaluation.meets(success, spl):
+            return evaluation.train_seconds
+        if other is not None:
+            report = evaluation.others[other]
+            goals = sorted({route.goal for route in report.routes})
+            if all(_at(report.for_goal(goal), success, spl) for goal in goals):
+                return evaluation.train_seconds
+    return None
+
+
+def _at(report: RouteReport, success: float, spl: float) -> bool:
+    return report.success_rate >= success and report.spl >= spl
+
+
+def _per_goal(report: RouteReport) -> dict[str, list[float]]:
+    goals = sorted({route.goal for route in report.routes})
+    return {goal: [report.for_goal(goal).success_rate, report.for_goal(goal).spl] for goal in goals}
+
+
+def appearance_change(model: Any, task: Task, entry: Any) -> dict[str, list[float]]:
+    """Success / SPL to every intersection with the goals pictured otherwise (the agent's views as in training)."""
+    results = {}
+    views = task.env_kwargs.get("render_settings") or RenderSettings()
+    for name, settings in APPEARANCES.items():
+        goal_settings = replace(settings, width=views.width, height=views.height)  # the agent's image size
+        eval_env = campus_of(task.make_env(entry, goal_render_settings=goal_settings))
+        report = evaluate_routes(eval_env, lambda obs: model.predict(obs, deterministic=True)[0])
+        results[name] = [report.success_rate, report.spl]
+        print(f"appearance {name}: success {report.success_rate:.3f}, SPL {report.spl:.3f}", flush=True)
+    return results
+
+
+def readapt_every_goal(model: Any, job: Job, rng: np.random.Generator) -> dict[str, Any]:
+    """Close the busiest road of the sample's routes; episodes until every goal of the sample is recovered."""
+    env = campus_of(model.get_env().envs[0])
+    others = [name for name in env.goal_names if name not in GOALS]
+    sample = list(GOALS) + sorted(rng.choice(others, size=CLOSURE_SAMPLE, replace=False).tolist())
+    outcome = train_with_closures(
+        model,
+        ClosurePlan(later=[ClosureEvent(at=0, close_on_route="busiest")]),
+        budget=0,
+        recovery_budget=100_000 if not job.quick else 1_000,
+        eval_freq=EVAL_FREQ,
+        eval_goals=sample,
+        every_goal=True,
+        progress=False,
+    )
+    recovery = outcome.recoveries[0] if outcome.recoveries else None
+    closed = [list(road) for record in outcome.closures.records for road in record.closed]
+    return {
+        "sample": sample,
+        "closed": closed,
+        "recovered": bool(recovery and recovery.recovered),
+        "episodes": None if recovery is None or not recovery.recovered else recovery.episodes,
+        "seconds": None if recovery is None or not recovery.recovered else recovery.seconds,
+    }
+
+
+# ------------------------------------------------------------------------------------------------ tables
+def _fmt(value: float | None, digits: int = 0) -> str:
+    return "miss" if value is None else f"{value:.{digits}f}"
+
+
+def _median_worst(values: list[float | None], digits: int = 0, worst_is_max: bool = True) -> str:
+    """``median (worst)`` of values where ``None`` is a miss (infinitely bad)."""
+    if not values:
+        return "-"
+    bad = float("inf") if worst_is_max else float("-inf")
+    numbers = [bad if v is None else float(v) for v in values]
+    median = statistics.median(numbers)
+    worst = max(numbers) if worst_is_max else min(numbers)
+
+    def show(x: float) -> str:
+        return "miss" if not np.isfinite(x) else f"{x:.{digits}f}"
+
+    return f"{show(median)} ({show(worst)})"
+
+
+def goals_table(runs: list[dict[str, Any]]) -> list[str]:
+    """The issue's goals table, from the ``shipped`` runs."""
+    shipped = [r for r in runs if r["lever"] == "shipped"]
+    by = {p: [r for r in shipped if r["protocol"] == p] for p in PROTOCOLS}
+    rows = []
+    strict = by["strict"]
+    if strict:
+        finals = [r["curve"][-1] for r in strict]
+        rows.append(
+            [
+                "held-out goals (20%, strict), success / SPL from every (start, heading) after the budget",
+                _median_worst([f["success"] for f in finals], 3, False)
+                + " / "
+                + _median_worst([f["spl"] for f in finals], 3, False),
+                ">= 0.95 / >= 0.90",
+                _seeds(strict),
+            ]
+        )
+    if by["lenient"]:
+        rows.append(
+            [
+                "held-out goals, lenient: training seconds to success / SPL >= 0.99 / 0.98",
+                _median_worst([r["solved_seconds"] for r in by["lenient"]]),
+                "<= 60 s",
+                _seeds(by["lenient"]),
+            ]
+        )
+    if by["all"]:
+        rows.append(
+            [
+                f"every intersection as goal: training seconds to success / SPL >= {SOLVED_SUCCESS} / {ALL_GOALS_SPL}",
+                _median_worst([r["solved_seconds"] for r in by["all"]]),
+                "<= 120 s",
+                _seeds(by["all"]),
+            ]
+        )
+        rows.append(
+            [
+                "the paper's four goals, each at 0.99 / 0.98 (agent trained on all goals): training seconds",
+                _median_worst([r.get("paper_goals_seconds") for r in by["all"]]),
+                "<= 30 s",
+                _seeds(by["all"]),
+            ]
+        )
+        for name in APPEARANCES:
+            values = [r["appearance"][name][0] for r in by["all"] if "appearance" in r]
+            if values:
+                rows.append([f"goals pictured otherwise ({name}): success", _median_worst(values, 3, False),
+                             ">= 0.90", _seeds([r for r in by["all"] if "appearance" in r])])  # fmt: skip
+        readapts = [r["readapt"] for r in by["all"] if "readapt" in r]
+        if readapts:
+            rows.append([
+                "one closure, every goal of the sample (4 paper + 10 random) back at 0.99 / 0.95: episodes",
+                _median_worst([a["episodes"] for a in readapts]), "<= 50",
+                _seeds([r for r in by["all"] if "readapt" in r]),
+            ])  # fmt: skip
+    return markdown_table(["measure", "median (worst)", "goal", "seeds"], rows)
+
+
+def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
+    """Every lever under every protocol it ran with: the protocol's figure, median (worst)."""
+    rows = []
+    for protocol in PROTOCOLS:
+        for lever, (description, _) in LEVERS.items():
+            group = [r for r in runs if r["protocol"] == protocol and r["lever"] == lever]
+            if not group:
+                continue
+            finals = [r["curve"][-1] for r in group]
+            train = [f.get("train_goals_success", f.get("paper_goals_success")) for f in finals]
+            per_goal = [min(v[0] for v in r["final_per_goal"].values()) for r in group]
+            rows.append([
+                protocol, description, _seeds(group),
+                _median_worst([r["solved_seconds"] for r in group]),
+                _median_worst([f["success"] for f in finals], 3, False),
+                _median_worst([f["spl"] for f in finals], 3, False),
+                _median_worst(per_goal, 2, False),
+                _median_worst(train, 3, False),
+                _median_worst([r["train_seconds"] for r in group]),
+            ])  # fmt: skip
+    header = [
+        "protocol",
+        "lever",
+        "seeds",
+        "s to the protocol's bar",
+        "final success",
+        "final SPL",
+        "worst goal's success",
+        "train/paper goals success",
+        "train s",
+    ]
+    return markdown_table(header, rows)
+
+
+def _seeds(runs: list[dict[str, Any]]) -> str:
+    return " ".join(str(s) for s in sorted({r["seed"] for r in runs}))
+
+
+def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None) -> None:
+    machine = measured_on(out, machine_line())
+    lines = [
+        "# Any goal: goals trained on and goals never trained on (CampusNavGoal-v0, HER)",
+        "",
+        "DCQN from the shipped `CampusNavGoal-v0` entry (SB3's `HerReplayBuffer`, future strategy, 4 relabelled goals "
+        "per transition, served by `DCQNHerReplayBuffer`: relabelled transitions that reach their goal are terminal). "
+        "Held-out goals: 20 of the 101 intersections, drawn with the run's seed. Evaluation: the greedy policy from "
+        "every (start, heading) to every goal of the set; training seconds exclude evaluations. `all`: every "
+        "intersection a training goal; `lenient`: held-out goals never an episode's goal, relabelling may use them; "
+        "`strict`: never an episode's goal, never a relabelling target. Median (worst) over the seeds; a miss counts "
+        "as infinitely slow.",
+        "",
+        machine,
+        "",
+        "## Goals",
+        "",
+        *goals_table(runs),
+        "",
+        "## Levers (ablation)",
+        "",
+        *ablation_table(runs),
+    ]
+    publish(out, lines, "unseen_goals.py", argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--protocols", nargs="+", default=list(PROTOCOLS), choices=PROTOCOLS)
+    parser.add_argument("--levers", nargs="+", default=["shipped"], choices=sorted(LEVERS))
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0])
+    parser.add_argument("--budget", type=float, default=60.0, help="training seconds per run (evaluations excluded)")
+    parser.add_argument("--after", action="store_true", help="after 'all' runs: appearance change and re-adaptation")
+    parser.add_argument("--quick", action="store_true", help="smoke run: 64x48 pixel features (no CNN)")
+    parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "unseen_goals_runs.jsonl")
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR / "unseen_goals.md")
+    workers_argument(parser)
+    args = parser.parse_args(argv)
+    th.set_num_threads(1)
+    jobs = [
+        Job(protocol, lever, seed, args.budget, args.after, args.quick)
+        for protocol in args.protocols
+        for lever in args.levers
+        for seed in args.seeds
+    ]
+    for record in run_in_workers(run_one, jobs, args.workers):
+        append_run(args.runs_file, record)
+        final = record["curve"][-1]
+        print(
+            f"{record['protocol']:<8} {record['lever']:<13} seed {record['seed']}: {record['steps']} steps, "
+            f"{record['train_seconds']:.0f} s, success {final['success']:.3f}, SPL {final['spl']:.3f}, "
+            f"solved at {_fmt(record['solved_seconds'])} s",
+            flush=True,
+        )
+    write_report(read_runs(args.runs_file), args.out, argv)
+
+
+if __name__ == "__main__":
+    main()
