@@ -1,7 +1,7 @@
 """RL Baselines3 Zoo integration: make ``--algo dcqn`` available to the zoo's commands.
 
 ``rl_zoo3`` has no plugin hook, so :func:`register_dcqn` adds DCQN to the zoo's algorithm table, its hyperparameter
-sampler and converter tables (for ``-optimize``), and the names used in ``policy_kwargs`` strings of
+sampler and converter tables (for ``-optimize``), and the names used in ``policy_kwargs`` and replay buffer strings of
 ``hyperparams/dcqn.yml`` to the namespace in which the zoo evaluates them. The console script ``dcqn-zoo`` registers
 and then runs one of the zoo's commands, named as in the zoo's own ``rl_zoo3`` CLI (``train`` when the first argument
 is an option, as before)::
@@ -47,13 +47,19 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
 from sb3_dcqn.dcqn import DCQN
+from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
 
 ALGO_NAME = "dcqn"
 # Keys of a zoo entry that configure the zoo's env and wrappers rather than the algorithm (n_envs and env_kwargs are
 # kept in ZooEntry; the others are not supported outside the zoo and are dropped)
 _ZOO_ONLY_KEYS = ("normalize", "env_wrapper", "frame_stack", "callback", "vec_env_wrapper")
+# Keys whose string values the zoo evaluates as Python (rl_zoo3's ExperimentManager._preprocess_hyperparams)
+_EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs")
+# Arguments of a replay buffer that the algorithm passes itself (not replay_buffer_kwargs keys)
+_BUFFER_ARGUMENTS = ("buffer_size", "observation_space", "action_space", "env", "device", "n_envs")
 
 
 def default_hyperparams_path() -> Path:
@@ -89,12 +95,13 @@ def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
 
     :param path: The YAML file
     :param env_id: The env id (top-level key)
-    :return: the entry; ``policy_kwargs`` strings are evaluated with the names the zoo sees
-        (:func:`policy_kwargs_namespace`)
+    :return: the entry; ``policy_kwargs``, ``replay_buffer_class`` and ``replay_buffer_kwargs`` strings are evaluated
+        with the names the zoo sees (:func:`hyperparams_namespace`), so that ``replay_buffer_class: HerReplayBuffer``
+        is SB3's class
     :raises FileNotFoundError: if the file does not exist
     :raises KeyError: if the env has no entry, or the entry no ``n_timesteps``
-    :raises ValueError: if the file is not valid YAML (naming the line) or not a table of entries, if
-        ``policy_kwargs`` cannot be evaluated or ``env_kwargs`` is not a mapping
+    :raises ValueError: if the file is not valid YAML (naming the line) or not a table of entries, if one of those
+        strings cannot be evaluated or ``env_kwargs`` is not a mapping
     """
     path = Path(path)
     if not path.is_file():
@@ -120,12 +127,13 @@ def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
         raise ValueError(f"{path}: {env_id!r}: env_kwargs must be a mapping, got {env_kwargs!r}")
     for key in _ZOO_ONLY_KEYS:
         entry.pop(key, None)
-    if isinstance(entry.get("policy_kwargs"), str):
-        namespace = {"dict": dict, **policy_kwargs_namespace()}
-        try:
-            entry["policy_kwargs"] = eval(entry["policy_kwargs"], namespace)  # the zoo's convention
-        except Exception as error:
-            raise ValueError(f"{path}: {env_id!r}: cannot evaluate policy_kwargs {entry['policy_kwargs']!r}") from error
+    namespace = {"dict": dict, **hyperparams_namespace()}
+    for key in _EVALUATED_KEYS:
+        if isinstance(entry.get(key), str):
+            try:
+                entry[key] = eval(entry[key], namespace)  # the zoo's convention
+            except Exception as error:
+                raise ValueError(f"{path}: {env_id!r}: cannot evaluate {key} {entry[key]!r}") from error
     return ZooEntry(n_timesteps, entry, dict(env_kwargs), n_envs)
 
 
@@ -156,6 +164,33 @@ def check_hyperparams(hyperparams: dict[str, Any], algo: type, where: str) -> No
     if isinstance(policy_class, type) and isinstance(policy_kwargs, dict):
         skip = ("observation_space", "action_space", "lr_schedule")
         check_keywords(policy_kwargs, policy_class, where, "policy_kwargs key", skip=skip)
+    _check_replay_buffer(hyperparams, algo, where)
+
+
+def _check_replay_buffer(hyperparams: dict[str, Any], algo: type, where: str) -> None:
+    """``replay_buffer_class`` is a replay buffer class and ``replay_buffer_kwargs`` are arguments of the one built."""
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    buffer_class = hyperparams.get("replay_buffer_class")
+    if buffer_class is not None and not (isinstance(buffer_class, type) and issubclass(buffer_class, ReplayBuffer)):
+        names = ", ".join(name for name, value in hyperparams_namespace().items() if _is_buffer_class(value))
+        raise ValueError(f"{where}: replay_buffer_class {buffer_class!r} is not a replay buffer class (known: {names})")
+    buffer_kwargs = hyperparams.get("replay_buffer_kwargs")
+    if buffer_kwargs is None:
+        return
+    if not isinstance(buffer_kwargs, dict):
+        raise ValueError(f"{where}: replay_buffer_kwargs must be a mapping, got {buffer_kwargs!r}")
+    if buffer_class is None:
+        return  # the algorithm picks the buffer from the observation space: its arguments are not known here
+    if issubclass(algo, DCQN) and buffer_class is HerReplayBuffer:
+        buffer_class = DCQNHerReplayBuffer  # DCQN serves HerReplayBuffer with it (sb3_dcqn.dcqn)
+    check_keywords(buffer_kwargs, buffer_class, where, "replay_buffer_kwargs key", skip=_BUFFER_ARGUMENTS)
+
+
+def _is_buffer_class(value: Any) -> bool:
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    return isinstance(value, type) and issubclass(value, ReplayBuffer)
 
 
 def check_keywords(given: dict[str, Any], cls: type, where: str, what: str, skip: tuple[str, ...] = ()) -> None:
@@ -219,13 +254,29 @@ def sample_dcqn_params(trial: Any, n_actions: int, n_envs: int, additional_args:
     return hyperparams_opt.sample_dqn_params(trial, n_actions, n_envs, additional_args)
 
 
-def policy_kwargs_namespace() -> dict[str, Any]:
-    """Names that ``policy_kwargs`` strings in ``dcqn.yml`` may use (the zoo evaluates those strings)."""
+def hyperparams_namespace() -> dict[str, Any]:
+    """
+    Names that ``policy_kwargs``, ``replay_buffer_class`` and ``replay_buffer_kwargs`` strings in ``dcqn.yml`` may
+    use (the zoo evaluates those strings): the fusion extractor, ``nn``, SB3's ``HerReplayBuffer`` and DCQN's replay
+    buffers.
+    """
     from torch import nn
 
+    from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
     from sb3_dcqn.fusion import EmbeddingFusionExtractor
 
-    return {"EmbeddingFusionExtractor": EmbeddingFusionExtractor, "nn": nn}
+    return {
+        "EmbeddingFusionExtractor": EmbeddingFusionExtractor,
+        "nn": nn,
+        "HerReplayBuffer": HerReplayBuffer,
+        "DCQNHerReplayBuffer": DCQNHerReplayBuffer,
+        "DCQNReplayBuffer": DCQNReplayBuffer,
+        "DCQNDictReplayBuffer": DCQNDictReplayBuffer,
+    }
+
+
+# The former name (the namespace once served policy_kwargs alone)
+policy_kwargs_namespace = hyperparams_namespace
 
 
 def register_dcqn() -> None:
@@ -235,8 +286,8 @@ def register_dcqn() -> None:
     utils.ALGOS[ALGO_NAME] = DCQN
     hyperparams_opt.HYPERPARAMS_SAMPLER[ALGO_NAME] = sample_dcqn_params
     hyperparams_opt.HYPERPARAMS_CONVERTER[ALGO_NAME] = hyperparams_opt.convert_offpolicy_params
-    # The experiment manager eval()s policy_kwargs strings in its own module globals
-    vars(exp_manager).update(policy_kwargs_namespace())
+    # The experiment manager eval()s policy_kwargs and replay buffer strings in its own module globals
+    vars(exp_manager).update(hyperparams_namespace())
 
 
 # The zoo's commands, named as in rl_zoo3/cli.py (which lacks record_video: the zoo runs it as a module)

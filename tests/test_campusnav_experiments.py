@@ -13,15 +13,31 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from stable_baselines3 import HerReplayBuffer
+from stable_baselines3.common.buffers import DictReplayBuffer
+from stable_baselines3.common.envs import BitFlippingEnv
 
 from campusnav_env import CampusNavEnv
 from campusnav_env.closures import ClosureEvent
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
 from sb3_dcqn.adaptation_boost import AdaptationBoost
+from sb3_dcqn.buffers import DCQNDictReplayBuffer
 from sb3_dcqn.campusnav.experiments import ClosurePlan, train_with_closures
-from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, lever_callbacks, lever_options, options_text, with_levers
+from sb3_dcqn.campusnav.levers import (
+    DEMO_LEVERS,
+    LEVERS,
+    LeverSet,
+    check_levers,
+    lever_callbacks,
+    lever_options,
+    options_text,
+    unusable_levers,
+    usable_levers,
+    with_levers,
+)
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS, is_solved
+from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
 from sb3_dcqn.zoo import ZooEntry
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
@@ -100,6 +116,48 @@ def test_the_boost_lever_adds_a_callback_and_no_dcqn_option() -> None:
     assert lever_callbacks(("boost",))[0] is not lever_callbacks(("boost",))[0]  # a fresh callback for each run
     text = "experience_revision=True, callback AdaptationBoost(trigger='revision')"
     assert options_text(("revision", "boost_on_revision")) == text
+
+
+def test_levers_that_need_dcqns_own_replay_buffer_are_left_out_or_refused_with_hindsight_relabelling() -> None:
+    her = {"policy": "MultiInputPolicy", "replay_buffer_class": HerReplayBuffer}
+    assert [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer] == [
+        "revision",
+        "per",
+        "boost_on_revision",
+    ]
+    # The demo's default on a goal env keeps blocked and says why revision is left out
+    usable, left_out = usable_levers(DEMO_LEVERS, her)
+    assert usable == ("blocked",) and list(left_out) == ["revision"]
+    assert "every goal it is relabelled with" in left_out["revision"]
+    assert usable_levers(("revision", "per", "blocked"), {"policy": "MultiInputPolicy"}) == (
+        ("revision", "per", "blocked"),
+        {},
+    )
+    assert unusable_levers(("per",), {**her, "replay_buffer_class": DCQNDictReplayBuffer}) == {}  # DCQN's own
+    assert "not DictReplayBuffer" in unusable_levers(("per",), {**her, "replay_buffer_class": DictReplayBuffer})["per"]
+    with pytest.raises(ValueError, match=r"lever 'per' \(prioritised replay\) cannot run here: .*HerReplayBuffer"):
+        check_levers(("blocked", "visible", "boost", "per"), her)
+    with pytest.raises(ValueError, match="lever 'revision'"):
+        with_levers(ZooEntry(100, her), ("revision",))
+    assert with_levers(ZooEntry(100, her), ("blocked",)).hyperparams["blocked_action_target"] is True
+
+
+def test_the_replay_buffer_rule_is_the_one_dcqn_applies() -> None:
+    # Each lever with DCQN options builds a DCQN with hindsight relabelling exactly when the rule lets it run; the
+    # revision-triggered boost fails when training starts (SB3's BitFlippingEnv: a small goal env)
+    env = BitFlippingEnv(n_bits=4, max_steps=4)
+    her = {"policy": "MultiInputPolicy", "replay_buffer_class": HerReplayBuffer, "learning_starts": 8}
+    for name, lever in LEVERS.items():
+        dcqn_options, _ = lever_options((name,))
+        if lever.needs_own_replay_buffer and dcqn_options:
+            with pytest.raises(ValueError, match="stands for every goal"):
+                DCQN(env=env, **her, **dcqn_options)
+        elif dcqn_options:
+            assert isinstance(DCQN(env=env, **her, **dcqn_options).replay_buffer, DCQNHerReplayBuffer)
+    model = DCQN(env=env, **her)
+    with pytest.raises(ValueError, match="experience_revision"):
+        model.learn(8, callback=lever_callbacks(("boost_on_revision",)))
+    model.learn(8, callback=lever_callbacks(("boost",)))  # the episode-length trigger needs no buffer of its own
 
 
 def test_closures_one_at_a_time_train_each_window_out_when_not_stopping_on_recovery() -> None:

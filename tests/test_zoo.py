@@ -1,7 +1,12 @@
 """RL Zoo integration: `dcqn-zoo` trains and optimises DCQN from a zoo-format YAML file and runs the zoo's commands.
 
 One tiny CartPole run (``dcqn-zoo train``) and one tiny CampusNav run (``dcqn-zoo`` without the command word, cheap
-``pixels`` views) are trained once for the module; ``enjoy``, ``record_video`` and ``plot_train`` use them.
+``pixels`` views) are trained once for the module; ``enjoy``, ``record_video`` and ``plot_train`` use them. A third run
+trains the goal-conditioned ``CampusNavGoal-v0`` from the shipped entry as it is (``-n`` short, ``--env-kwargs`` with
+the ``pixels`` encoder in place of the entry's ``env_kwargs``): the zoo evaluates ``replay_buffer_class:
+HerReplayBuffer`` and the ``replay_buffer_kwargs`` string itself and builds DCQN with the env, which DCQN's HER buffer
+needs; :func:`~sb3_dcqn.zoo.load_zoo_entry` (the command line's path) reads the same classes, and
+:func:`~sb3_dcqn.zoo.check_hyperparams` checks the buffer's keys.
 """
 
 from __future__ import annotations
@@ -17,8 +22,20 @@ import yaml
 
 pytest.importorskip("rl_zoo3")
 
+from stable_baselines3 import HerReplayBuffer
+
+from campusnav_env.goal_env import CampusNavGoalEnv
 from sb3_dcqn import DCQN
-from sb3_dcqn.zoo import COMMANDS, default_hyperparams_path, main, register_dcqn
+from sb3_dcqn.buffers import DCQNDictReplayBuffer
+from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
+from sb3_dcqn.zoo import (
+    COMMANDS,
+    check_hyperparams,
+    default_hyperparams_path,
+    load_zoo_entry,
+    main,
+    register_dcqn,
+)
 
 TINY = {
     "CartPole-v1": {
@@ -49,6 +66,9 @@ TINY_CAMPUSNAV = {
         "dict(embed_dim=16, features_dim=16), share_features_extractor=True, net_arch=[16], heading_key='heading')",
     }
 }
+# CampusNavGoal-v0 from the shipped entry: its env_kwargs (view_dim 64) with the cheap encoder, no progress bar
+GOAL_ENV = "CampusNavGoal-v0"
+GOAL_PIXELS = ["--env-kwargs", "encoder:'pixels'", "view_dim:64", "progress:False"]
 PLOTS_INSTALLED = all(importlib.util.find_spec(name) is not None for name in ("seaborn", "scipy"))
 
 
@@ -210,3 +230,61 @@ def test_help_lists_the_commands_and_the_train_options(capsys: pytest.CaptureFix
     with pytest.raises(SystemExit) as exit_info:
         main([])
     assert exit_info.value.code == 2
+
+
+# ------------------------------------------------------------------------------------------------ goal env (HER)
+@pytest.fixture(scope="module")
+def goal_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder whose ``logs/`` holds a DCQN run on CampusNavGoal-v0 from the shipped entry, 1500 steps."""
+    root = tmp_path_factory.mktemp("zoo-goal")
+    args = ["--algo", "dcqn", "--env", GOAL_ENV, "-conf", str(default_hyperparams_path()), "-n", "1500"]
+    args += ["-f", "logs", "--eval-freq", "-1", "--seed", "0", "--num-threads", "1", *GOAL_PIXELS]
+    result = run_zoo(args, root, module_env(root))
+    assert result.returncode == 0, result.stderr[-3000:]
+    return root
+
+
+def test_dcqn_zoo_trains_the_goal_env_from_the_shipped_entry_with_hindsight_relabelling(goal_run: Path) -> None:
+    run = goal_run / "logs" / "dcqn" / f"{GOAL_ENV}_1"
+    config = dict(yaml.load((run / GOAL_ENV / "config.yml").read_text(), Loader=yaml.UnsafeLoader))
+    assert config["replay_buffer_class"] == "HerReplayBuffer" and config["env_kwargs"]["encoder"] == "pixels"
+    env = CampusNavGoalEnv(**config["env_kwargs"], cache_dir=goal_run / "cache")  # the run's feature cache
+    model = DCQN.load(run / f"{GOAL_ENV}.zip", env=env)  # SB3's HER buffer is built with the env
+    assert isinstance(model.replay_buffer, DCQNHerReplayBuffer) and model.replay_buffer.n_sampled_goal == 4
+    assert model.num_timesteps == 1500 and model._n_updates > 0
+
+
+def test_enjoy_plays_the_goal_env_agent(goal_run: Path) -> None:
+    args = ["enjoy", "--algo", "dcqn", "--env", GOAL_ENV, "-f", "logs", "-n", "20", "--no-render"]
+    result = run_zoo(args, goal_run, module_env(goal_run))
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert f"Loading logs/dcqn/{GOAL_ENV}_1/{GOAL_ENV}.zip" in result.stdout
+
+
+def test_the_shipped_goal_entry_reads_as_sb3s_her_buffer_and_passes_the_checks() -> None:
+    entry = load_zoo_entry(default_hyperparams_path(), GOAL_ENV)
+    assert entry.hyperparams["replay_buffer_class"] is HerReplayBuffer
+    assert entry.hyperparams["replay_buffer_kwargs"] == {"n_sampled_goal": 4, "goal_selection_strategy": "future"}
+    check_hyperparams(entry.hyperparams, DCQN, "dcqn.yml: entry 'CampusNavGoal-v0'")
+    # DCQN's HER buffer's own arguments are accepted for HerReplayBuffer (DCQN serves it with that buffer)
+    extra = {**entry.hyperparams["replay_buffer_kwargs"], "terminal_relabels": False, "relabel_tries": 2}
+    check_hyperparams({**entry.hyperparams, "replay_buffer_kwargs": extra}, DCQN, "here")
+
+
+def test_bad_replay_buffer_settings_are_named(tmp_path: Path) -> None:
+    her = {"policy": "MultiInputPolicy", "replay_buffer_class": HerReplayBuffer}
+    misspelt = {**her, "replay_buffer_kwargs": {"n_sampled_goals": 4}}
+    with pytest.raises(
+        ValueError, match=r"here: unknown replay_buffer_kwargs key 'n_sampled_goals' .*'n_sampled_goal'"
+    ):
+        check_hyperparams(misspelt, DCQN, "here")
+    with pytest.raises(ValueError, match="here: replay_buffer_class 'HerReplayBuffer' is not a replay buffer class"):
+        check_hyperparams({**her, "replay_buffer_class": "HerReplayBuffer"}, DCQN, "here")  # not evaluated
+    # The keys are those of the buffer named: DCQN's own buffer does no relabelling
+    own = {**her, "replay_buffer_class": DCQNDictReplayBuffer, "replay_buffer_kwargs": {"n_sampled_goal": 4}}
+    with pytest.raises(ValueError, match="unknown replay_buffer_kwargs key 'n_sampled_goal'"):
+        check_hyperparams(own, DCQN, "here")
+    conf = tmp_path / "conf.yml"
+    conf.write_text(f"{GOAL_ENV}:\n  n_timesteps: 10\n  replay_buffer_class: HerReplayBufer\n")
+    with pytest.raises(ValueError, match="cannot evaluate replay_buffer_class 'HerReplayBufer'"):
+        load_zoo_entry(conf, GOAL_ENV)

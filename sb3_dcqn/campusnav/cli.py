@@ -16,6 +16,7 @@ import json
 import os
 import sys
 import time
+import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -53,6 +54,7 @@ Subcommands ('{PROG} SUBCOMMAND --help' lists the options of each):
     {PROG}                          # = {PROG} demo
     {PROG} demo --out runs/campusnav
     {PROG} train --env CampusNavMulti-v0 --close-on-route busiest --out runs/multi
+    {PROG} train --env CampusNavGoal-v0 --close-on-route busiest --out runs/goal    # any intersection a goal (HER)
     {PROG} evaluate runs/campusnav/dcqn_campusnav.zip --close 81 82 --picture routes.png
     {PROG} readapt runs/multi/dcqn_campusnav.zip --close-random 3 --timesteps 20000
     {PROG} draw --model runs/campusnav/dcqn_campusnav.zip --start 17 --close 81 82 --picture map.png
@@ -69,8 +71,14 @@ train     the same for any CampusNav env and zoo-format hyperparameter file, wit
           (--closures) or from flags (--close, --close-random, --close-on-route; at step --close-at, or, without
           it, one at a time once the map is solved as in demo). Saves the model and its replay buffer, so that
           readapt can continue.
+          --env CampusNavGoal-v0 (any intersection the goal; hindsight relabelling with HerReplayBuffer): the route
+          evaluations cover all 101 goals (about 3 s each), the pictures the paper's four landmark goals, and
+          closures keep every intersection reachable (a road without a way around is refused). The levers revision,
+          per and boost_on_revision need DCQN's own replay buffer and are refused (a stored transition stands for
+          every goal it is relabelled with); demo's default levers shrink to blocked, with a note.
 evaluate  success rate, SPL, coverage, mean steps and optimality gap of a saved model's greedy routes from every
-          (start, heading), overall and per goal, optionally under closures (--close); --picture draws one route.
+          (start, heading), overall and per goal (of an env with more than four goals: the four pictured, and the
+          training and held-out goals of a goal env), optionally under closures (--close); --picture draws one route.
 readapt   load a model and its replay buffer (when saved next to it), close roads (flags as in train; without
           --close-at right away, one at a time), train on until recovered or --timesteps steps per closure, print
           the recovery table and save the re-adapted model (never over the input unless --in-place).
@@ -79,9 +87,10 @@ draw      the map with its closures, the goal and a route: the greedy route of -
 roads     the roads of an intersection: each as 'U V' with its compass direction, open or closed (with --close).
 
 Files written by demo, train and readapt (to --out, each atomically): TensorBoard logs in tb/DCQN_<n>, routes.png
-(one panel per closure: the route learned before it and the route after recovery), curves.png (episode reward and
-length with the closures and route scores), the model dcqn_campusnav.zip with dcqn_campusnav.env.json (the env it
-was trained on, which evaluate, readapt and draw take as their defaults), dcqn_campusnav_replay_buffer.pkl (train
+(a row per pictured goal, one panel per closure: the route learned before it and the route after recovery; the goals
+pictured: every goal of an env with at most four, else the paper's four landmark goals), curves.png (episode reward
+and length with the closures and route scores), the model dcqn_campusnav.zip with dcqn_campusnav.env.json (the env
+it was trained on, which evaluate, readapt and draw take as their defaults), dcqn_campusnav_replay_buffer.pkl (train
 and readapt), summary.md and summary.json.
 
 Every subcommand starts from the open map plus the closures it is given. Bad input ends with a message that names
@@ -134,9 +143,14 @@ def _zoo_entry(conf: str | None, env_id: str) -> ZooEntry:
         raise CommandError(f"--conf: {error.args[0]} (choose another --env or --conf)") from None
 
 
-def _training_entry(conf: str | None, env_id: str, levers: Sequence[str]) -> ZooEntry:
-    """The hyperparameter entry to train with (levers added), its keys checked against DCQN's before any work."""
-    from sb3_dcqn.campusnav.levers import with_levers
+def _training_entry(conf: str | None, env_id: str, args: argparse.Namespace) -> ZooEntry:
+    """
+    The hyperparameter entry to train with (levers added), its keys checked against DCQN's before any work.
+
+    Sets ``args.levers`` to the levers used: those given, or the subcommand's default levers that can run with the
+    entry's replay buffer (:func:`~sb3_dcqn.campusnav.levers.usable_levers`; a note names those left out).
+    """
+    from sb3_dcqn.campusnav.levers import check_levers, usable_levers, with_levers
     from sb3_dcqn.dcqn import DCQN
     from sb3_dcqn.zoo import check_hyperparams, default_hyperparams_path
 
@@ -146,7 +160,16 @@ def _training_entry(conf: str | None, env_id: str, levers: Sequence[str]) -> Zoo
         check_hyperparams(entry.hyperparams, DCQN, f"{path}: entry {env_id!r}")
     except ValueError as error:
         raise CommandError(f"--conf: {error}") from None
-    return with_levers(entry, levers)
+    if args.levers is None:
+        args.levers, left_out = usable_levers(args.default_levers, entry.hyperparams)
+        for name, why in left_out.items():
+            print(f"{PROG}: note: default lever {name!r} ({LEVERS[name].name}) left out: {why}", file=sys.stderr)
+    else:
+        try:
+            check_levers(args.levers, entry.hyperparams)
+        except ValueError as error:
+            raise CommandError(f"--levers: {error} (entry {env_id!r} of {path})") from None
+    return with_levers(entry, args.levers)
 
 
 # ------------------------------------------------------------------------------------------------ envs
@@ -294,15 +317,20 @@ def _saved(model: Path) -> tuple[EnvSettings | None, int]:
 
 
 def _load_model(path: Path, settings: EnvSettings, nav: CampusNavEnv, venv: DummyVecEnv | None = None) -> DCQN:
-    """Load a model for ``nav``'s observations (and onto ``venv`` to train on)."""
+    """
+    Load a model for ``nav``'s observations, onto ``venv`` to train on (else onto ``nav``: a model with SB3's
+    ``HerReplayBuffer`` builds its buffer with the env, so it loads only with one).
+    """
     import pickle
     import zlib
+
+    from stable_baselines3.common.vec_env import DummyVecEnv
 
     from sb3_dcqn.dcqn import DCQN
 
     hint = "pass the --env, --encoder and --render-size it was trained with"
     try:
-        model = DCQN.load(path, env=venv)
+        model = DCQN.load(path, env=venv if venv is not None else DummyVecEnv([lambda: nav]))
     except ValueError as error:
         if "spaces do not match" in str(error):
             raise CommandError(f"{path}: cannot load the model on {settings.describe()} ({error}); {hint}") from None
@@ -396,11 +424,20 @@ def _plan_source(args: argparse.Namespace) -> str:
 
 # ------------------------------------------------------------------------------------------------ goal and start
 def _check_goal(nav: CampusNavEnv, goal: str | None) -> str:
+    """The goal named by ``--goal`` (a goal name, or an intersection's id), else the first goal pictured."""
+    from sb3_dcqn.campusnav.pictures import picture_goals
+
     if goal is None:
-        return nav.goal_names[0]
-    if goal not in nav.goal_names:
-        raise CommandError(f"--goal {goal!r}: not a goal of this env (goals: {', '.join(nav.goal_names)})")
-    return goal
+        return picture_goals(nav)[0]
+    if goal in nav.goal_names:
+        return goal
+    if goal.isdigit() and int(goal) in nav.goal_nodes:
+        return nav.goal_names[nav.goal_nodes.index(int(goal))]
+    landmarks = [name for name in nav.goal_names if not name.startswith("node ")]
+    choices = ", ".join(landmarks)
+    if len(landmarks) < len(nav.goal_names):  # a goal env: any intersection, by its id
+        choices += f"{', or' if landmarks else ''} any intersection as 'node K' or K ({len(nav.goal_names)} goals)"
+    raise CommandError(f"--goal {goal!r}: not a goal of this env (goals: {choices})")
 
 
 def _check_start(nav: CampusNavEnv, start: int | None, goal: str) -> None:
@@ -438,21 +475,18 @@ def _finish_training(
     from stable_baselines3.common.logger import Image
 
     from campusnav_env.atomic_files import write_text_atomic
-    from campusnav_env.figures import closure_route_panels, training_curves, write_figure
+    from campusnav_env.figures import training_curves, write_figure
     from sb3_dcqn.campusnav.model_files import save_model
-    from sb3_dcqn.campusnav.pictures import pick_route, route_picture
+    from sb3_dcqn.campusnav.pictures import picture_goals, routes_figure
     from sb3_dcqn.campusnav.summaries import outcome_json, run_report
 
     evaluations = outcome.evaluation.evaluations
     recoveries = outcome.recoveries
     files: dict[str, str] = {"tensorboard": str(tb_folder)}
     figures: dict[str, np.ndarray] = {}
-    if recoveries:
-        figures["routes"] = closure_route_panels(nav.graph, evaluations, recoveries)
-    elif evaluations:
-        goal, report = nav.goal_names[0], evaluations[-1].report
-        route = pick_route(report, goal, None, None)
-        figures["routes"] = route_picture(nav, goal, route, None, 800, score=report)
+    routes = routes_figure(nav, evaluations, recoveries, picture_goals(nav))
+    if routes is not None:
+        figures["routes"] = routes
     figures["curves"] = training_curves(
         outcome.progress.episode_rewards,
         outcome.progress.episode_lengths,
@@ -498,7 +532,7 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     _check_folder(out, "--out")
     env_id = args.env or DEFAULT_ENV
     _env_creator(env_id)
-    entry = _training_entry(args.conf, env_id, args.levers)
+    entry = _training_entry(args.conf, env_id, args)
     settings = _env_settings(args, entry=entry)
     budget = entry.n_timesteps if args.timesteps is None else args.timesteps
     recovery_budget = max(1, budget // 2) if args.recovery_budget is None else args.recovery_budget
@@ -510,10 +544,15 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     venv = _make_vec_env(settings, n_envs, args.seed)
     nav = _campus(venv.envs[0], settings.env_id)
     _check_plan(plan, nav, _plan_source(args) if args.command == "train" else "closures")
+    try:
+        model = DCQN(env=venv, seed=args.seed, verbose=int(args.verbose >= 2), **entry.hyperparams)
+    except ValueError as error:  # settings DCQN refuses together (e.g. experience_revision with HerReplayBuffer)
+        raise CommandError(f"--conf: entry {env_id!r}: {error}") from None
     out.mkdir(parents=True, exist_ok=True)
-    model = DCQN(env=venv, seed=args.seed, verbose=int(args.verbose >= 2), **entry.hyperparams)
     tb_folder = _new_logger(model, out, args.verbose)
     levers = f", levers: {' '.join(args.levers)}" if args.levers else ""
+    if args.levers:
+        title += f" (re-adaptation levers: {', '.join(args.levers)})"
     print(f"training DCQN on {settings.describe()}: up to {budget} steps, {n_envs} env(s){levers}", file=sys.stderr)
     outcome = train_with_closures(
         model,
@@ -541,8 +580,6 @@ def _cmd_demo(args: argparse.Namespace) -> dict[str, Any]:
         raise CommandError(f"--n-closures must be >= 0, got {args.n_closures}")
     plan = ClosurePlan(later=[ClosureEvent(at=0, unit="step", close_on_route="busiest")] * args.n_closures)
     title = f"DCQN on {args.env or DEFAULT_ENV}: {args.n_closures} closures of the busiest road, one at a time"
-    if args.levers:
-        title += f" (re-adaptation levers: {', '.join(args.levers)})"
     return _train(args, plan, replay_buffer=False, title=title)
 
 
@@ -555,10 +592,10 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
     _check_picture(args.picture)
     settings = _env_settings(args, _saved(path)[0])
 
-    from campusnav_env import evaluate_routes
+    from campusnav_env import RouteReport, evaluate_routes
     from campusnav_env.figures import write_figure
-    from sb3_dcqn.campusnav.pictures import pick_route, route_picture
-    from sb3_dcqn.campusnav.summaries import finite, score_table
+    from sb3_dcqn.campusnav.pictures import pick_route, picture_goals, route_picture
+    from sb3_dcqn.campusnav.summaries import finite, goal_groups, routes_by_goal, routes_to, score_table
 
     nav = _make_env(settings)
     _close_roads(nav, args.close or [])
@@ -570,16 +607,25 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
     seconds = time.perf_counter() - start
     closed = ", ".join(f"{u}-{v}" for u, v in sorted(nav.closed_roads)) or "none"
     print(f"{path} on {settings.describe()}; roads closed: {closed}; {seconds:.2f} s\n")
-    print(score_table(report), flush=True)
+    # A row per goal of an env with a few goals; of a goal env (every intersection) the pictured goals and --goal
+    rows = picture_goals(nav)
+    rows += [goal] if args.goal is not None and goal not in rows else []
+    groups = goal_groups(nav)
+    print(score_table(report, goals=rows, groups=groups), flush=True)
+    if len(rows) < len(nav.goal_names):
+        print(f"\n('all': the routes to every one of the {len(nav.goal_names)} goals; --goal NAME adds a goal's row)")
+
+    def scores(chosen: RouteReport) -> dict[str, float | None]:
+        return {key: finite(value) for key, value in chosen.summary().items()}
+
+    by_goal = routes_by_goal(report)
     summary: dict[str, Any] = {
         "model": str(path),
         "settings": settings.to_json(),
         "closed_roads": [list(road) for road in sorted(nav.closed_roads)],
-        "all": {key: finite(value) for key, value in report.summary().items()},
-        "goals": {
-            goal_name: {key: finite(value) for key, value in report.for_goal(goal_name).summary().items()}
-            for goal_name in nav.goal_names
-        },
+        "all": scores(report),
+        "groups": {name: scores(routes_to(report, members)) for name, members in groups.items()},
+        "goals": {name: scores(by_goal.get(name, RouteReport())) for name in nav.goal_names},
     }
     if args.picture is not None:
         route = pick_route(report, goal, args.start, args.heading)
@@ -617,7 +663,10 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
     model = _load_model(path, settings, nav, venv)
     model.set_random_seed(args.seed)
     if buffer_path.is_file():
-        model.load_replay_buffer(buffer_path)
+        with warnings.catch_warnings():
+            # SB3's HER buffer ends its last saved episode here, as it should: readapt starts new episodes
+            warnings.filterwarnings("ignore", message="The last trajectory in the replay buffer will be truncated")
+            model.load_replay_buffer(buffer_path)
         assert model.replay_buffer is not None
         if model.replay_buffer.n_envs != model.n_envs:
             raise CommandError(
@@ -789,7 +838,11 @@ def _closure_flags() -> argparse.ArgumentParser:
 def _picture_flags(parser: argparse.ArgumentParser, default: str | None) -> None:
     group = parser.add_argument_group("closures, goal and picture")
     group.add_argument("--close", type=int, nargs=2, action="append", metavar=("U", "V"), help="close road U-V first")
-    group.add_argument("--goal", help="goal of the route (default: the env's first goal)")
+    group.add_argument(
+        "--goal",
+        help="goal of the route: a goal's name or an intersection's id (default: the env's first goal; "
+        "CampusNavGoal-v0: Dreese Lab)",
+    )
     group.add_argument(
         "--start", type=int, metavar="NODE", help="start of the route (default: a failed or the longest)"
     )
@@ -805,15 +858,17 @@ def _picture_flags(parser: argparse.ArgumentParser, default: str | None) -> None
 
 
 def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str]) -> None:
+    own_buffer = [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer]
     parser.add_argument(
         "--levers",
         nargs="*",
         choices=sorted(LEVERS),
-        default=list(default),
         help="re-adaptation levers: "
         + ", ".join(f"{name} ({lever.name})" for name, lever in LEVERS.items())
-        + f"; default: {' '.join(default) or 'none'}; --levers alone: none",
+        + f"; default: {' '.join(default) or 'none'}; --levers alone: none. {', '.join(own_buffer)} need DCQN's own "
+        "replay buffer: not with HerReplayBuffer (CampusNavGoal-v0), where the default leaves them out",
     )
+    parser.set_defaults(default_levers=tuple(default))
 
 
 class _DemoByDefaultParser(argparse.ArgumentParser):

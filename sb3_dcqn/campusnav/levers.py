@@ -4,11 +4,18 @@ Each lever is off in DCQN's and CampusNav's defaults (the paper's algorithm). A 
 tuple of their names (``("revision", "blocked")``: the demo's); the command line's ``--levers`` and the closure
 benchmarks' :class:`LeverSet` rows read this table, so an option is written once. Importing this module is cheap (no
 torch, no CampusNav).
+
+Levers that work on DCQN's own replay buffer (``needs_own_replay_buffer``: revision, prioritised replay and the
+boost triggered by revisions) cannot run with another ``replay_buffer_class``, hindsight relabelling
+(``HerReplayBuffer``, as ``CampusNavGoal-v0``'s entry has) above all: a stored transition stands for every goal it is
+relabelled with, so it is no single experience to revise or to prioritise. :func:`check_levers` refuses such a
+combination, naming the lever and why; :func:`usable_levers` leaves those levers out (the command line's default
+levers on a goal env: the demo's ``blocked`` stays, ``revision`` goes).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -22,9 +29,13 @@ __all__ = [
     "LEVERS",
     "Lever",
     "LeverSet",
+    "check_levers",
     "lever_callbacks",
     "lever_options",
     "options_text",
+    "replay_buffer_conflict",
+    "unusable_levers",
+    "usable_levers",
     "with_levers",
 ]
 
@@ -39,22 +50,28 @@ class Lever:
     :param env_options: Env keyword arguments it sets
     :param boost_options: Keyword arguments of an :class:`~sb3_dcqn.adaptation_boost.AdaptationBoost` callback it
         adds to training (``None``: none)
+    :param needs_own_replay_buffer: It works on DCQN's own replay buffer (``DCQNReplayBuffer`` or
+        ``DCQNDictReplayBuffer``), so not with another ``replay_buffer_class`` such as ``HerReplayBuffer``
     """
 
     name: str
     dcqn_options: dict[str, Any] = field(default_factory=dict)
     env_options: dict[str, Any] = field(default_factory=dict)
     boost_options: dict[str, Any] | None = None
+    needs_own_replay_buffer: bool = False
 
 
 LEVERS: dict[str, Lever] = {
-    "revision": Lever("experience revision", {"experience_revision": True}),
+    "revision": Lever("experience revision", {"experience_revision": True}, needs_own_replay_buffer=True),
     "blocked": Lever("blocked-action target", {"blocked_action_target": True}),
-    "per": Lever("prioritised replay", {"prioritized_replay": True}),
+    "per": Lever("prioritised replay", {"prioritized_replay": True}, needs_own_replay_buffer=True),
     "visible": Lever("visible closures", env_options={"visible_closures": True}),
     # An SB3 callback, not a DCQN option; alone it cannot be triggered by revisions: longer episodes are the sign
     "boost": Lever("adaptation boost (episode-length trigger)", boost_options={"trigger": "episode_length"}),
-    "boost_on_revision": Lever("adaptation boost (revision trigger)", boost_options={"trigger": "revision"}),
+    # Triggered by the replay buffer's count of revised transitions
+    "boost_on_revision": Lever(
+        "adaptation boost (revision trigger)", boost_options={"trigger": "revision"}, needs_own_replay_buffer=True
+    ),
 }
 # The demo's: the levers that re-adapted fastest together in benchmarks/closures_one_at_a_time.py (median 8 episodes
 # per closure over 3 seeds, 8 of 9 closures within 50 episodes; with prioritised replay added: 32, 5 of 9)
@@ -106,9 +123,80 @@ def options_text(levers: Sequence[str]) -> str:
     return ", ".join(words) or "as shipped"
 
 
+def replay_buffer_conflict(hyperparams: Mapping[str, Any]) -> str | None:
+    """
+    Why a lever that needs DCQN's own replay buffer cannot run with these hyperparameters (``None``: it can).
+
+    :param hyperparams: Algorithm keyword arguments (``ZooEntry.hyperparams``), ``replay_buffer_class`` a class
+    :return: the reason in words, or ``None`` without ``replay_buffer_class`` or with one of DCQN's own buffers
+    """
+    buffer_class = hyperparams.get("replay_buffer_class")
+    if buffer_class is None:
+        return None  # DCQN picks its own buffer
+    from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+
+    from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
+
+    name = getattr(buffer_class, "__name__", repr(buffer_class))
+    if isinstance(buffer_class, type) and issubclass(buffer_class, HerReplayBuffer):
+        return (
+            f"it needs DCQN's own replay buffer, and replay_buffer_class={name} relabels goals in hindsight: a stored "
+            "transition stands for every goal it is relabelled with, so it is no single experience to revise or "
+            "prioritise"
+        )
+    if isinstance(buffer_class, type) and issubclass(buffer_class, (DCQNReplayBuffer, DCQNDictReplayBuffer)):
+        return None
+    return f"it needs DCQN's own replay buffer (DCQNReplayBuffer or DCQNDictReplayBuffer), not {name}"
+
+
+def unusable_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> dict[str, str]:
+    """
+    The levers of a combination that cannot run with an entry's hyperparameters, each with why.
+
+    :param levers: Lever names (keys of :data:`LEVERS`)
+    :param hyperparams: Algorithm keyword arguments (``ZooEntry.hyperparams``)
+    :return: lever name -> the reason, in the order of ``levers`` (empty: all can run)
+    """
+    lever_options(levers)  # unknown names fail here
+    conflict = replay_buffer_conflict(hyperparams)
+    if conflict is None:
+        return {}
+    return {name: conflict for name in levers if LEVERS[name].needs_own_replay_buffer}
+
+
+def usable_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> tuple[tuple[str, ...], dict[str, str]]:
+    """
+    The levers of a combination that can run with an entry's hyperparameters, and those left out.
+
+    :param levers: Lever names (keys of :data:`LEVERS`)
+    :param hyperparams: Algorithm keyword arguments (``ZooEntry.hyperparams``)
+    :return: ``(usable, left_out)``: the usable names in the order of ``levers``, and lever name -> why
+    """
+    left_out = unusable_levers(levers, hyperparams)
+    return tuple(name for name in levers if name not in left_out), left_out
+
+
+def check_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> None:
+    """
+    Check that every lever of a combination can run with an entry's hyperparameters.
+
+    :param levers: Lever names (keys of :data:`LEVERS`)
+    :param hyperparams: Algorithm keyword arguments (``ZooEntry.hyperparams``)
+    :raises KeyError: on an unknown lever
+    :raises ValueError: naming the first lever that cannot run, and why
+    """
+    for name, why in unusable_levers(levers, hyperparams).items():
+        raise ValueError(f"lever {name!r} ({LEVERS[name].name}) cannot run here: {why}")
+
+
 def with_levers(entry: ZooEntry, levers: Sequence[str]) -> ZooEntry:
-    """A zoo entry with the levers' DCQN options added to its hyperparameters and their env options to its
-    ``env_kwargs``."""
+    """
+    A zoo entry with the levers' DCQN options added to its hyperparameters and their env options to its
+    ``env_kwargs``.
+
+    :raises ValueError: if a lever cannot run with the entry's replay buffer (:func:`check_levers`)
+    """
+    check_levers(levers, entry.hyperparams)
     dcqn_options, env_options = lever_options(levers)
     return replace(
         entry, hyperparams={**entry.hyperparams, **dcqn_options}, env_kwargs={**entry.env_kwargs, **env_options}

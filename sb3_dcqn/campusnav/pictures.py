@@ -1,14 +1,28 @@
-"""The command line's route pictures: the map with its closures, the goal, the shortest path and a greedy route."""
+"""The command line's route pictures: the map with its closures, the goal, the shortest path and a greedy route.
+
+A run's ``routes.png`` pictures a few goals (:func:`picture_goals`): every goal of an env with at most
+:data:`PICTURED_GOALS`; of an env with more (``CampusNavGoal-v0``: every intersection) the paper's four landmark goals
+(:data:`campusnav_env.maps.campus.GOALS`) where it has them, else its first landmark goals, else its first goals.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
 from campusnav_env import COMPASS, CampusNavEnv, RouteReport
+from campusnav_env.figures import closure_route_panels
+from campusnav_env.maps.campus import GOALS
+from campusnav_env.recovery import Recovery, RouteEvaluation
 from campusnav_env.rendering.map_view import draw_map
+from campusnav_env.rendering.palette import PAGE_RGB
 from campusnav_env.route_evaluation import Route
 
-__all__ = ["pick_route", "route_picture", "route_title"]
+__all__ = ["PICTURED_GOALS", "pick_route", "picture_goals", "route_picture", "route_title", "routes_figure"]
+
+# Most goals a run's routes.png pictures (one row each)
+PICTURED_GOALS = 4
 
 
 def pick_route(report: RouteReport, goal: str, start: int | None, heading: int | None) -> Route | None:
@@ -85,3 +99,67 @@ def route_picture(
         node_ids=node_ids,
         title=route_title(nav, goal, route, start, score),
     )
+
+
+def picture_goals(nav: CampusNavEnv, count: int = PICTURED_GOALS) -> list[str]:
+    """
+    The goals a run pictures, and the default goal of a picture (the first).
+
+    :param nav: The env
+    :param count: Most goals
+    :return: every goal of an env with at most ``count``; else the paper's landmark goals among the env's goals,
+        else its landmark goals, else its first goals (at most ``count``)
+    """
+    names = list(nav.goal_names)
+    if len(names) <= count:
+        return names
+    landmarks = nav.graph.landmarks
+    for choice in ([g for g in GOALS if g in names], [g for g in names if g in landmarks], names):
+        if choice:
+            return choice[:count]
+    raise ValueError("the env has no goals")
+
+
+def routes_figure(
+    nav: CampusNavEnv,
+    evaluations: Sequence[RouteEvaluation],
+    recoveries: Sequence[Recovery],
+    goals: Sequence[str],
+    size: int = 800,
+) -> np.ndarray | None:
+    """
+    A run's ``routes.png``: a row per goal, with a panel per closure (the route learned before it and the route after
+    recovery, :func:`~campusnav_env.figures.closure_route_panels`), or without closures the last evaluation's route
+    (:func:`route_picture`).
+
+    :param nav: The env (its map and current closures)
+    :param evaluations: Every route evaluation of the run
+    :param recoveries: One per closure
+    :param goals: The goals pictured (:func:`picture_goals`); closure panels name goals by landmark, so goals
+        without one are pictured on the last evaluation only
+    :param size: Longer side of each map in pixels (600 for closure panels)
+    :return: the picture, or ``None`` without evaluations
+    """
+    if not evaluations:
+        return None
+    landmark_goals = [goal for goal in goals if goal in nav.graph.landmarks]
+    if recoveries and landmark_goals:
+        rows = [closure_route_panels(nav.graph, evaluations, recoveries, goal=goal) for goal in landmark_goals]
+    else:
+        report = evaluations[-1].report
+        rows = [
+            route_picture(nav, goal, pick_route(report, goal, None, None), None, size, score=report) for goal in goals
+        ]
+    return _stack(rows)
+
+
+def _stack(rows: Sequence[np.ndarray]) -> np.ndarray:
+    """Pictures one under the other, left-aligned on the page colour (their widths may differ)."""
+    if len(rows) == 1:
+        return rows[0]
+    page = np.full((sum(row.shape[0] for row in rows), max(row.shape[1] for row in rows), 3), PAGE_RGB, np.uint8)
+    top = 0
+    for row in rows:
+        page[top : top + row.shape[0], : row.shape[1]] = row
+        top += row.shape[0]
+    return page

@@ -4,9 +4,10 @@ JSON summaries."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from typing import Any
 
-from campusnav_env import RouteReport
+from campusnav_env import CampusNavEnv, RouteReport
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD, RouteEvaluation, recovery_table
 from sb3_dcqn.campusnav.experiments import TrainingOutcome
 from sb3_dcqn.campusnav.solved import is_solved, solved_bar
@@ -14,9 +15,12 @@ from sb3_dcqn.campusnav.solved import is_solved, solved_bar
 __all__ = [
     "evaluation_json",
     "finite",
+    "goal_groups",
     "outcome_json",
     "phases",
     "route_table",
+    "routes_by_goal",
+    "routes_to",
     "run_report",
     "score_table",
     "solved_text",
@@ -35,16 +39,56 @@ def score_cells(report: RouteReport) -> str:
     )
 
 
-def score_table(report: RouteReport) -> str:
-    """Markdown table of a route report: all goals, then each goal."""
+def score_table(
+    report: RouteReport, goals: Sequence[str] | None = None, groups: Mapping[str, Sequence[str]] | None = None
+) -> str:
+    """
+    Markdown table of a route report: all goals, then each group of goals, then each goal.
+
+    :param report: The route evaluation
+    :param goals: The goals with a row of their own (default: every goal of the report, sorted)
+    :param groups: Name -> goals, a row each (e.g. :func:`goal_groups`: training and held-out goals)
+    """
     lines = [
         "| goal | success rate | SPL | coverage | mean steps | mean shortest | optimality gap | routes |",
         "|---|---|---|---|---|---|---|---|",
     ]
     lines.append(f"| all | {score_cells(report)} |")
-    for goal in sorted({route.goal for route in report.routes}):
+    for name, members in (groups or {}).items():
+        lines.append(f"| {name} | {score_cells(routes_to(report, members))} |")
+    for goal in sorted({route.goal for route in report.routes}) if goals is None else goals:
         lines.append(f"| {goal} | {score_cells(report.for_goal(goal))} |")
     return "\n".join(lines)
+
+
+def routes_by_goal(report: RouteReport) -> dict[str, RouteReport]:
+    """The routes of a report per goal, in one pass (``report.for_goal`` for each of 101 goals reads them all 101
+    times)."""
+    by_goal: dict[str, RouteReport] = {}
+    for route in report.routes:
+        by_goal.setdefault(route.goal, RouteReport()).routes.append(route)
+    return by_goal
+
+
+def routes_to(report: RouteReport, goals: Sequence[str]) -> RouteReport:
+    """The routes of a report to some goals (a group of :func:`goal_groups`)."""
+    chosen = set(goals)
+    return RouteReport([route for route in report.routes if route.goal in chosen])
+
+
+def goal_groups(nav: CampusNavEnv) -> dict[str, list[str]]:
+    """
+    The goals of a goal env that trains on some of its goals only (``CampusNavGoal-v0`` with ``goals`` or
+    ``held_out_goals``), by kind: ``{"training goals (N)": [...], "held-out goals (M)": [...], "other goals (K)":
+    [...]}`` (never drawn, not held out), the empty kinds left out; ``{}`` for other envs and when every goal trains.
+    """
+    from campusnav_env.goal_env import CampusNavGoalEnv, goal_names
+
+    if not isinstance(nav, CampusNavGoalEnv) or len(nav.training_goals) == len(nav.goal_nodes):
+        return {}
+    kinds = {"training goals": set(nav.training_goals), "held-out goals": set(nav.held_out_goals)}
+    kinds["other goals"] = set(nav.goal_nodes) - kinds["training goals"] - kinds["held-out goals"]
+    return {f"{kind} ({len(nodes)})": goal_names(nav, sorted(nodes)) for kind, nodes in kinds.items() if nodes}
 
 
 def phases(outcome: TrainingOutcome) -> list[tuple[str, RouteEvaluation]]:
