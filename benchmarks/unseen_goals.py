@@ -70,6 +70,7 @@ RECOVERED_SUCCESS, RECOVERED_SPL = 0.99, 0.95
 TRAIN_GOAL_SAMPLE = 20
 CLOSURE_SAMPLE = 10  # random goals next to the paper's four in the re-adaptation sample
 EVAL_FREQ = 3_000
+READAPT_STEPS = 30_000  # training after the closure at most
 
 PROTOCOLS = ("all", "lenient", "strict")
 # Each lever is one option of the product: (what it is, changes to the algorithm's keyword arguments)
@@ -244,7 +245,7 @@ def readapt_every_goal(model: Any, job: Job, rng: np.random.Generator) -> dict[s
         model,
         ClosurePlan(later=[ClosureEvent(at=0, close_on_route="busiest")]),
         budget=0,
-        recovery_budget=100_000 if not job.quick else 1_000,
+        recovery_budget=READAPT_STEPS if not job.quick else 1_000,
         eval_freq=EVAL_FREQ,
         eval_goals=sample,
         every_goal=True,
