@@ -206,11 +206,9 @@ def _first_seconds(
     for evaluation in evaluations:
         if other is None and evaluation.meets(success, spl):
             return evaluation.train_seconds
-        if other is not None:
-            report = evaluation.others[other]
-            goals = sorted({route.goal for route in report.routes})
-            if all(_at(report.for_goal(goal), success, spl) for goal in goals):
-                return evaluation.train_seconds
+        reports = [] if other is None else evaluation.others[other].by_goal().values()
+        if other is not None and all(_at(report, success, spl) for report in reports):
+            return evaluation.train_seconds
     return None
 
 
@@ -219,8 +217,7 @@ def _at(report: RouteReport, success: float, spl: float) -> bool:
 
 
 def _per_goal(report: RouteReport) -> dict[str, list[float]]:
-    goals = sorted({route.goal for route in report.routes})
-    return {goal: [report.for_goal(goal).success_rate, report.for_goal(goal).spl] for goal in goals}
+    return {goal: [routes.success_rate, routes.spl] for goal, routes in sorted(report.by_goal().items())}
 
 
 def appearance_change(model: Any, task: Task, entry: Any) -> dict[str, list[float]]:
@@ -410,7 +407,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--protocols", nargs="+", default=list(PROTOCOLS), choices=PROTOCOLS)
     parser.add_argument("--levers", nargs="+", default=["shipped"], choices=sorted(LEVERS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
-    parser.add_argument("--budget", type=float, default=60.0, help="training seconds per run (evaluations excluded)")
+    parser.add_argument(
+        "--budget", type=float, help="training seconds per run, evaluations excluded (default 60; 5 with --quick)"
+    )
     parser.add_argument("--after", action="store_true", help="after 'all' runs: appearance change and re-adaptation")
     parser.add_argument("--quick", action="store_true", help="smoke run: 64x48 pixel features (no CNN)")
     parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "unseen_goals_runs.jsonl")
@@ -418,8 +417,9 @@ def main(argv: list[str] | None = None) -> None:
     workers_argument(parser)
     args = parser.parse_args(argv)
     th.set_num_threads(1)
+    budget = args.budget if args.budget is not None else (5.0 if args.quick else 60.0)
     jobs = [
-        Job(protocol, lever, seed, args.budget, args.after, args.quick)
+        Job(protocol, lever, seed, budget, args.after, args.quick)
         for protocol in args.protocols
         for lever in args.levers
         for seed in args.seeds

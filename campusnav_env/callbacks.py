@@ -254,10 +254,10 @@ class RouteEvaluationCallback(_TrainingProgress):
         summary = report.summary()
         for key in _SUMMARY_KEYS:
             self.logger.record(f"{prefix}/{key}", summary[key])
-        goals = sorted({route.goal for route in report.routes})
-        if 1 < len(goals) <= PER_GOAL_LOG_LIMIT:
-            for goal in goals:
-                per_goal = report.for_goal(goal).summary()
+        by_goal = report.by_goal()
+        if 1 < len(by_goal) <= PER_GOAL_LOG_LIMIT:
+            for goal in sorted(by_goal):
+                per_goal = by_goal[goal].summary()
                 for key in _SUMMARY_KEYS:
                     self.logger.record(f"{prefix}/{goal}/{key}", per_goal[key])
 

@@ -69,7 +69,7 @@ class RouteEvaluation:
         """
         reports = [self.report]
         if every_goal:
-            reports += [self.report.for_goal(goal) for goal in sorted({route.goal for route in self.report.routes})]
+            reports += list(self.report.by_goal().values())
         return all(r.success_rate >= success_threshold and r.spl >= spl_threshold for r in reports)
 
 

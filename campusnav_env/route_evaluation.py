@@ -75,6 +75,13 @@ class RouteReport:
     def for_goal(self, goal: str) -> RouteReport:
         return RouteReport([r for r in self.routes if r.goal == goal])
 
+    def by_goal(self) -> dict[str, RouteReport]:
+        """The routes per goal, in the order the goals first appear, in one pass (not one :meth:`for_goal` each)."""
+        groups: dict[str, RouteReport] = {}
+        for route in self.routes:
+            groups.setdefault(route.goal, RouteReport()).routes.append(route)
+        return groups
+
     def summary(self) -> dict[str, float]:
         return {
             "success_rate": self.success_rate,

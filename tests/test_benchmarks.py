@@ -20,12 +20,12 @@ def test_throughput_quick_run_writes_a_markdown_table(tmp_path: Path) -> None:
     assert "Command: `python benchmarks/throughput.py --quick --out" in text
 
 
-def _quick_run(script: str, tmp_path: Path) -> str:
+def _quick_run(script: str, tmp_path: Path, *options: str) -> str:
     """Run a benchmark script's smoke run (views encoded into a fresh cache in tmp_path) and return its results file."""
     out = tmp_path / script.replace(".py", ".md")
     env = {**os.environ, "CAMPUSNAV_CACHE": str(tmp_path / "campusnav-cache")}
     command = [sys.executable, str(BENCHMARKS / script), "--quick", "--out", str(out)]
-    command += ["--runs-file", str(tmp_path / "runs.jsonl")]
+    command += ["--runs-file", str(tmp_path / "runs.jsonl"), *options]
     subprocess.run(command, check=True, timeout=600, env=env)
     return out.read_text()
 
@@ -47,3 +47,13 @@ def test_paper_goals_quick_run_writes_its_tables(tmp_path: Path) -> None:
     text = _quick_run("paper_goals.py", tmp_path)
     assert "| goal | agent | seed | test success | mean steps | mean shortest | SPL |" in text
     assert "| goal | agent | seed | routes | success | SPL | coverage (every heading) |" in text
+
+
+def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: Path) -> None:
+    text = _quick_run("unseen_goals.py", tmp_path, "--after", "--levers", "shipped", "relabel8")
+    assert "| measure | median (worst) | goal | seeds |" in text
+    rows = ("held-out goals (20%, strict)", "held-out goals, lenient", "every intersection as goal")
+    rows += ("the paper's four goals", "goals pictured otherwise (dusk (19:30))", "one closure, every goal")
+    for row in rows:
+        assert f"| {row}" in text
+    assert "| strict | 8 relabelled goals per transition | 0 |" in text

@@ -595,7 +595,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
     from campusnav_env import RouteReport, evaluate_routes
     from campusnav_env.figures import write_figure
     from sb3_dcqn.campusnav.pictures import pick_route, picture_goals, route_picture
-    from sb3_dcqn.campusnav.summaries import finite, goal_groups, routes_by_goal, routes_to, score_table
+    from sb3_dcqn.campusnav.summaries import finite, goal_groups, routes_to, score_table
 
     nav = _make_env(settings)
     _close_roads(nav, args.close or [])
@@ -618,7 +618,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
     def scores(chosen: RouteReport) -> dict[str, float | None]:
         return {key: finite(value) for key, value in chosen.summary().items()}
 
-    by_goal = routes_by_goal(report)
+    by_goal = report.by_goal()
     summary: dict[str, Any] = {
         "model": str(path),
         "settings": settings.to_json(),

@@ -19,7 +19,6 @@ __all__ = [
     "outcome_json",
     "phases",
     "route_table",
-    "routes_by_goal",
     "routes_to",
     "run_report",
     "score_table",
@@ -59,15 +58,6 @@ def score_table(
     for goal in sorted({route.goal for route in report.routes}) if goals is None else goals:
         lines.append(f"| {goal} | {score_cells(report.for_goal(goal))} |")
     return "\n".join(lines)
-
-
-def routes_by_goal(report: RouteReport) -> dict[str, RouteReport]:
-    """The routes of a report per goal, in one pass (``report.for_goal`` for each of 101 goals reads them all 101
-    times)."""
-    by_goal: dict[str, RouteReport] = {}
-    for route in report.routes:
-        by_goal.setdefault(route.goal, RouteReport()).routes.append(route)
-    return by_goal
 
 
 def routes_to(report: RouteReport, goals: Sequence[str]) -> RouteReport:
