@@ -6,6 +6,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
@@ -71,7 +72,10 @@ class CampusNavGoalEnv(CampusNavEnv):
       out).
     - ``held_out_goals``: node ids or landmark names never drawn and never relabelling targets.
     - ``goal_render_settings``: how the goal's pictures are taken (time of day, passing cars; default: as the agent's
-      views, ``render_settings``); the features go through the projection fit on the agent's own views.
+      views, ``render_settings``); the features go through the projection fit on the agent's own views. A sequence of
+      conditions (``None`` among them: as the agent's views) pictures each episode's goal in one drawn uniformly
+      (``reset(options={"goal_condition": k})`` picks one): training on goals photographed in several conditions.
+      Between episodes, :meth:`observations_at` uses the last episode's condition.
     - every other argument as in :class:`~campusnav_env.env.CampusNavEnv` (``world``, ``view_dim``,
       ``visible_closures``, ``encoder``, ...); ``observation_mode`` must be ``"features"``.
 
@@ -88,7 +92,7 @@ class CampusNavGoalEnv(CampusNavEnv):
         world: str | RoadGraph | NavigationGraph = "campus",
         goals: Sequence[str | int] | None = None,
         held_out_goals: Sequence[str | int] = (),
-        goal_render_settings: RenderSettings | None = None,
+        goal_render_settings: RenderSettings | Sequence[RenderSettings | None] | None = None,
         observation_mode: str = "features",
         encoder: str | ViewEncoder = "efficientnet-lite0",
         encoder_kwargs: Mapping[str, Any] | None = None,
@@ -143,28 +147,49 @@ class CampusNavGoalEnv(CampusNavEnv):
         )
         self.training_goals: list[int] = training
         self.held_out_goals: frozenset[int] = frozenset(held_out)
-        if goal_render_settings is None:
-            self._goal_views = self._open_views
-        else:
+        conditions = _as_conditions(goal_render_settings)
+        # One table of goal vectors per condition the goals are pictured in (None: as the agent sees the views)
+        tables = []
+        for settings in conditions:
+            if settings is None:
+                tables.append(self._open_views.reshape(self.graph.n_nodes, -1))
+                continue
+            encoder_now = self._view_source.encoder if self._view_source is not None else encoder
             source = ViewSource(
-                graph.map,
-                "features",
-                self._view_source.encoder if self._view_source is not None else encoder,
-                encoder_kwargs,
-                goal_render_settings,
-                world_seed,
-                cache_dir,
-                progress,
+                graph.map, "features", encoder_now, encoder_kwargs, settings, world_seed, cache_dir, progress
             )
-            self._goal_views = self._features.transform(source.open_views())
-        self._goal_rows = self._goal_views.reshape(self.graph.n_nodes, -1)
-        self._node_of_goal = _unique_rows(self._goal_rows)
+            tables.append(self._features.transform(source.open_views()).reshape(self.graph.n_nodes, -1))
+        self.goal_conditions: tuple[RenderSettings | None, ...] = conditions
+        self._goal_tables = np.stack(tables)  # (conditions, nodes, 4 * D)
+        self._condition = 0  # the condition of the current episode's goal pictures
+        self._node_of_goal = _unique_rows(self._goal_tables)
         self.observation_space = self._goal_observation_space(unbounded=visible_closures)
 
+    @property
+    def _goal_rows(self) -> np.ndarray:
+        """The goal vectors of every intersection, as pictured in the current episode's condition."""
+        return self._goal_tables[self._condition]
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray] | np.ndarray, dict[str, Any]]:
+        options = dict(options or {})
+        condition = options.pop("goal_condition", None)
+        if seed is not None:
+            gym.Env.reset(self, seed=seed)  # seed first: the condition is drawn from the env's rng
+        if condition is None:
+            condition = int(self.np_random.integers(len(self.goal_conditions))) if len(self.goal_conditions) > 1 else 0
+        if not 0 <= int(condition) < len(self.goal_conditions):
+            raise ValueError(
+                f"CampusNavGoal.reset: goal_condition {condition} out of range [0, {len(self.goal_conditions)})"
+            )
+        self._condition = int(condition)
+        return super().reset(options=options)
+
     def _goal_observation_space(self, *, unbounded: bool) -> spaces.Dict:
-        size = self._goal_rows.shape[1]
+        size = self._goal_tables.shape[2]
         views = self.observation_space["views"]
-        if unbounded or self._goal_views is not self._open_views:  # goals pictured otherwise may leave the views' range
+        if unbounded or self.goal_conditions != (None,):  # goals pictured otherwise may leave the views' range
             low, high = float(np.finfo(np.float32).min), float(np.finfo(np.float32).max)
             views = goal = spaces.Box(low, high, shape=(size,), dtype=np.float32)
         else:
@@ -209,12 +234,13 @@ class CampusNavGoalEnv(CampusNavEnv):
         flat = goals.reshape(-1, self._goal_rows.shape[1])
         nodes = np.array([self._node_of_goal.get(row.tobytes(), -1) for row in flat], dtype=np.int64)
         missing = np.flatnonzero(nodes < 0)
-        if missing.size:  # not bit-equal (another code path): the nearest row, within the tolerance
-            distance = np.abs(flat[missing, None, :] - self._goal_rows[None]).max(axis=2)
+        if missing.size:  # not bit-equal (another code path): the nearest row of any condition, within the tolerance
+            rows = self._goal_tables.reshape(-1, flat.shape[1])
+            distance = np.abs(flat[missing, None, :] - rows[None]).max(axis=2)
             nearest = distance.argmin(axis=1)
             if (distance[np.arange(missing.size), nearest] > GOAL_MATCH_TOLERANCE).any():
                 raise ValueError("goal_nodes_of: some goal vectors picture no intersection of this env")
-            nodes[missing] = nearest
+            nodes[missing] = nearest % self.graph.n_nodes
         return nodes.reshape(goals.shape[:-1])
 
     def relabelling_allowed(self, goals: np.ndarray) -> np.ndarray:
@@ -272,14 +298,31 @@ def _as_list(info: Any) -> list[Any]:
     return list(info.reshape(-1)) if isinstance(info, np.ndarray) else list(info)
 
 
-def _unique_rows(rows: np.ndarray) -> dict[bytes, int]:
-    """Row bytes -> node; two intersections pictured alike could not be told apart as goals."""
+def _unique_rows(tables: np.ndarray) -> dict[bytes, int]:
+    """Row bytes -> node, over every condition's table; two intersections pictured alike could not be told apart."""
     index: dict[bytes, int] = {}
-    for node, row in enumerate(rows):
-        other = index.setdefault(row.tobytes(), node)
-        if other != node:
-            raise ValueError(f"intersections {other} and {node} have the same goal views: a goal pictures one place")
+    for table in tables:
+        for node, row in enumerate(table):
+            other = index.setdefault(row.tobytes(), node)
+            if other != node:
+                raise ValueError(
+                    f"intersections {other} and {node} have the same goal views: a goal pictures one place"
+                )
     return index
+
+
+def _as_conditions(
+    goal_render_settings: RenderSettings | Sequence[RenderSettings | None] | None,
+) -> tuple[RenderSettings | None, ...]:
+    if goal_render_settings is None or isinstance(goal_render_settings, RenderSettings):
+        return (goal_render_settings,)
+    conditions = tuple(goal_render_settings)
+    if not conditions:
+        raise ValueError("goal_render_settings: give at least one condition (None: as the agent's views)")
+    for item in conditions:
+        if item is not None and not isinstance(item, RenderSettings):
+            raise TypeError(f"goal_render_settings: expected RenderSettings or None, got {type(item).__name__}")
+    return conditions
 
 
 def held_out_split(n_nodes: int, fraction: float, seed: int) -> tuple[list[int], list[int]]:

@@ -160,3 +160,23 @@ def test_evaluate_routes_takes_any_intersection_by_id_or_name(cache_dir: Path) -
     report = evaluate_routes(env, oracle, goals=[17, "Cinema"])
     assert {route.goal for route in report.routes} == {env.resolve_goal(17)[0], "Cinema"}
     assert report.success_rate == 1.0 and report.spl == pytest.approx(1.0)
+
+
+def test_goals_pictured_in_several_conditions_draw_one_per_episode(cache_dir: Path) -> None:
+    evening = RenderSettings(width=64, height=48, time_of_day=17.0)
+    env = make_env(cache_dir, goal_render_settings=[None, evening])
+    conditions = set()
+    for seed in range(20):
+        obs, info = env.reset(seed=seed)
+        conditions.add(env._condition)
+        goal = info["goal_node"]
+        at_goal = env.observation_at(goal, env.headings_at(goal)[0], goal)  # in the episode's condition
+        np.testing.assert_allclose(at_goal["achieved_goal"], at_goal["desired_goal"])
+        assert env.goal_nodes_of(obs["desired_goal"]) == goal
+    assert conditions == {0, 1}
+    noon, _ = env.reset(seed=0, options={"goal_condition": 0, "goal": 5})
+    dusk, _ = env.reset(seed=0, options={"goal_condition": 1, "goal": 5})
+    assert not np.allclose(noon["desired_goal"], dusk["desired_goal"], atol=1e-3)
+    np.testing.assert_allclose(noon["achieved_goal"], noon["observation"])  # condition None: the agent's own views
+    with pytest.raises(ValueError, match="goal_condition 2 out of range"):
+        env.reset(options={"goal_condition": 2})
