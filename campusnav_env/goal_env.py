@@ -245,10 +245,9 @@ class CampusNavGoalEnv(CampusNavEnv):
 
     def relabelling_allowed(self, goals: np.ndarray) -> np.ndarray:
         """Whether each goal vector may be a relabelled goal (false for held-out goals: the strict protocol)."""
-        nodes = self.goal_nodes_of(goals)
-        if not self.held_out_goals:
-            return np.ones(nodes.shape, dtype=bool)
-        return ~np.isin(nodes, list(self.held_out_goals))
+        if not self.held_out_goals:  # every goal allowed: no lookup
+            return np.ones(np.shape(goals)[:-1], dtype=bool)
+        return ~np.isin(self.goal_nodes_of(goals), list(self.held_out_goals))
 
     # --- the goal-env interface (vectorised) ---------------------------------------------------------------------
 
