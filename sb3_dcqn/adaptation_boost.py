@@ -100,7 +100,7 @@ class AdaptationBoost(BaseCallback):
         model = self.model
         if not hasattr(model, "exploration_schedule"):
             raise ValueError(f"AdaptationBoost needs an epsilon-greedy algorithm, got {type(model).__name__}")
-        if self.trigger == "revision" and not hasattr(model.replay_buffer, "revised"):
+        if self.trigger == "revision" and not getattr(model, "experience_revision", False):
             raise ValueError("AdaptationBoost(trigger='revision') needs a DCQN with experience_revision=True")
         if self.replay_ratio > 1 and model.gradient_steps < 0:
             raise ValueError("AdaptationBoost: replay_ratio > 1 needs a fixed number of gradient_steps (not -1)")

@@ -74,7 +74,8 @@ class DCQN(OffPolicyAlgorithm):
     :param max_grad_norm: The maximum value for the gradient clipping
     :param experience_revision: Relabel stored transitions that the agent's new experience contradicts (a collision
         where a stored transition of the same observation and action drove on: a closed road), see
-        :mod:`sb3_dcqn.buffers`. Off by default: the paper's agent keeps its stale experience
+        :mod:`sb3_dcqn.buffers` (with ``HerReplayBuffer``: :mod:`sb3_dcqn.her_buffer`, the goal left out of the
+        match). Off by default: the paper's agent keeps its stale experience
     :param prioritized_replay: Replay transitions in proportion to their TD error, importance-weighted (Schaul et al.
         2016); ``beta`` is annealed to 1 over training. Off by default
     :param blocked_action_target: For a transition after which the observation did not change (a collision), leave
@@ -219,14 +220,21 @@ class DCQN(OffPolicyAlgorithm):
         """Use DCQN's replay buffer (revision, priorities) matching the observation space, configured by the flags."""
         if self.n_steps > 1:
             raise ValueError("experience_revision and prioritized_replay do not support n-step returns (n_steps > 1)")
+        if self.replay_buffer_class is not None and issubclass(self.replay_buffer_class, DCQNHerReplayBuffer):
+            if self.prioritized_replay:
+                raise ValueError(
+                    "prioritized_replay does not combine with hindsight relabelling (HerReplayBuffer): a stored "
+                    "transition stands for every goal it is relabelled with, its TD error for none of them"
+                )
+            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "revise_experience": True}
+            return
         if self.replay_buffer_class is None:
             is_dict = isinstance(self.observation_space, spaces.Dict)
             self.replay_buffer_class = DCQNDictReplayBuffer if is_dict else DCQNReplayBuffer
         elif not issubclass(self.replay_buffer_class, (DCQNReplayBuffer, DCQNDictReplayBuffer)):
             raise ValueError(
                 "experience_revision and prioritized_replay need DCQNReplayBuffer or DCQNDictReplayBuffer, got "
-                f"replay_buffer_class={self.replay_buffer_class.__name__} (with hindsight relabelling, a stored "
-                "transition stands for every goal it is relabelled with: use blocked_action_target instead)"
+                f"replay_buffer_class={self.replay_buffer_class.__name__} (or HerReplayBuffer, for revision)"
             )
         self.replay_buffer_kwargs = {
             **self.replay_buffer_kwargs,

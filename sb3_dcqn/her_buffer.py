@@ -12,6 +12,13 @@ e.g. a collision flag) instead of deep copies of whole info dicts (``copy_info_d
 goal for which ``env.relabelling_allowed(goals)`` is false (goals held out of training: the new goal is drawn again
 from the episode's future, up to ``relabel_tries`` times, and the transition keeps its own goal if none is allowed).
 
+**Experience revision** (``revise_experience=True``, DCQN's ``experience_revision``): as in
+:mod:`sb3_dcqn.buffers`, a new transition that contradicts stored transitions of the same observation and action (a
+road has closed or reopened) rewrites them, here with the goal left out of "the same": the observation and action
+are matched on every key but ``desired_goal``, the stored next observation gets the new one's (its own desired goal
+kept), and its reward and termination are computed anew for its own goal (``compute_reward``,
+``compute_terminated``). Every goal a stored transition is relabelled with then sees the road as it is now.
+
 DCQN uses this buffer whenever ``replay_buffer_class=HerReplayBuffer`` is asked for; ``terminal_relabels=False`` (in
 ``replay_buffer_kwargs``) restores SB3's dones, to measure what the fix does.
 """
@@ -19,6 +26,7 @@ DCQN uses this buffer whenever ``replay_buffer_class=HerReplayBuffer`` is asked 
 from __future__ import annotations
 
 import copy
+import hashlib
 import warnings
 from typing import Any
 
@@ -54,6 +62,8 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
     :param terminal_relabels: Relabelled transitions are terminal where they reach their new goal (the env's
         ``compute_terminated``); ``False``: the original episode's done (SB3)
     :param relabel_tries: How many times a relabelled goal that the env does not allow is drawn again
+    :param revise_experience: Rewrite stored transitions that a new transition of the same observation (goal left
+        out) and action contradicts (see the module docstring)
     """
 
     def __init__(
@@ -71,6 +81,7 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
         copy_info_dict: bool = False,
         terminal_relabels: bool = True,
         relabel_tries: int = 8,
+        revise_experience: bool = False,
     ) -> None:
         super().__init__(
             buffer_size,
@@ -94,6 +105,12 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
             key: np.zeros((self.buffer_size, self.n_envs), dtype=np.float32) for key in self.reward_info_keys
         }
         self._terminated_fallback_warned = False
+        self.revise_experience = revise_experience
+        self.revised = 0
+        # Revision index: (observation without the goal, action) digest -> slots; each slot's digest and outcome
+        self._slots_of: dict[bytes, set[int]] = {}
+        self._key_of: list[bytes | None] = [None] * (self.buffer_size * self.n_envs)
+        self._outcome_of: list[bytes | None] = [None] * (self.buffer_size * self.n_envs)
 
     def add(  # type: ignore[override]
         self,
@@ -104,9 +121,63 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
         done: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
+        pos = self.pos
         for key, values in self.reward_infos.items():  # before super().add moves ``pos`` on
-            values[self.pos] = [float(info[key]) for info in infos]
+            values[pos] = [float(info[key]) for info in infos]
         super().add(obs, next_obs, action, reward, done, infos)
+        if self.revise_experience:
+            self._revise(pos, obs, action)
+
+    # ------------------------------------------------------------------ experience revision
+    def _physical_keys(self) -> list[str]:
+        return sorted(key for key in self.observations if key != "desired_goal")
+
+    def _revise(self, pos: int, obs: dict[str, np.ndarray], action: np.ndarray) -> None:
+        """Rewrite the stored transitions that the transitions just added at ``pos`` contradict."""
+        keys = self._physical_keys()
+        for env in range(self.n_envs):
+            slot = pos * self.n_envs + env
+            self._unindex(slot)
+            seen = b"".join(np.ascontiguousarray(obs[k][env], dtype=self.observations[k].dtype).tobytes() for k in keys)
+            key = _digest(seen + np.asarray(action)[env].tobytes())
+            outcome = _digest(b"".join(self.next_observations[k][pos, env].tobytes() for k in keys))
+            stale = [other for other in self._slots_of.get(key, ()) if self._outcome_of[other] != outcome]
+            if stale:
+                self._rewrite(np.array(stale), pos, env, keys)
+                for other in stale:
+                    self._outcome_of[other] = outcome
+            self._slots_of.setdefault(key, set()).add(slot)
+            self._key_of[slot] = key
+            self._outcome_of[slot] = outcome
+
+    def _rewrite(self, slots: np.ndarray, pos: int, env: int, keys: list[str]) -> None:
+        """Give the stored transitions in ``slots`` the outcome of ``(pos, env)``, each for its own goal."""
+        rows, envs = np.divmod(slots, self.n_envs)
+        for k in keys:
+            self.next_observations[k][rows, envs] = self.next_observations[k][pos, env]
+        for values in self.reward_infos.values():
+            values[rows, envs] = values[pos, env]
+        assert self.env is not None
+        goals = self.observations["desired_goal"][rows, envs]
+        achieved = np.repeat(self.next_observations["achieved_goal"][pos, env][None], len(slots), axis=0)
+        infos = self._reward_infos(rows, envs)
+        rewards = self.env.env_method("compute_reward", achieved, goals, infos, indices=[0])[0]
+        self.rewards[rows, envs] = np.asarray(rewards, dtype=np.float32).reshape(-1)
+        if _env_has(self.env, "compute_terminated"):
+            terminated = np.asarray(self.env.env_method("compute_terminated", achieved, goals, infos, indices=[0])[0])
+            terminated = terminated.reshape(-1).astype(np.float32)
+            # A time limit stays a time limit; a transition that now ends its episode's task is a real termination
+            self.dones[rows, envs] = np.maximum(terminated, self.timeouts[rows, envs])
+            self.timeouts[rows, envs] = np.where(terminated > 0, 0.0, self.timeouts[rows, envs])
+        self.revised += len(slots)
+
+    def _unindex(self, slot: int) -> None:
+        old = self._key_of[slot]
+        if old is not None:
+            holders = self._slots_of[old]
+            holders.discard(slot)
+            if not holders:
+                del self._slots_of[old]
 
     def _get_virtual_samples(
         self,
@@ -180,6 +251,10 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
             return original
         terminated = self.env.env_method("compute_terminated", next_achieved, new_goals, infos, indices=[0])[0]
         return np.asarray(terminated, dtype=np.float32).reshape(-1)
+
+
+def _digest(data: bytes) -> bytes:
+    return hashlib.blake2b(data, digest_size=16).digest()
 
 
 def _env_has(env: VecEnv, name: str) -> bool:

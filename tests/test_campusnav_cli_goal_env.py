@@ -152,7 +152,9 @@ def test_a_closure_that_cuts_off_any_intersection_is_refused_on_the_goal_env(tmp
         cli("train", "--env", GOAL_ENV, *FAST, "--close", *BRIDGE, "--out", str(tmp_path / "out"))
 
 
-@pytest.mark.parametrize("lever", [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer])
+@pytest.mark.parametrize(
+    "lever", [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer and not lever.runs_with_her]
+)
 def test_levers_that_need_dcqns_own_replay_buffer_are_refused_by_name(tmp_path: Path, lever: str) -> None:
     message = rf"--levers: lever '{lever}' .*HerReplayBuffer.* every goal it is relabelled with"
     with pytest.raises(CommandError, match=message):
@@ -160,19 +162,20 @@ def test_levers_that_need_dcqns_own_replay_buffer_are_refused_by_name(tmp_path: 
     assert not (tmp_path / "out").exists()  # refused before anything is trained or written
 
 
-def test_demo_on_the_goal_env_keeps_the_default_levers_that_apply_and_says_which_it_left_out(
+def test_demo_on_the_goal_env_runs_the_default_levers_revision_included(
     tmp_path: Path, tiny_conf: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     summary = cli(
         "demo", "--env", GOAL_ENV, "--conf", str(tiny_conf), *FAST, "--n-closures", "0", "--no-progress",
         *("--timesteps", "150", "--eval-freq", "150", "--out", str(tmp_path / "demo")),
     )  # fmt: skip
-    assert summary["levers"] == ["blocked"]  # on CampusNav-v0: revision and blocked (tests/test_campusnav_cli.py)
-    assert "note: default lever 'revision' (experience revision) left out" in capsys.readouterr().err
+    assert summary["levers"] == ["revision", "blocked"]  # as on CampusNav-v0: DCQN's HER buffer revises too
+    assert "left out" not in capsys.readouterr().err
     model = DCQN.load(
         tmp_path / "demo" / "dcqn_campusnav.zip", env=make_env(EnvSettings.from_json(summary["settings"]))
     )
-    assert model.blocked_action_target and not model.experience_revision
+    assert model.blocked_action_target and model.experience_revision
+    assert model.replay_buffer.revise_experience
 
 
 def test_pictures_show_the_papers_four_goals_of_a_goal_env() -> None:

@@ -125,10 +125,11 @@ def test_levers_that_need_dcqns_own_replay_buffer_are_left_out_or_refused_with_h
         "per",
         "boost_on_revision",
     ]
-    # The demo's default on a goal env keeps blocked and says why revision is left out
-    usable, left_out = usable_levers(DEMO_LEVERS, her)
-    assert usable == ("blocked",) and list(left_out) == ["revision"]
-    assert "every goal it is relabelled with" in left_out["revision"]
+    # Revision (and its boost) run with DCQN's HER buffer too; prioritised replay does not
+    assert unusable_levers(("revision", "boost_on_revision", "blocked"), her) == {}
+    usable, left_out = usable_levers((*DEMO_LEVERS, "per"), her)
+    assert usable == DEMO_LEVERS and list(left_out) == ["per"]
+    assert "every goal it is relabelled with" in left_out["per"]
     assert usable_levers(("revision", "per", "blocked"), {"policy": "MultiInputPolicy"}) == (
         ("revision", "per", "blocked"),
         {},
@@ -137,8 +138,9 @@ def test_levers_that_need_dcqns_own_replay_buffer_are_left_out_or_refused_with_h
     assert "not DictReplayBuffer" in unusable_levers(("per",), {**her, "replay_buffer_class": DictReplayBuffer})["per"]
     with pytest.raises(ValueError, match=r"lever 'per' \(prioritised replay\) cannot run here: .*HerReplayBuffer"):
         check_levers(("blocked", "visible", "boost", "per"), her)
-    with pytest.raises(ValueError, match="lever 'revision'"):
-        with_levers(ZooEntry(100, her), ("revision",))
+    with pytest.raises(ValueError, match="lever 'per'"):
+        with_levers(ZooEntry(100, her), ("per",))
+    assert with_levers(ZooEntry(100, her), ("revision",)).hyperparams["experience_revision"] is True
     assert with_levers(ZooEntry(100, her), ("blocked",)).hyperparams["blocked_action_target"] is True
 
 
@@ -149,14 +151,15 @@ def test_the_replay_buffer_rule_is_the_one_dcqn_applies() -> None:
     her = {"policy": "MultiInputPolicy", "replay_buffer_class": HerReplayBuffer, "learning_starts": 8}
     for name, lever in LEVERS.items():
         dcqn_options, _ = lever_options((name,))
-        if lever.needs_own_replay_buffer and dcqn_options:
+        if lever.needs_own_replay_buffer and not lever.runs_with_her and dcqn_options:
             with pytest.raises(ValueError, match="stands for every goal"):
                 DCQN(env=env, **her, **dcqn_options)
         elif dcqn_options:
             assert isinstance(DCQN(env=env, **her, **dcqn_options).replay_buffer, DCQNHerReplayBuffer)
     model = DCQN(env=env, **her)
     with pytest.raises(ValueError, match="experience_revision"):
-        model.learn(8, callback=lever_callbacks(("boost_on_revision",)))
+        model.learn(8, callback=lever_callbacks(("boost_on_revision",)))  # a boost on revisions needs them on
+    DCQN(env=env, **her, experience_revision=True).learn(8, callback=lever_callbacks(("boost_on_revision",)))
     model.learn(8, callback=lever_callbacks(("boost",)))  # the episode-length trigger needs no buffer of its own
 
 

@@ -221,3 +221,46 @@ def test_the_buffer_survives_a_save_and_load(
     )
     goals = env.goal_nodes_of(fresh.replay_buffer.sample(256).observations["desired_goal"].numpy())
     assert not np.isin(goals, held_out).any()
+
+
+def test_revision_rewrites_a_closed_road_for_every_goal_its_transitions_carry(tmp_path: Path) -> None:
+    env = CampusNavGoalEnv(
+        encoder="pixels", render_settings=RenderSettings(width=64, height=48), view_dim=16, cache_dir=tmp_path,
+        progress=False,
+    )  # fmt: skip
+    model = DCQN(
+        "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, experience_revision=True,
+        learning_starts=10**6, seed=0,
+    )  # fmt: skip
+    model.learn(3_000)
+    buffer = model.replay_buffer
+    assert isinstance(buffer, DCQNHerReplayBuffer) and buffer.revise_experience and buffer.revised == 0
+    n = buffer.pos
+    here = env.goal_nodes_of(buffer.observations["achieved_goal"][:n, 0])
+    there = env.goal_nodes_of(buffer.next_observations["achieved_goal"][:n, 0])
+    moves = np.flatnonzero(here != there)
+    # The most driven move: the same (observation, action) stored under several goals
+    physical = [(int(here[i]), int(there[i]), int(buffer.actions[i, 0, 0])) for i in moves]
+    (u, v, _), count = max(((m, physical.count(m)) for m in set(physical)), key=lambda item: item[1])
+    assert count >= 3
+    first = moves[physical.index((u, v, _))]
+    same = np.flatnonzero(
+        np.all(buffer.observations["observation"][:n, 0] == buffer.observations["observation"][first, 0], axis=1)
+        & np.all(buffer.observations["heading"][:n, 0] == buffer.observations["heading"][first, 0], axis=1)
+        & (buffer.actions[:n, 0, 0] == buffer.actions[first, 0, 0])
+    )
+    goals = env.goal_nodes_of(buffer.observations["desired_goal"][same, 0])
+    # The road closes: the same observation and action now leave the agent where it was (a collision)
+    obs = {key: value[first] for key, value in buffer.observations.items()}
+    stayed = {key: value.copy() for key, value in obs.items()}
+    stayed["desired_goal"] = obs["desired_goal"]
+    buffer.add(obs, stayed, buffer.actions[first], np.array([env.collision_penalty]), np.array([False]),
+               [{"collision": True}])  # fmt: skip
+    assert buffer.revised == same.size
+    np.testing.assert_array_equal(
+        env.goal_nodes_of(buffer.next_observations["achieved_goal"][same, 0]), np.full(same.size, u)
+    )
+    # Each stored transition keeps its own goal and gets the collision's reward for it
+    np.testing.assert_array_equal(env.goal_nodes_of(buffer.observations["desired_goal"][same, 0]), goals)
+    np.testing.assert_allclose(buffer.rewards[same, 0], env.collision_penalty, rtol=1e-6)
+    assert (buffer.reward_infos["collision"][same, 0] == 1).all() and not buffer.dones[same, 0].any()

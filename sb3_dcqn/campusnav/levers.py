@@ -5,12 +5,13 @@ tuple of their names (``("revision", "blocked")``: the demo's); the command line
 benchmarks' :class:`LeverSet` rows read this table, so an option is written once. Importing this module is cheap (no
 torch, no CampusNav).
 
-Levers that work on DCQN's own replay buffer (``needs_own_replay_buffer``: revision, prioritised replay and the
-boost triggered by revisions) cannot run with another ``replay_buffer_class``, hindsight relabelling
-(``HerReplayBuffer``, as ``CampusNavGoal-v0``'s entry has) above all: a stored transition stands for every goal it is
-relabelled with, so it is no single experience to revise or to prioritise. :func:`check_levers` refuses such a
-combination, naming the lever and why; :func:`usable_levers` leaves those levers out (the command line's default
-levers on a goal env: the demo's ``blocked`` stays, ``revision`` goes).
+Levers that work on DCQN's own replay buffers cannot run with another ``replay_buffer_class``
+(``needs_own_replay_buffer``). Revision (and the boost it triggers) also runs with hindsight relabelling
+(``HerReplayBuffer``, as ``CampusNavGoal-v0``'s entry has: DCQN serves it with ``DCQNHerReplayBuffer``, which revises
+stored transitions with the goal left out of the match); prioritised replay does not: a stored transition stands for
+every goal it is relabelled with, its TD error for none of them. :func:`check_levers` refuses such a combination,
+naming the lever and why; :func:`usable_levers` leaves those levers out (the command line's default levers on a goal
+env: the demo's ``revision`` and ``blocked`` both stay).
 """
 
 from __future__ import annotations
@@ -51,7 +52,8 @@ class Lever:
     :param boost_options: Keyword arguments of an :class:`~sb3_dcqn.adaptation_boost.AdaptationBoost` callback it
         adds to training (``None``: none)
     :param needs_own_replay_buffer: It works on DCQN's own replay buffer (``DCQNReplayBuffer`` or
-        ``DCQNDictReplayBuffer``), so not with another ``replay_buffer_class`` such as ``HerReplayBuffer``
+        ``DCQNDictReplayBuffer``), so not with another ``replay_buffer_class``
+    :param runs_with_her: ... except ``HerReplayBuffer`` (DCQN's HER buffer does it too: experience revision)
     """
 
     name: str
@@ -59,10 +61,13 @@ class Lever:
     env_options: dict[str, Any] = field(default_factory=dict)
     boost_options: dict[str, Any] | None = None
     needs_own_replay_buffer: bool = False
+    runs_with_her: bool = False
 
 
 LEVERS: dict[str, Lever] = {
-    "revision": Lever("experience revision", {"experience_revision": True}, needs_own_replay_buffer=True),
+    "revision": Lever(
+        "experience revision", {"experience_revision": True}, needs_own_replay_buffer=True, runs_with_her=True
+    ),
     "blocked": Lever("blocked-action target", {"blocked_action_target": True}),
     "per": Lever("prioritised replay", {"prioritized_replay": True}, needs_own_replay_buffer=True),
     "visible": Lever("visible closures", env_options={"visible_closures": True}),
@@ -70,7 +75,10 @@ LEVERS: dict[str, Lever] = {
     "boost": Lever("adaptation boost (episode-length trigger)", boost_options={"trigger": "episode_length"}),
     # Triggered by the replay buffer's count of revised transitions
     "boost_on_revision": Lever(
-        "adaptation boost (revision trigger)", boost_options={"trigger": "revision"}, needs_own_replay_buffer=True
+        "adaptation boost (revision trigger)",
+        boost_options={"trigger": "revision"},
+        needs_own_replay_buffer=True,
+        runs_with_her=True,
     ),
 }
 # The demo's: the levers that re-adapted fastest together in benchmarks/closures_one_at_a_time.py (median 8 episodes
@@ -141,7 +149,7 @@ def replay_buffer_conflict(hyperparams: Mapping[str, Any]) -> str | None:
     if isinstance(buffer_class, type) and issubclass(buffer_class, HerReplayBuffer):
         return (
             f"it needs DCQN's own replay buffer, and replay_buffer_class={name} relabels goals in hindsight: a stored "
-            "transition stands for every goal it is relabelled with, so it is no single experience to revise or "
+            "transition stands for every goal it is relabelled with, so its TD error is no single experience's to "
             "prioritise"
         )
     if isinstance(buffer_class, type) and issubclass(buffer_class, (DCQNReplayBuffer, DCQNDictReplayBuffer)):
@@ -161,7 +169,18 @@ def unusable_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> di
     conflict = replay_buffer_conflict(hyperparams)
     if conflict is None:
         return {}
-    return {name: conflict for name in levers if LEVERS[name].needs_own_replay_buffer}
+    her = _is_her(hyperparams.get("replay_buffer_class"))
+    return {
+        name: conflict
+        for name in levers
+        if LEVERS[name].needs_own_replay_buffer and not (her and LEVERS[name].runs_with_her)
+    }
+
+
+def _is_her(buffer_class: Any) -> bool:
+    from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+
+    return isinstance(buffer_class, type) and issubclass(buffer_class, HerReplayBuffer)
 
 
 def usable_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> tuple[tuple[str, ...], dict[str, str]]:
