@@ -73,20 +73,36 @@ EVAL_FREQ = 3_000
 READAPT_STEPS = 30_000  # training after the closure at most
 
 PROTOCOLS = ("all", "lenient", "strict")
-# Each lever is one option of the product: (what it is, changes to the algorithm's keyword arguments)
-LEVERS: dict[str, tuple[str, dict[str, Any]]] = {
-    "shipped": ("as shipped", {}),
-    "sb3_dones": ("SB3's dones on relabelled transitions", {"replay_buffer_kwargs": {"terminal_relabels": False}}),
-    "relabel8": ("8 relabelled goals per transition", {"replay_buffer_kwargs": {"n_sampled_goal": 8}}),
+# The conditions the goal_photos lever pictures training goals in (None: as the agent's views, noon), and those the
+# appearance test pictures them in: none of the test's is a training condition
+TRAINING_PHOTOS = (None, *(RenderSettings(time_of_day=hour) for hour in (7.0, 16.0, 20.5)))
+APPEARANCES = {
+    "morning (8:30)": RenderSettings(time_of_day=8.5),
+    "evening (17:30)": RenderSettings(time_of_day=17.5),
+    "night (19:30)": RenderSettings(time_of_day=19.5),
+    "passing cars": RenderSettings(cars=True),
+    "night + cars": RenderSettings(time_of_day=19.5, cars=True),
+}
+# Each lever is one option of the product: (what it is, changes to the algorithm's keyword arguments, env arguments)
+LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
+    "shipped": ("as shipped", {}, {}),
+    "sb3_dones": ("SB3's dones on relabelled transitions", {"replay_buffer_kwargs": {"terminal_relabels": False}}, {}),
+    "relabel8": ("8 relabelled goals per transition", {"replay_buffer_kwargs": {"n_sampled_goal": 8}}, {}),
     "goal_dropout": (
         "goal views hidden at random (p 0.25)",
         {"policy_kwargs": {"features_extractor_kwargs": {"goal_view_dropout": 0.25}}},
+        {},
     ),
-}
-APPEARANCES = {
-    "dusk (19:30)": RenderSettings(time_of_day=19.5),
-    "passing cars": RenderSettings(cars=True),
-    "dusk + cars": RenderSettings(time_of_day=19.5, cars=True),
+    "revision_blocked": (
+        "experience revision + blocked-action target",
+        {"experience_revision": True, "blocked_action_target": True},
+        {},
+    ),
+    "goal_photos": (
+        "goals pictured at noon, 7:00, 16:00 and 20:30 (one per episode)",
+        {},
+        {"goal_render_settings": TRAINING_PHOTOS},
+    ),
 }
 
 
@@ -133,11 +149,14 @@ def run_one(job: Job) -> dict[str, Any]:
     task = goal_task(job.budget, job.quick)
     entry = VARIANTS["DCQN"].entry(task)
     training, held_out = split_for(job.protocol, job.seed)
-    env_kwargs: dict[str, Any] = {"goals": training}
+    _, algo_changes, env_changes = LEVERS[job.lever]
+    if "goal_render_settings" in env_changes:
+        env_changes = {"goal_render_settings": [_sized(c, task) for c in env_changes["goal_render_settings"]]}
+    env_kwargs: dict[str, Any] = {"goals": training, **env_changes}
     if job.protocol == "strict":
         env_kwargs["held_out_goals"] = held_out  # never relabelling targets either
     env = task.make_env(entry, **env_kwargs)
-    hyperparams = merge(entry.hyperparams, LEVERS[job.lever][1])
+    hyperparams = merge(entry.hyperparams, algo_changes)
     model = VARIANTS["DCQN"].make_model(env, replace(entry, hyperparams=hyperparams), job.seed)
     goal_env = campus_of(env)
     assert isinstance(goal_env, CampusNavGoalEnv)
@@ -223,14 +242,18 @@ def _per_goal(report: RouteReport) -> dict[str, list[float]]:
 def appearance_change(model: Any, task: Task, entry: Any) -> dict[str, list[float]]:
     """Success / SPL to every intersection with the goals pictured otherwise (the agent's views as in training)."""
     results = {}
-    views = task.env_kwargs.get("render_settings") or RenderSettings()
     for name, settings in APPEARANCES.items():
-        goal_settings = replace(settings, width=views.width, height=views.height)  # the agent's image size
-        eval_env = campus_of(task.make_env(entry, goal_render_settings=goal_settings))
+        eval_env = campus_of(task.make_env(entry, goal_render_settings=_sized(settings, task)))
         report = evaluate_routes(eval_env, lambda obs: model.predict(obs, deterministic=True)[0])
         results[name] = [report.success_rate, report.spl]
         print(f"appearance {name}: success {report.success_rate:.3f}, SPL {report.spl:.3f}", flush=True)
     return results
+
+
+def _sized(settings: RenderSettings | None, task: Task) -> RenderSettings | None:
+    """Goal photo conditions at the agent's image size (the smoke run's views are small)."""
+    views = task.env_kwargs.get("render_settings") or RenderSettings()
+    return None if settings is None else replace(settings, width=views.width, height=views.height)
 
 
 def readapt_every_goal(model: Any, job: Job, rng: np.random.Generator) -> dict[str, Any]:
@@ -323,17 +346,18 @@ def goals_table(runs: list[dict[str, Any]]) -> list[str]:
                 _seeds(by["all"]),
             ]
         )
+    after = [r for r in runs if r["protocol"] == "all" and "appearance" in r]
+    for lever, (description, _, _) in LEVERS.items():
+        group = [r for r in after if r["lever"] == lever]
         for name in APPEARANCES:
-            values = [r["appearance"][name][0] for r in by["all"] if "appearance" in r]
+            values = [r["appearance"][name][0] for r in group if name in r["appearance"]]
             if values:
-                rows.append([f"goals pictured otherwise ({name}): success", _median_worst(values, 3, False),
-                             ">= 0.90", _seeds([r for r in by["all"] if "appearance" in r])])  # fmt: skip
-        readapts = [r["readapt"] for r in by["all"] if "readapt" in r]
-        if readapts:
+                rows.append([f"goals pictured otherwise, {name} ({description}): success",
+                             _median_worst(values, 3, False), ">= 0.90", _seeds(group)])  # fmt: skip
+        if group:
             rows.append([
-                "one closure, every goal of the sample (4 paper + 10 random) back at 0.99 / 0.95: episodes",
-                _median_worst([a["episodes"] for a in readapts]), "<= 50",
-                _seeds([r for r in by["all"] if "readapt" in r]),
+                f"one closure, every goal of the sample (4 paper + 10 random) back at 0.99 / 0.95 ({description}): "
+                "episodes", _median_worst([r["readapt"]["episodes"] for r in group]), "<= 50", _seeds(group),
             ])  # fmt: skip
     return markdown_table(["measure", "median (worst)", "goal", "seeds"], rows)
 
@@ -342,7 +366,7 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
     """Every lever under every protocol it ran with: the protocol's figure, median (worst)."""
     rows = []
     for protocol in PROTOCOLS:
-        for lever, (description, _) in LEVERS.items():
+        for lever, (description, _, _) in LEVERS.items():
             group = [r for r in runs if r["protocol"] == protocol and r["lever"] == lever]
             if not group:
                 continue
