@@ -20,15 +20,19 @@ training goals drawn with the run's seed, ``eval/train_goals/*``. Training secon
 
 Levers (``--levers``, for the ablation table; each one option of the product): ``shipped``; ``sb3_dones`` (SB3's
 dones on relabelled transitions: what the terminal fix buys); ``relabel8`` (8 relabelled goals per transition instead
-of 4); ``goal_dropout`` (each goal view hidden with probability 0.25 in training: partial goal pictures).
+of 4); ``goal_dropout`` (each goal view hidden with probability 0.25 in training: partial goal pictures);
+``revision_blocked`` (experience revision, with the goal left out of the match, and the blocked-action target: for
+re-adaptation); ``goal_photos`` (training goals pictured at noon, 7:00, 16:00 and 20:30, one condition per episode).
 
-With ``--after`` the ``all`` runs go on, once trained: **appearance change** (the trained policy evaluated on every
-intersection with the goals pictured at dusk and with passing cars, the agent's own views unchanged) and
-**re-adaptation for every goal** (the busiest road of the routes to a sample of goals -- the paper's four plus 10
-drawn with the seed -- is closed; episodes of training until every goal of the sample is back at success 0.99 /
-SPL 0.95).
+With ``--after`` (both, or ``--after appearance`` / ``--after readapt``) the ``all`` runs go on, once trained:
+**appearance change** (the trained policy evaluated on every intersection with the goals pictured at 8:30, 17:30,
+19:30 (night), with passing cars, and at night with cars; none a training condition; the agent's own views
+unchanged) and **re-adaptation for every goal** (the busiest road of the routes to a sample of goals -- the paper's
+four plus 10 drawn with the seed -- is closed; episodes of training until every goal of the sample is back at success
+0.99 / SPL 0.95, counted from the closure whatever the sample's scores were before it).
 
-Runs are appended to a JSON-lines file (``--runs-file``) as they finish; the tables are rebuilt from it. Usage::
+Runs are appended to a JSON-lines file (``--runs-file``) as they finish, and a rerun skips those done (same protocol,
+lever, seed, budget); the tables are rebuilt from the file. Usage::
 
     python benchmarks/unseen_goals.py                                   # small: seed 0, 60 s per run
     python benchmarks/unseen_goals.py --seeds 0 1 2 --budget 150 --after
@@ -73,6 +77,7 @@ EVAL_FREQ = 3_000
 READAPT_STEPS = 30_000  # training after the closure at most
 
 PROTOCOLS = ("all", "lenient", "strict")
+AFTER = ("appearance", "readapt")  # what --after runs once an 'all' agent is trained
 # The conditions the goal_photos lever pictures training goals in (None: as the agent's views, noon), and those the
 # appearance test pictures them in: none of the test's is a training condition
 TRAINING_PHOTOS = (None, *(RenderSettings(time_of_day=hour) for hour in (7.0, 16.0, 20.5)))
@@ -112,7 +117,7 @@ class Job:
     lever: str
     seed: int
     budget: float
-    after: bool
+    after: tuple[str, ...]
     quick: bool
 
 
@@ -200,8 +205,9 @@ def run_one(job: Job) -> dict[str, Any]:
         record["paper_goals_seconds"] = _first_seconds(
             evaluation.evaluations, SOLVED_SUCCESS, SOLVED_SPL, "paper_goals"
         )
-        if job.after:
+        if "appearance" in job.after:
             record["appearance"] = appearance_change(model, task, entry)
+        if "readapt" in job.after:
             record["readapt"] = readapt_every_goal(model, job, rng)
     return record
 
@@ -434,7 +440,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--budget", type=float, help="training seconds per run, evaluations excluded (default 60; 5 with --quick)"
     )
-    parser.add_argument("--after", action="store_true", help="after 'all' runs: appearance change and re-adaptation")
+    parser.add_argument(
+        "--after",
+        nargs="*",
+        choices=AFTER,
+        help="after 'all' runs: appearance change and re-adaptation (both when given without a word)",
+    )
     parser.add_argument("--quick", action="store_true", help="smoke run: 64x48 pixel features (no CNN)")
     parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "unseen_goals_runs.jsonl")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "unseen_goals.md")
@@ -442,12 +453,16 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     th.set_num_threads(1)
     budget = args.budget if args.budget is not None else (5.0 if args.quick else 60.0)
+    after = () if args.after is None else tuple(args.after or AFTER)
+    done = {(r["protocol"], r["lever"], r["seed"], r["budget"], r["quick"]) for r in read_runs(args.runs_file)}
     jobs = [
-        Job(protocol, lever, seed, budget, args.after, args.quick)
+        Job(protocol, lever, seed, budget, after, args.quick)
         for protocol in args.protocols
         for lever in args.levers
         for seed in args.seeds
+        if (protocol, lever, seed, budget, args.quick) not in done
     ]
+    print(f"{len(done)} runs already in {args.runs_file}, {len(jobs)} to do", flush=True)
     for record in run_in_workers(run_one, jobs, args.workers):
         append_run(args.runs_file, record)
         final = record["curve"][-1]

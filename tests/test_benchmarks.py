@@ -50,7 +50,7 @@ def test_paper_goals_quick_run_writes_its_tables(tmp_path: Path) -> None:
 
 
 def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: Path) -> None:
-    text = _quick_run("unseen_goals.py", tmp_path, "--after", "--levers", "shipped", "relabel8")
+    text = _quick_run("unseen_goals.py", tmp_path, "--after", "--levers", "shipped", "relabel8")  # --after: both
     assert "| measure | median (worst) | goal | seeds |" in text
     rows = ("held-out goals (20%, strict)", "held-out goals, lenient", "every intersection as goal")
     rows += (
