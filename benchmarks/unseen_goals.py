@@ -294,7 +294,7 @@ def _fmt(value: float | None, digits: int = 0) -> str:
 
 
 def _median_worst(values: list[float | None], digits: int = 0, worst_is_max: bool = True) -> str:
-    """``median (worst)`` of values where ``None`` is a miss (infinitely bad)."""
+    """``median (worst) [each run's]`` of values where ``None`` is a miss (infinitely bad)."""
     if not values:
         return "-"
     bad = float("inf") if worst_is_max else float("-inf")
@@ -305,11 +305,12 @@ def _median_worst(values: list[float | None], digits: int = 0, worst_is_max: boo
     def show(x: float) -> str:
         return "miss" if not np.isfinite(x) else f"{x:.{digits}f}"
 
-    return f"{show(median)} ({show(worst)})"
+    each = ", ".join(show(x) for x in numbers)
+    return f"{show(median)} ({show(worst)})" + (f" [{each}]" if 1 < len(numbers) <= 5 else "")
 
 
 def goals_table(runs: list[dict[str, Any]]) -> list[str]:
-    """The issue's goals table, from the ``shipped`` runs."""
+    """The issue's goals table: the ``shipped`` runs, and appearance and re-adaptation rows of every lever."""
     shipped = [r for r in runs if r["lever"] == "shipped"]
     by = {p: [r for r in shipped if r["protocol"] == p] for p in PROTOCOLS}
     rows = []
@@ -352,18 +353,19 @@ def goals_table(runs: list[dict[str, Any]]) -> list[str]:
                 _seeds(by["all"]),
             ]
         )
-    after = [r for r in runs if r["protocol"] == "all" and "appearance" in r]
     for lever, (description, _, _) in LEVERS.items():
-        group = [r for r in after if r["lever"] == lever]
+        group = [r for r in runs if r["protocol"] == "all" and r["lever"] == lever]
+        seen = [r for r in group if "appearance" in r]
         for name in APPEARANCES:
-            values = [r["appearance"][name][0] for r in group if name in r["appearance"]]
+            values = [r["appearance"][name][0] for r in seen if name in r["appearance"]]
             if values:
                 rows.append([f"goals pictured otherwise, {name} ({description}): success",
-                             _median_worst(values, 3, False), ">= 0.90", _seeds(group)])  # fmt: skip
-        if group:
+                             _median_worst(values, 3, False), ">= 0.90", _seeds(seen)])  # fmt: skip
+        readapted = [r for r in group if "readapt" in r]
+        if readapted:
             rows.append([
                 f"one closure, every goal of the sample (4 paper + 10 random) back at 0.99 / 0.95 ({description}): "
-                "episodes", _median_worst([r["readapt"]["episodes"] for r in group]), "<= 50", _seeds(group),
+                "episodes", _median_worst([r["readapt"]["episodes"] for r in readapted]), "<= 50", _seeds(readapted),
             ])  # fmt: skip
     return markdown_table(["measure", "median (worst)", "goal", "seeds"], rows)
 
