@@ -38,6 +38,21 @@ __all__ = [
 ]
 
 
+def digest(data: bytes) -> bytes:
+    """The revision index's key of an (observation, action) or an outcome: 16 bytes of BLAKE2b."""
+    return hashlib.blake2b(data, digest_size=16).digest()
+
+
+def unindex_slot(slots_of: dict[bytes, set[int]], key_of: list[bytes | None], slot: int) -> None:
+    """Take a slot about to be overwritten out of the revision index (its key maps to the slots holding it)."""
+    old = key_of[slot]
+    if old is not None:
+        holders = slots_of[old]
+        holders.discard(slot)
+        if not holders:
+            del slots_of[old]
+
+
 class PrioritizedReplayBufferSamples(NamedTuple):
     """Replay samples with importance weights and the indices to update their priorities."""
 
@@ -147,16 +162,11 @@ class _ReadaptationMixin:
             self._outcome_of[slot] = outcome
 
     def _unindex(self, slot: int) -> None:
-        old = self._key_of[slot]
-        if old is not None:
-            holders = self._slots_of[old]
-            holders.discard(slot)
-            if not holders:
-                del self._slots_of[old]
+        unindex_slot(self._slots_of, self._key_of, slot)
 
     @staticmethod
     def _digest(data: bytes) -> bytes:
-        return hashlib.blake2b(data, digest_size=16).digest()
+        return digest(data)
 
     def _outcome(self, pos: int, env: int) -> bytes:
         # The world's answer: reward, real termination (not a time limit) and where the agent ended up

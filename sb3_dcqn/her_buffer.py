@@ -26,7 +26,6 @@ DCQN uses this buffer whenever ``replay_buffer_class=HerReplayBuffer`` is asked 
 from __future__ import annotations
 
 import copy
-import hashlib
 import warnings
 from typing import Any
 
@@ -36,6 +35,8 @@ from stable_baselines3.common.type_aliases import DictReplayBufferSamples
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from stable_baselines3.her.goal_selection_strategy import GoalSelectionStrategy
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+
+from sb3_dcqn.buffers import digest, unindex_slot
 
 __all__ = ["DCQNHerReplayBuffer"]
 
@@ -139,8 +140,8 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
             slot = pos * self.n_envs + env
             self._unindex(slot)
             seen = b"".join(np.ascontiguousarray(obs[k][env], dtype=self.observations[k].dtype).tobytes() for k in keys)
-            key = _digest(seen + np.asarray(action)[env].tobytes())
-            outcome = _digest(b"".join(self.next_observations[k][pos, env].tobytes() for k in keys))
+            key = digest(seen + np.asarray(action)[env].tobytes())
+            outcome = digest(b"".join(self.next_observations[k][pos, env].tobytes() for k in keys))
             stale = [other for other in self._slots_of.get(key, ()) if self._outcome_of[other] != outcome]
             if stale:
                 self._rewrite(np.array(stale), pos, env, keys)
@@ -172,12 +173,7 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
         self.revised += len(slots)
 
     def _unindex(self, slot: int) -> None:
-        old = self._key_of[slot]
-        if old is not None:
-            holders = self._slots_of[old]
-            holders.discard(slot)
-            if not holders:
-                del self._slots_of[old]
+        unindex_slot(self._slots_of, self._key_of, slot)
 
     def _get_virtual_samples(
         self,
@@ -251,10 +247,6 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
             return original
         terminated = self.env.env_method("compute_terminated", next_achieved, new_goals, infos, indices=[0])[0]
         return np.asarray(terminated, dtype=np.float32).reshape(-1)
-
-
-def _digest(data: bytes) -> bytes:
-    return hashlib.blake2b(data, digest_size=16).digest()
 
 
 def _env_has(env: VecEnv, name: str) -> bool:
