@@ -43,14 +43,39 @@ def digest(data: bytes) -> bytes:
     return hashlib.blake2b(data, digest_size=16).digest()
 
 
-def unindex_slot(slots_of: dict[bytes, set[int]], key_of: list[bytes | None], slot: int) -> None:
-    """Take a slot about to be overwritten out of the revision index (its key maps to the slots holding it)."""
+def index_transition(
+    slots_of: dict[bytes, set[int]],
+    key_of: list[bytes | None],
+    outcome_of: list[bytes | None],
+    slot: int,
+    key: bytes,
+    outcome: bytes,
+) -> list[int]:
+    """
+    Index the transition just written to ``slot`` in the revision index and find what it contradicts.
+
+    :param slots_of: Key (observation and action digest) -> the slots holding it
+    :param key_of: Each slot's key (``None``: empty)
+    :param outcome_of: Each slot's outcome digest
+    :param slot: The slot written (its previous transition, if any, leaves the index)
+    :param key: The new transition's key
+    :param outcome: The new transition's outcome
+    :return: the other slots of the same key with another outcome: the caller rewrites them; their outcome is now
+        ``outcome``
+    """
     old = key_of[slot]
     if old is not None:
         holders = slots_of[old]
         holders.discard(slot)
         if not holders:
             del slots_of[old]
+    stale = [other for other in slots_of.get(key, ()) if outcome_of[other] != outcome]
+    for other in stale:
+        outcome_of[other] = outcome
+    slots_of.setdefault(key, set()).add(slot)
+    key_of[slot] = key
+    outcome_of[slot] = outcome
+    return stale
 
 
 class PrioritizedReplayBufferSamples(NamedTuple):
@@ -150,19 +175,10 @@ class _ReadaptationMixin:
             return
         for env in range(self.n_envs):
             slot = pos * self.n_envs + env
-            self._unindex(slot)
             key = self._digest(self._observation_bytes(obs, env) + np.asarray(action)[env].tobytes())
             outcome = self._outcome(pos, env)
-            for other in self._slots_of.get(key, ()):
-                if self._outcome_of[other] != outcome:
-                    self._relabel(other, pos, env)
-                    self._outcome_of[other] = outcome
-            self._slots_of.setdefault(key, set()).add(slot)
-            self._key_of[slot] = key
-            self._outcome_of[slot] = outcome
-
-    def _unindex(self, slot: int) -> None:
-        unindex_slot(self._slots_of, self._key_of, slot)
+            for other in index_transition(self._slots_of, self._key_of, self._outcome_of, slot, key, outcome):
+                self._relabel(other, pos, env)
 
     @staticmethod
     def _digest(data: bytes) -> bytes:

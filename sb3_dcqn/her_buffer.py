@@ -36,7 +36,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from stable_baselines3.her.goal_selection_strategy import GoalSelectionStrategy
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
-from sb3_dcqn.buffers import digest, unindex_slot
+from sb3_dcqn.buffers import digest, index_transition
 
 __all__ = ["DCQNHerReplayBuffer"]
 
@@ -138,18 +138,12 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
         keys = self._physical_keys()
         for env in range(self.n_envs):
             slot = pos * self.n_envs + env
-            self._unindex(slot)
             seen = b"".join(np.ascontiguousarray(obs[k][env], dtype=self.observations[k].dtype).tobytes() for k in keys)
             key = digest(seen + np.asarray(action)[env].tobytes())
             outcome = digest(b"".join(self.next_observations[k][pos, env].tobytes() for k in keys))
-            stale = [other for other in self._slots_of.get(key, ()) if self._outcome_of[other] != outcome]
+            stale = index_transition(self._slots_of, self._key_of, self._outcome_of, slot, key, outcome)
             if stale:
                 self._rewrite(np.array(stale), pos, env, keys)
-                for other in stale:
-                    self._outcome_of[other] = outcome
-            self._slots_of.setdefault(key, set()).add(slot)
-            self._key_of[slot] = key
-            self._outcome_of[slot] = outcome
 
     def _rewrite(self, slots: np.ndarray, pos: int, env: int, keys: list[str]) -> None:
         """Give the stored transitions in ``slots`` the outcome of ``(pos, env)``, each for its own goal."""
@@ -171,9 +165,6 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
             self.dones[rows, envs] = np.maximum(terminated, self.timeouts[rows, envs])
             self.timeouts[rows, envs] = np.where(terminated > 0, 0.0, self.timeouts[rows, envs])
         self.revised += len(slots)
-
-    def _unindex(self, slot: int) -> None:
-        unindex_slot(self._slots_of, self._key_of, slot)
 
     def _get_virtual_samples(
         self,
