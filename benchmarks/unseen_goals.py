@@ -231,16 +231,10 @@ def _first_seconds(
 ) -> float | None:
     """Training seconds at the first evaluation at the bar (for ``other``: every goal of that set on its own)."""
     for evaluation in evaluations:
-        if other is None and evaluation.meets(success, spl):
-            return evaluation.train_seconds
-        reports = [] if other is None else evaluation.others[other].by_goal().values()
-        if other is not None and all(_at(report, success, spl) for report in reports):
+        report = evaluation.report if other is None else evaluation.others[other]
+        if report.meets(success, spl, every_goal=other is not None):
             return evaluation.train_seconds
     return None
-
-
-def _at(report: RouteReport, success: float, spl: float) -> bool:
-    return report.success_rate >= success and report.spl >= spl
 
 
 def _per_goal(report: RouteReport) -> dict[str, list[float]]:

@@ -67,10 +67,7 @@ class RouteEvaluation:
 
         :param every_goal: Also for each goal on its own (not only over all routes)
         """
-        reports = [self.report]
-        if every_goal:
-            reports += list(self.report.by_goal().values())
-        return all(r.success_rate >= success_threshold and r.spl >= spl_threshold for r in reports)
+        return self.report.meets(success_threshold, spl_threshold, every_goal)
 
 
 @dataclass(frozen=True)

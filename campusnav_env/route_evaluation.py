@@ -75,6 +75,15 @@ class RouteReport:
     def for_goal(self, goal: str) -> RouteReport:
         return RouteReport([r for r in self.routes if r.goal == goal])
 
+    def meets(self, success_threshold: float, spl_threshold: float, every_goal: bool = False) -> bool:
+        """
+        Whether success rate and SPL are both at or above the thresholds.
+
+        :param every_goal: Also for each goal on its own (not only over all routes)
+        """
+        reports = [self, *self.by_goal().values()] if every_goal else [self]
+        return all(r.success_rate >= success_threshold and r.spl >= spl_threshold for r in reports)
+
     def by_goal(self) -> dict[str, RouteReport]:
         """The routes per goal, in the order the goals first appear, in one pass (not one :meth:`for_goal` each)."""
         groups: dict[str, RouteReport] = {}

@@ -55,8 +55,9 @@ def score_table(
     lines.append(f"| all | {score_cells(report)} |")
     for name, members in (groups or {}).items():
         lines.append(f"| {name} | {score_cells(routes_to(report, members))} |")
-    for goal in sorted({route.goal for route in report.routes}) if goals is None else goals:
-        lines.append(f"| {goal} | {score_cells(report.for_goal(goal))} |")
+    by_goal = report.by_goal()
+    for goal in sorted(by_goal) if goals is None else goals:
+        lines.append(f"| {goal} | {score_cells(by_goal.get(goal, RouteReport()))} |")
     return "\n".join(lines)
 
 
