@@ -11,7 +11,7 @@ import numpy as np
 from gymnasium import spaces
 
 from campusnav_env.env import CampusNavEnv, _resolve_goals, _resolve_world
-from campusnav_env.features.encoders import ViewEncoder
+from campusnav_env.features.encoders import ViewEncoder, make_encoder
 from campusnav_env.features.view_source import ViewSource
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph
@@ -126,6 +126,9 @@ class CampusNavGoalEnv(CampusNavEnv):
             raise ValueError(f"goals and held_out_goals share intersections {overlap}: a held-out goal is never drawn")
         if not training:
             raise ValueError("CampusNavGoal: no goal left to draw (every intersection is held out)")
+        conditions = _as_conditions(goal_render_settings)
+        if isinstance(encoder, str) and any(settings is not None for settings in conditions):
+            encoder = make_encoder(encoder, **dict(encoder_kwargs or {}))  # one CNN for the views and every condition
         super().__init__(
             world=graph,
             goals=every_node,  # every intersection can be asked for (reset options, evaluation); draws use `goals`
@@ -147,16 +150,14 @@ class CampusNavGoalEnv(CampusNavEnv):
         )
         self.training_goals: list[int] = training
         self.held_out_goals: frozenset[int] = frozenset(held_out)
-        conditions = _as_conditions(goal_render_settings)
         # One table of goal vectors per condition the goals are pictured in (None: as the agent sees the views)
         tables = []
         for settings in conditions:
             if settings is None:
                 tables.append(self._open_views.reshape(self.graph.n_nodes, -1))
                 continue
-            encoder_now = self._view_source.encoder if self._view_source is not None else encoder
             source = ViewSource(
-                graph.map, "features", encoder_now, encoder_kwargs, settings, world_seed, cache_dir, progress
+                graph.map, "features", encoder, encoder_kwargs, settings, world_seed, cache_dir, progress
             )
             tables.append(self._features.transform(source.open_views()).reshape(self.graph.n_nodes, -1))
         self.goal_conditions: tuple[RenderSettings | None, ...] = conditions
@@ -187,18 +188,19 @@ class CampusNavGoalEnv(CampusNavEnv):
         return super().reset(options=options)
 
     def _goal_observation_space(self, *, unbounded: bool) -> spaces.Dict:
-        size = self._goal_tables.shape[2]
-        views = self.observation_space["views"]
         if unbounded or self.goal_conditions != (None,):  # goals pictured otherwise may leave the views' range
             low, high = float(np.finfo(np.float32).min), float(np.finfo(np.float32).max)
-            views = goal = spaces.Box(low, high, shape=(size,), dtype=np.float32)
-        else:
-            views = goal = spaces.Box(float(views.low.min()), float(views.high.max()), shape=(size,), dtype=np.float32)
+        else:  # the range of CampusNav's view space
+            low, high = (
+                float(self.observation_space["views"].low.min()),
+                float(self.observation_space["views"].high.max()),
+            )
+        vector = spaces.Box(low, high, shape=(self._goal_tables.shape[2],), dtype=np.float32)
         return spaces.Dict(
             {
-                "observation": views,
-                "achieved_goal": goal,
-                "desired_goal": goal,
+                "observation": vector,
+                "achieved_goal": vector,
+                "desired_goal": vector,
                 "heading": spaces.Box(0.0, 1.0, shape=(4,), dtype=np.float32),
             }
         )
