@@ -159,9 +159,8 @@ class RouteEvaluationCallback(_TrainingProgress):
         self.max_steps = max_steps
         self.log_name = log_name
         self.other_goals = dict(other_goals or {})
-        clash = sorted(set(self.other_goals) & {log_name})
-        if clash:
-            raise ValueError(f"other_goals: the name {clash[0]!r} is already log_name's")
+        if log_name in self.other_goals:
+            raise ValueError(f"other_goals: the name {log_name!r} is already log_name's")
         self.success_threshold = success_threshold
         self.spl_threshold = spl_threshold
         self.stop_when_solved = stop_when_solved

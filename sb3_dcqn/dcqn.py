@@ -99,6 +99,10 @@ class DCQN(OffPolicyAlgorithm):
     :param _init_setup_model: Whether or not to build the network at the creation of the instance
     """
 
+    # Replay buffers asked for that DCQN serves with its own subclass (same arguments)
+    replay_buffer_substitutes: ClassVar[dict[type[ReplayBuffer], type[ReplayBuffer]]] = {
+        HerReplayBuffer: DCQNHerReplayBuffer
+    }
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
         "MlpPolicy": MlpPolicy,
         "CnnPolicy": CnnPolicy,
@@ -193,8 +197,10 @@ class DCQN(OffPolicyAlgorithm):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        if self.replay_buffer_class is HerReplayBuffer:
-            self.replay_buffer_class = DCQNHerReplayBuffer
+        if self.replay_buffer_class is not None:
+            self.replay_buffer_class = self.replay_buffer_substitutes.get(
+                self.replay_buffer_class, self.replay_buffer_class
+            )
         if self.experience_revision or self.prioritized_replay:
             self._select_readaptation_buffer()
         super()._setup_model()

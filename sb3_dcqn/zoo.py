@@ -182,8 +182,8 @@ def _check_replay_buffer(hyperparams: dict[str, Any], algo: type, where: str) ->
         raise ValueError(f"{where}: replay_buffer_kwargs must be a mapping, got {buffer_kwargs!r}")
     if buffer_class is None:
         return  # the algorithm picks the buffer from the observation space: its arguments are not known here
-    if issubclass(algo, DCQN) and buffer_class is HerReplayBuffer:
-        buffer_class = DCQNHerReplayBuffer  # DCQN serves HerReplayBuffer with it (sb3_dcqn.dcqn)
+    if issubclass(algo, DCQN):
+        buffer_class = algo.replay_buffer_substitutes.get(buffer_class, buffer_class)  # what DCQN builds
     check_keywords(buffer_kwargs, buffer_class, where, "replay_buffer_kwargs key", skip=_BUFFER_ARGUMENTS)
 
 

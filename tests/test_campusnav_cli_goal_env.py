@@ -3,8 +3,9 @@
 The shipped entry trains as it is (``replay_buffer_class: HerReplayBuffer`` becomes SB3's class, served by DCQN's
 HER buffer), its routes to all 101 goals are evaluated, a road on the learned routes closes and the recovery is
 measured; models load with their env for ``evaluate``, ``readapt`` (with the HER buffer saved next to them) and
-``draw``. Closures keep every intersection reachable. The levers that need DCQN's own replay buffer are refused by
-name, and left out of ``demo``'s default with a note. Cheap ``pixels`` views, 64 x 48, one feature cache per module.
+``draw``. Closures keep every intersection reachable. Prioritised replay, which cannot run with hindsight
+relabelling, is refused by name; ``demo``'s default levers (revision, blocked) run as they are. Cheap ``pixels``
+views, 64 x 48, one feature cache per module.
 """
 
 from __future__ import annotations

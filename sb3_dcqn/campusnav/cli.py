@@ -546,7 +546,7 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     _check_plan(plan, nav, _plan_source(args) if args.command == "train" else "closures")
     try:
         model = DCQN(env=venv, seed=args.seed, verbose=int(args.verbose >= 2), **entry.hyperparams)
-    except ValueError as error:  # settings DCQN refuses together (e.g. experience_revision with HerReplayBuffer)
+    except ValueError as error:  # settings DCQN refuses together (e.g. prioritized_replay with HerReplayBuffer)
         raise CommandError(f"--conf: entry {env_id!r}: {error}") from None
     out.mkdir(parents=True, exist_ok=True)
     tb_folder = _new_logger(model, out, args.verbose)
@@ -858,15 +858,15 @@ def _picture_flags(parser: argparse.ArgumentParser, default: str | None) -> None
 
 
 def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str]) -> None:
-    own_buffer = [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer]
+    not_with_her = [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer and not lever.runs_with_her]
     parser.add_argument(
         "--levers",
         nargs="*",
         choices=sorted(LEVERS),
         help="re-adaptation levers: "
         + ", ".join(f"{name} ({lever.name})" for name, lever in LEVERS.items())
-        + f"; default: {' '.join(default) or 'none'}; --levers alone: none. {', '.join(own_buffer)} need DCQN's own "
-        "replay buffer: not with HerReplayBuffer (CampusNavGoal-v0), where the default leaves them out",
+        + f"; default: {' '.join(default) or 'none'}; --levers alone: none. {', '.join(not_with_her)} cannot run with "
+        "HerReplayBuffer (CampusNavGoal-v0), where the default leaves them out",
     )
     parser.set_defaults(default_levers=tuple(default))
 

@@ -141,12 +141,10 @@ def replay_buffer_conflict(hyperparams: Mapping[str, Any]) -> str | None:
     buffer_class = hyperparams.get("replay_buffer_class")
     if buffer_class is None:
         return None  # DCQN picks its own buffer
-    from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
-
     from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
 
     name = getattr(buffer_class, "__name__", repr(buffer_class))
-    if isinstance(buffer_class, type) and issubclass(buffer_class, HerReplayBuffer):
+    if _is_her(buffer_class):
         return (
             f"it needs DCQN's own replay buffer, and replay_buffer_class={name} relabels goals in hindsight: a stored "
             "transition stands for every goal it is relabelled with, so its TD error is no single experience's to "
