@@ -21,7 +21,6 @@ import numpy as np
 
 GOAL = "Dreese Lab"
 WORLD_SEED = 0
-CAMPUS_EXTENT = (2500.0, 1700.0)  # metres, the built-in campus (generate_campus's defaults)
 EFFNET = "efficientnet-lite0"
 PIXELS = "pixels"
 FULL_VIEW = (640, 480)  # the default street views (RenderSettings())
@@ -83,16 +82,14 @@ def env_kwargs_for(encoder: str) -> dict[str, Any]:
 
 def make_graph(n_nodes: int, extent: str) -> Any:
     """
-    The generated campus of ``n_nodes`` intersections (seed 0). ``extent="scaled"``: 2.5 km x 1.7 km times
-    ``sqrt(n / 101)``, the street density of the built-in campus at every size (101 nodes: exactly the built-in
+    The generated campus of ``n_nodes`` intersections (seed 0). ``extent="scaled"``: the street density of the
+    built-in campus at every size (:func:`campusnav_env.maps.campus.generate_city`; 101 nodes: exactly the built-in
     campus); ``"fixed"``: 2.5 km x 1.7 km at every size (10,000 intersections then lie about 20 m apart, less than
     the 21 m a road, its verges and sidewalks take).
     """
-    from campusnav_env.maps.campus import generate_campus
+    from campusnav_env.maps.campus import generate_campus, generate_city
 
-    factor = math.sqrt(n_nodes / 101) if extent == "scaled" else 1.0
-    width, height = CAMPUS_EXTENT
-    return generate_campus(n_nodes, width=width * factor, height=height * factor, seed=0)
+    return generate_city(n_nodes, seed=0) if extent == "scaled" else generate_campus(n_nodes, seed=0)
 
 
 def buffer_arrays(buffer: Any) -> dict[str, int]:

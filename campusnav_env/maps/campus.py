@@ -60,9 +60,14 @@ _BEND_PROBABILITY = 0.3
 _BEND_OFFSET = (0.05, 0.12)
 _DIAGONAL_PROBABILITY = 0.3
 _MARGIN_FRACTION = 0.05
+# The built-in campus: its intersections and extent (metres, east-west x north-south) set the street density of cities
+CAMPUS_NODES = 101
+CAMPUS_EXTENT = (2500.0, 1700.0)
 
 
-def generate_campus(n_nodes: int = 101, *, width: float = 2500.0, height: float = 1700.0, seed: int = 0) -> RoadGraph:
+def generate_campus(
+    n_nodes: int = CAMPUS_NODES, *, width: float = CAMPUS_EXTENT[0], height: float = CAMPUS_EXTENT[1], seed: int = 0
+) -> RoadGraph:
     """
     Generate an irregular campus street network.
 
@@ -112,6 +117,24 @@ def default_campus() -> RoadGraph:
     Generated once per process and shared: a road graph never changes (closures live in a ``NavigationGraph``).
     """
     return generate_campus()
+
+
+def generate_city(n_intersections: int, seed: int = 0) -> RoadGraph:
+    """
+    A generated city at the built-in campus's street density: :func:`generate_campus` over 2.5 km x 1.7 km times
+    ``sqrt(n_intersections / 101)``, so that intersections lie as far apart at every size.
+
+    ``generate_city(101, seed=0)`` is the built-in campus (:func:`default_campus`), road for road.
+
+    :param n_intersections: Exact number of intersections (at least 8)
+    :param seed: Random seed of the streets and landmarks
+    :return: The road graph, with the four :data:`GOALS` among its landmarks
+    """
+    if isinstance(n_intersections, bool) or not isinstance(n_intersections, (int, np.integer)):
+        raise TypeError(f"n_intersections must be an int, got {type(n_intersections).__name__}")
+    scale = math.sqrt(max(int(n_intersections), 1) / CAMPUS_NODES)
+    width, height = CAMPUS_EXTENT
+    return generate_campus(int(n_intersections), width=width * scale, height=height * scale, seed=seed)
 
 
 def _grid_with_holes(n_nodes: int, aspect: float, rng: np.random.Generator) -> tuple[int, int, np.ndarray]:
