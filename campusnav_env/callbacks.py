@@ -13,6 +13,8 @@ algorithm (DCQN, DQN, PPO, ...), with one env or several (``DummyVecEnv`` or ``S
   episodes until the routes are good again: the recovery (episodes, env steps and training seconds) is logged as
   ``closure/recovery_episodes``, ``closure/recovery_steps``, ``closure/recovery_seconds`` and returned by
   :attr:`RoadClosureCallback.recoveries` (see :mod:`campusnav_env.recovery`).
+- :class:`StartCurriculumCallback` starts episodes near the goal and moves the starts out as the agent succeeds
+  (StreetLearn's near-to-far curriculum), logging ``curriculum/start_distance_limit``.
 
 Training seconds exclude the time spent evaluating routes, so that a recovery measures what training costs.
 
@@ -26,7 +28,9 @@ Example::
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -56,7 +60,7 @@ from campusnav_env.recovery import (
 )
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 
-__all__ = ["RoadClosureCallback", "RouteEvaluationCallback"]
+__all__ = ["RoadClosureCallback", "RouteEvaluationCallback", "StartCurriculumCallback"]
 
 _SUMMARY_KEYS = ("success_rate", "spl", "coverage", "mean_steps", "optimality_gap")
 # Goal sets up to this size are also logged goal by goal
@@ -484,3 +488,109 @@ class RoadClosureCallback(EventCallback):
         self.logger.dump(self.model.num_timesteps)
         if self.verbose >= 1:
             print(f"[closure] not recovered from '{closure.description}' before the next event", flush=True)
+
+
+class StartCurriculumCallback(BaseCallback):
+    """
+    A near-to-far start curriculum (StreetLearn's goal curriculum, Mirowski et al. 2018): episodes start within a
+    limit of hops of the goal (:attr:`CampusNavEnv.start_distance_limit <campusnav_env.env.CampusNavEnv>`), and the
+    limit widens each time the agent succeeds often enough, until starts may lie anywhere on the map.
+
+    The limit begins at ``initial`` when training starts. Each episode end (from the ``is_success`` of its last info;
+    an episode ended without one, e.g. by a ``TimeLimit`` wrapper, counts as a failure) joins a window of the last
+    ``window`` episodes ended since the last widening. When that window is full and its success rate reaches
+    ``success_threshold``, the limit grows multiplicatively, by at least one hop:
+    ``limit <- max(limit + 1, ceil(limit * growth))``, and the window empties. Once the limit reaches the longest
+    shortest route to the goals (:meth:`CampusNavEnv.longest_route <campusnav_env.env.CampusNavEnv.longest_route>`,
+    read from the envs at each widening, so closures count) it becomes ``None``: the whole map, and the curriculum
+    is over. Every training env gets the same limit (``VecEnv.env_method("set_start_distance_limit", ...)``, which
+    reaches the env through wrappers and subprocesses); it applies from each env's next reset. A later ``learn()``
+    goes on from the current limit.
+
+    Logs ``curriculum/start_distance_limit`` (the map's longest route once the limit is ``None``) and
+    ``curriculum/success_rate`` (over the current window) to SB3's logger.
+
+    :param initial: The first limit, in hops (at least 1)
+    :param growth: Widening factor (more than 1); 2.0 doubles the limit at each widening
+    :param success_threshold: Success rate over the window at which the limit widens, in ``(0, 1]``
+    :param window: Episodes ended since the last widening that the success rate is measured over (at least 1)
+    :param verbose: 1 prints a line at each widening
+    """
+
+    def __init__(
+        self,
+        initial: int = 2,
+        growth: float = 1.5,
+        success_threshold: float = 0.8,
+        window: int = 50,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(verbose)
+        if isinstance(initial, bool) or not isinstance(initial, (int, np.integer)) or initial < 1:
+            raise ValueError(f"initial must be an int of at least 1 hop, got {initial!r}")
+        if not (math.isfinite(growth) and growth > 1.0):
+            raise ValueError(f"growth must be a finite factor above 1, got {growth}")
+        if not 0.0 < success_threshold <= 1.0:
+            raise ValueError(f"success_threshold must lie in (0, 1], got {success_threshold}")
+        if window < 1:
+            raise ValueError(f"window must be at least 1 episode, got {window}")
+        self.initial = int(initial)
+        self.growth = float(growth)
+        self.success_threshold = float(success_threshold)
+        self.window = int(window)
+        self.widenings: list[tuple[int, int | None]] = []  # (timestep, new limit) per widening
+        self._limit: int | None = self.initial
+        self._started = False
+        self._outcomes: deque[bool] = deque(maxlen=self.window)
+        self._map_longest_route = 0  # as last read from the envs
+
+    @property
+    def start_distance_limit(self) -> int | None:
+        """The limit the training envs have now (``None``: the whole map)."""
+        return self._limit
+
+    @property
+    def finished(self) -> bool:
+        """Whether starts may lie anywhere (the curriculum is over)."""
+        return self._started and self._limit is None
+
+    def _on_training_start(self) -> None:
+        if not self._started:
+            self._started = True
+            if self.initial >= self._longest_route():
+                self._limit = None
+        self._apply()  # also after set_env: the envs may be new
+
+    def _on_step(self) -> bool:
+        dones, infos = self.locals.get("dones"), self.locals.get("infos")
+        if dones is not None and infos is not None and self._limit is not None:
+            for done, info in zip(dones, infos, strict=True):
+                if done:
+                    self._outcomes.append(bool(info.get("is_success", False)))
+            if len(self._outcomes) == self.window and np.mean(self._outcomes) >= self.success_threshold:
+                self._widen()
+        self.logger.record("curriculum/start_distance_limit", self._logged_limit())
+        if self._outcomes:
+            self.logger.record("curriculum/success_rate", float(np.mean(self._outcomes)))
+        return True
+
+    def _widen(self) -> None:
+        assert self._limit is not None
+        wider = max(self._limit + 1, math.ceil(self._limit * self.growth))
+        self._limit = None if wider >= self._longest_route() else wider
+        self._outcomes.clear()
+        self.widenings.append((self.num_timesteps, self._limit))
+        self._apply()
+        if self.verbose >= 1:
+            where = "anywhere" if self._limit is None else f"within {self._limit} hops of the goal"
+            print(f"[curriculum] step {self.num_timesteps}: starts {where}", flush=True)
+
+    def _apply(self) -> None:
+        self.training_env.env_method("set_start_distance_limit", self._limit)
+
+    def _longest_route(self) -> int:
+        self._map_longest_route = max(self.training_env.env_method("longest_route"))
+        return self._map_longest_route
+
+    def _logged_limit(self) -> int:
+        return self._map_longest_route if self._limit is None else self._limit

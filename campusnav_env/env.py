@@ -21,6 +21,9 @@ from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.rendering.street_view import RenderSettings
 
 OBSERVATION_MODES = ("features", "image")
+# max_steps="auto": this many steps per hop of the longest shortest route to a goal, and never fewer than the floor
+AUTO_MAX_STEPS_PER_HOP = 4
+AUTO_MAX_STEPS_FLOOR = 200
 # (height, width) of the image observations made from a scene file's stored images
 SCENE_THUMBNAIL = (48, 64)
 # Cheap settings for image mode: thumbnails are all the policy sees, so render small views directly
@@ -86,8 +89,16 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     uniformly random heading. Several goals: the episode's goal is drawn uniformly. ``reset(options=...)`` accepts
     ``{"start": node, "heading": h, "goal": name_or_node}`` to fix any of them.
 
+    A start-distance curriculum (StreetLearn's near-to-far goals) narrows the draw: with :attr:`start_distance_limit`
+    ``k`` set, the start is drawn uniformly among the intersections at most ``k`` hops from the episode's goal over
+    open roads (the agent is never told the distance). ``None`` (default): anywhere, and the draws are exactly those
+    of an env without a curriculum. Set it with :meth:`set_start_distance_limit`, also through wrappers and vector
+    envs (``VecEnv.env_method("set_start_distance_limit", k)``; see
+    :class:`~campusnav_env.callbacks.StartCurriculumCallback`). A start given in ``options`` ignores the limit.
+
     ## Episode End
-    Terminated on reaching the goal; truncated after ``max_steps`` steps (default 200).
+    Terminated on reaching the goal; truncated after ``max_steps`` steps (default 200; ``"auto"``: see
+    :func:`auto_max_steps`).
 
     ## Information
     ``info`` holds ``node``, ``heading``, ``goal`` (name), ``goal_node``, ``shortest_distance`` (hops from the current
@@ -111,7 +122,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     - ``render_settings``: a :class:`~campusnav_env.rendering.street_view.RenderSettings` (e.g. time of day, passing
       cars).
     - ``world_seed``: seed of the buildings, trees and fields placed around the roads.
-    - ``max_steps``, ``goal_reward``, ``step_penalty``, ``collision_penalty``: episode limit and rewards.
+    - ``max_steps``, ``goal_reward``, ``step_penalty``, ``collision_penalty``: episode limit and rewards;
+      ``max_steps="auto"`` sets the limit from the map (:func:`auto_max_steps`, computed once, at construction).
     - ``normalize_features``, ``view_dim``: standardise the features; project each view to ``view_dim`` dimensions.
     - ``cache_dir``: where view features are cached (default ``$CAMPUSNAV_CACHE`` or ``~/.cache/campusnav``).
     - ``visible_closures``: draw a barrier on closed roads in the views of their end nodes (see Observation Space);
@@ -132,7 +144,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         encoder_kwargs: Mapping[str, Any] | None = None,
         render_settings: RenderSettings | None = None,
         world_seed: int = 0,
-        max_steps: int = 200,
+        max_steps: int | str = 200,
         goal_reward: float = 1.0,
         step_penalty: float = -0.005,
         collision_penalty: float = -0.01,
@@ -172,7 +184,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         goals: str | int | Sequence[str | int],
         *,
         observation_mode: str = "features",
-        max_steps: int = 200,
+        max_steps: int | str = 200,
         goal_reward: float = 1.0,
         step_penalty: float = -0.005,
         collision_penalty: float = -0.01,
@@ -270,8 +282,15 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         self._goal_index = 0
         self._steps = 0
         self._path: list[int] = []
+        self._start_distance_limit: int | None = None
 
-    def _set_rewards(self, max_steps: int, goal_reward: float, step_penalty: float, collision_penalty: float) -> None:
+    def _set_rewards(
+        self, max_steps: int | str, goal_reward: float, step_penalty: float, collision_penalty: float
+    ) -> None:
+        if max_steps == "auto":
+            max_steps = auto_max_steps(self.graph, self.goal_nodes)
+        elif isinstance(max_steps, str):
+            raise ValueError(f"max_steps must be an int or 'auto', got {max_steps!r}")
         if max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {max_steps}")
         self.max_steps = int(max_steps)
@@ -309,6 +328,9 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
                 )
         else:
             candidates = np.flatnonzero(distances > 0)
+            if self._start_distance_limit is not None:
+                # Hop distances come in every value from 1 up to the farthest, so a limit >= 1 always leaves some
+                candidates = candidates[distances[candidates] <= self._start_distance_limit]
             if candidates.size == 0:
                 raise RuntimeError(f"no intersection can reach the goal {self.goal_names[self._goal_index]!r}")
             start = int(self.np_random.choice(candidates))
@@ -385,6 +407,33 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     def node_distances(self, goal: int) -> np.ndarray:
         """Fewest actions from every intersection to ``goal`` over open roads (-1 where unreachable)."""
         return self.graph.hops_to(goal)
+
+    def longest_route(self) -> int:
+        """Hops of the longest shortest route from any start to any of this env's goals over the roads open now."""
+        return longest_shortest_route(self.graph, self.goal_nodes)
+
+    # --- start-distance curriculum --------------------------------------------------------------------------------
+
+    @property
+    def start_distance_limit(self) -> int | None:
+        """Starts are drawn within this many hops of the goal (``None``: anywhere); see Starting State."""
+        return self._start_distance_limit
+
+    @start_distance_limit.setter
+    def start_distance_limit(self, limit: int | None) -> None:
+        if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, np.integer)) or limit < 1):
+            raise ValueError(f"start_distance_limit must be None or an int of at least 1 hop, got {limit!r}")
+        self._start_distance_limit = None if limit is None else int(limit)
+
+    def set_start_distance_limit(self, limit: int | None) -> None:
+        """
+        Set :attr:`start_distance_limit` from the next reset on. A method, so that it reaches the env through Gymnasium
+        wrappers and vector envs (``VecEnv.env_method``); ``VecEnv.set_attr`` sets the attribute on the outermost
+        wrapper, which the env never sees.
+
+        :param limit: Largest start distance in hops (at least 1), or ``None`` for anywhere
+        """
+        self.start_distance_limit = limit
 
     def _show_closures(self) -> None:
         """
@@ -527,6 +576,33 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             "collision": collision,
             "action_mask": (self.graph.transition_table[state] >= 0).astype(np.int8),
         }
+
+
+def longest_shortest_route(graph: NavigationGraph, goal_nodes: Sequence[int]) -> int:
+    """
+    Hops of the longest shortest route from any intersection to any of ``goal_nodes`` (the worst start for the worst
+    goal) over the roads open in ``graph``; intersections that cannot reach a goal do not count.
+
+    :param graph: The navigation graph (its closures count)
+    :param goal_nodes: The goals
+    :return: the largest hop distance, 0 if no other intersection reaches any goal
+    """
+    return max(int(graph.hops_to(goal).max(initial=0)) for goal in goal_nodes)
+
+
+def auto_max_steps(graph: NavigationGraph, goal_nodes: Sequence[int]) -> int:
+    """
+    The episode cap of ``max_steps="auto"``: ``max(200, 4 x the longest shortest route)`` (in hops, see
+    :func:`longest_shortest_route`) on the open map, so that the cap grows with the map (seed-0 cities to Dreese Lab:
+    200 at 101 and 1,000 intersections, whose longest routes are 17 and 45 hops; 528 at 10,000, 132 hops). An env
+    computes it once, at construction: closures made later do not change it.
+
+    :param graph: The navigation graph; closures it carries are ignored (the open map counts)
+    :param goal_nodes: The env's goals
+    :return: the number of steps
+    """
+    open_map = graph if not graph.closed_roads else NavigationGraph(graph.map)
+    return max(AUTO_MAX_STEPS_FLOOR, AUTO_MAX_STEPS_PER_HOP * longest_shortest_route(open_map, goal_nodes))
 
 
 def _check_observation_mode(observation_mode: str) -> None:
