@@ -4,12 +4,14 @@ The pipeline, one subpackage per stage: :mod:`campusnav_env.maps` (road graphs, 
 :mod:`campusnav_env.rendering` (the 3D world, street views, map pictures) -> :mod:`campusnav_env.features` (CNN
 encoders, projection, on-disk cache) -> :class:`CampusNavEnv` and :func:`evaluate_routes` here.
 
-Importing the package registers ``CampusNav-v0`` (single goal, Dreese Lab) and ``CampusNavMulti-v0`` (the four goals
-of the paper) with Gymnasium.
+Importing the package registers ``CampusNav-v0`` (single goal, Dreese Lab), ``CampusNavMulti-v0`` (the four goals
+of the paper), ``CampusNavGoal-v0`` (any intersection as the goal) and ``CampusNavCity-v0`` (a generated city of
+1,000 intersections, :class:`CampusNavCityEnv`) with Gymnasium.
 """
 
+from campusnav_env.city_env import CampusNavCityEnv
 from campusnav_env.env import CampusNavEnv
-from campusnav_env.maps.campus import GOALS, default_campus, generate_campus
+from campusnav_env.maps.campus import GOALS, default_campus, generate_campus, generate_city
 from campusnav_env.maps.compass import ACTION_NAMES, BACK, COMPASS, FORWARD, LEFT, RIGHT
 from campusnav_env.maps.navigation import NavigationGraph, RoadClosureError
 from campusnav_env.maps.road_graph import RoadGraph, road_key
@@ -27,6 +29,7 @@ __all__ = [
     "GOALS",
     "LEFT",
     "RIGHT",
+    "CampusNavCityEnv",
     "CampusNavEnv",
     "NavigationGraph",
     "RoadClosureError",
@@ -36,6 +39,7 @@ __all__ = [
     "default_campus",
     "evaluate_routes",
     "generate_campus",
+    "generate_city",
     "optimal_q_values",
     "register_envs",
     "road_key",

@@ -10,16 +10,20 @@ from campusnav_env.maps.campus import GOALS
 
 CAMPUSNAV = "campusnav_env.env:CampusNavEnv"
 CAMPUSNAV_GOAL = "campusnav_env.goal_env:CampusNavGoalEnv"
+CAMPUSNAV_CITY = "campusnav_env.city_env:CampusNavCityEnv"
 # id -> (entry point, default arguments)
 ENV_IDS: dict[str, tuple[str, dict[str, Any]]] = {
     "CampusNav-v0": (CAMPUSNAV, {"goals": [GOALS[0]]}),  # single goal: Dreese Lab
     "CampusNavMulti-v0": (CAMPUSNAV, {"goals": list(GOALS)}),  # the paper's four goals
     "CampusNavGoal-v0": (CAMPUSNAV_GOAL, {}),  # any intersection as the goal (goal-env convention, for HER)
+    # A generated city (1,000 intersections, seed 0, goal Dreese Lab, max_steps="auto"); no defaults here, so that
+    # world= (a real map) can replace n_intersections
+    "CampusNavCity-v0": (CAMPUSNAV_CITY, {}),
 }
 
 
 def register_envs() -> None:
-    """Register ``CampusNav-v0``, ``CampusNavMulti-v0`` and ``CampusNavGoal-v0`` (idempotent)."""
+    """Register ``CampusNav-v0``, ``CampusNavMulti-v0``, ``CampusNavGoal-v0`` and ``CampusNavCity-v0`` (idempotent)."""
     for env_id, (entry_point, kwargs) in ENV_IDS.items():
         if env_id not in registry:
             register(id=env_id, entry_point=entry_point, kwargs=kwargs)
