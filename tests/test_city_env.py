@@ -1,7 +1,8 @@
 """CampusNavCity: the generated city (size, density, landmarks), real maps, the episode cap that grows with the map,
 the env checkers, route evaluation and closures on a city.
 
-Envs use pixel features of small views on a 200-intersection city, built once per module (the views are cached).
+Envs use pixel features of small views on a 150-intersection city, built once per module (the views are cached;
+the cold build is most of this file's time).
 """
 
 from __future__ import annotations
@@ -23,8 +24,9 @@ from campusnav_env.env import auto_max_steps, longest_shortest_route
 from campusnav_env.maps.campus import default_campus, generate_campus, generate_city
 from campusnav_env.rendering.street_view import RenderSettings
 
-CITY_SIZE = 200
-CITY = generate_city(CITY_SIZE, seed=0)  # 21 hops from the farthest start to Dreese Lab
+CITY_SIZE = 150
+CITY = generate_city(CITY_SIZE, seed=0)
+LONGEST = 18  # hops from the farthest start to Dreese Lab
 
 
 @pytest.fixture(scope="module")
@@ -139,7 +141,7 @@ def test_auto_cap_is_four_times_the_longest_route_and_never_below_200() -> None:
 
 
 def test_city_cap_defaults_to_auto_and_an_int_still_works(env_kwargs: dict[str, Any], city: CampusNavCityEnv) -> None:
-    assert city.max_steps == 200  # 4 x 21 hops is under the floor
+    assert city.max_steps == 200  # 4 x 18 hops is under the floor
     short = CampusNavCityEnv(n_intersections=CITY_SIZE, max_steps=5, **env_kwargs)
     short.reset(seed=0, options={"start": int(np.argmax(short.node_distances(short.goal_nodes[0])))})
     ends = [short.step(0)[2:4] for _ in range(5)]
@@ -151,18 +153,18 @@ def test_city_cap_defaults_to_auto_and_an_int_still_works(env_kwargs: dict[str, 
 def test_auto_cap_reads_the_open_map_once_at_construction(
     env_kwargs: dict[str, Any], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(env_module, "AUTO_MAX_STEPS_FLOOR", 1)  # the floor out of the way: the cap is 4 x 21 hops
+    monkeypatch.setattr(env_module, "AUTO_MAX_STEPS_FLOOR", 1)  # the floor out of the way: the cap is 4 x 18 hops
     goal = CITY.landmarks["Dreese Lab"]
     road = lengthening_closure(NavigationGraph(CITY), goal)
     closed = NavigationGraph(CITY, closed_roads=[road])
     # CampusNavEnv takes "auto" too; the closures of a NavigationGraph passed in do not count
     passed_closed = CampusNavEnv(world=closed, goals="Dreese Lab", max_steps="auto", **env_kwargs)
-    assert passed_closed.longest_route() > 21 and passed_closed.max_steps == 4 * 21
+    assert passed_closed.longest_route() > LONGEST and passed_closed.max_steps == 4 * LONGEST
     # nor do closures made later
     city = CampusNavCityEnv(world=CITY, **env_kwargs)
-    assert city.max_steps == 4 * 21
+    assert city.max_steps == 4 * LONGEST
     city.close_road(*road)
-    assert city.longest_route() > 21 and city.max_steps == 4 * 21
+    assert city.longest_route() > LONGEST and city.max_steps == 4 * LONGEST
 
 
 # --- real maps and arguments ---------------------------------------------------------------------------------------
