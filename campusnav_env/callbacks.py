@@ -493,22 +493,29 @@ class RoadClosureCallback(EventCallback):
 class StartCurriculumCallback(BaseCallback):
     """
     A near-to-far start curriculum (StreetLearn's goal curriculum, Mirowski et al. 2018): episodes start within a
-    limit of hops of the goal (:attr:`CampusNavEnv.start_distance_limit <campusnav_env.env.CampusNavEnv>`), and the
-    limit widens each time the agent succeeds often enough, until starts may lie anywhere on the map.
+    limit of hops of the goal (:attr:`~campusnav_env.env.CampusNavEnv.start_distance_limit`), and the limit widens
+    each time the agent succeeds often enough, until starts may lie anywhere on the map. The agent never sees the
+    distances; only where its episodes begin changes.
 
     The limit begins at ``initial`` when training starts. Each episode end (from the ``is_success`` of its last info;
     an episode ended without one, e.g. by a ``TimeLimit`` wrapper, counts as a failure) joins a window of the last
     ``window`` episodes ended since the last widening. When that window is full and its success rate reaches
     ``success_threshold``, the limit grows multiplicatively, by at least one hop:
     ``limit <- max(limit + 1, ceil(limit * growth))``, and the window empties. Once the limit reaches the longest
-    shortest route to the goals (:meth:`CampusNavEnv.longest_route <campusnav_env.env.CampusNavEnv.longest_route>`,
-    read from the envs at each widening, so closures count) it becomes ``None``: the whole map, and the curriculum
-    is over. Every training env gets the same limit (``VecEnv.env_method("set_start_distance_limit", ...)``, which
-    reaches the env through wrappers and subprocesses); it applies from each env's next reset. A later ``learn()``
-    goes on from the current limit.
+    shortest route to the goals (:meth:`~campusnav_env.env.CampusNavEnv.longest_route`, read from the envs at each
+    widening, so closures count) it becomes ``None``: the whole map, and the curriculum is over. Every training env
+    gets the same limit (``VecEnv.env_method("set_start_distance_limit", ...)``, which reaches the env through
+    wrappers and subprocesses); it applies from each env's next reset. A later ``learn()`` goes on from the current
+    limit.
 
     Logs ``curriculum/start_distance_limit`` (the map's longest route once the limit is ``None``) and
     ``curriculum/success_rate`` (over the current window) to SB3's logger.
+
+    Example::
+
+        env = make_vec_env("CampusNavCity-v0", n_envs=4, env_kwargs=dict(view_dim=64))
+        curriculum = StartCurriculumCallback(initial=2, growth=1.5, success_threshold=0.8, window=50)
+        DCQN("MultiInputPolicy", env).learn(500_000, callback=curriculum)
 
     :param initial: The first limit, in hops (at least 1)
     :param growth: Widening factor (more than 1); 2.0 doubles the limit at each widening

@@ -329,7 +329,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         else:
             candidates = np.flatnonzero(distances > 0)
             if self._start_distance_limit is not None:
-                # Hop distances come in every value from 1 up to the farthest, so a limit >= 1 always leaves some
+                # An open neighbour of the goal is 1 hop away, so a limit >= 1 leaves a start if any can reach it
                 candidates = candidates[distances[candidates] <= self._start_distance_limit]
             if candidates.size == 0:
                 raise RuntimeError(f"no intersection can reach the goal {self.goal_names[self._goal_index]!r}")
