@@ -25,7 +25,7 @@ STAGES = (
     ("maps", ("maps/",)),
     ("rendering", ("rendering/",)),
     ("features", ("features/",)),
-    ("env", ("env.py", "goal_env.py", "registration.py", "closures.py")),
+    ("env", ("env.py", "goal_env.py", "city_env.py", "registration.py", "closures.py")),
     ("evaluation", ("route_evaluation.py", "optimal_values.py", "recovery.py")),
     ("callbacks/figures", ("callbacks.py", "figures.py")),
 )
