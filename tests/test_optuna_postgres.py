@@ -1,0 +1,169 @@
+"""The Optuna sweep on several machines: two ``dcqn-zoo -optimize`` workers share one study in a PostgreSQL server.
+
+The test starts a real PostgreSQL server of its own (``initdb`` and ``pg_ctl`` in a temp folder, listening on a free
+localhost port, trust authentication, a database ``optuna``), then runs two worker processes of README's sweep
+command against ``--storage postgresql+psycopg://optuna@127.0.0.1:PORT/optuna`` at the same time, each in a folder of
+its own as on two machines: CampusNav-v0 from the shipped entry with the cheap ``pixels`` views (``--env-kwargs``), two
+trials each, a few hundred steps per trial. Neither creates the study beforehand: the first to arrive does, the other
+joins. The study must hold the four completed trials, numbered 0-3 with no number twice, two from each worker (each
+worker's log names the trials it finished). The server is stopped and its folder removed at the end, also when the
+test fails.
+
+PostgreSQL refuses to run as root. Run as root, the test runs ``initdb`` and ``pg_ctl`` as an existing unprivileged
+account (``postgres``, as the Debian package creates it, else ``nobody``) through ``subprocess``'s ``user``/``group``
+arguments, in a temp folder handed to that account; it creates no account. The workers run as the test's own user
+and connect over TCP.
+
+Needs the PostgreSQL binaries (on ``PATH`` or in ``/usr/lib/postgresql/<version>/bin``; skipped without them) and
+the driver psycopg 3 (``pip install "sb3-dcqn[sweep]"``; skipped without it). Marked slow.
+"""
+
+from __future__ import annotations
+
+import os
+import pwd
+import re
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("rl_zoo3")
+optuna = pytest.importorskip("optuna")
+psycopg = pytest.importorskip("psycopg", reason='the PostgreSQL driver: pip install "sb3-dcqn[sweep]"')
+
+pytestmark = pytest.mark.slow
+
+DATABASE = "optuna"
+DATABASE_USER = "optuna"
+STUDY = "campusnav-postgres"
+WORKERS = 2
+TRIALS_PER_WORKER = 2
+# Accounts that may run the server when the test runs as root (PostgreSQL refuses root); none is created
+SERVER_ACCOUNTS = ("postgres", "nobody")
+SERVER_TIMEOUT_S = 60
+WORKER_TIMEOUT_S = 600
+# The CampusNav-v0 entry with cheap views and short episodes; the sampler draws the rest of the settings
+SWEEP_ARGS = [
+    "--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs",
+    "--env-kwargs", "encoder:'pixels'", "view_dim:16", "max_steps:30", "progress:False",
+    "-optimize", "--study-name", STUDY, "--n-trials", str(TRIALS_PER_WORKER), "--n-jobs", "1",
+    "--sampler", "random", "--pruner", "none", "-n", "400", "--n-evaluations", "1", "--eval-episodes", "2",
+    "--no-optim-plots", "--seed", "0",
+]  # fmt: skip
+FINISHED_TRIAL = re.compile(r"Trial (\d+) finished")
+
+
+def postgres_binary(name: str) -> str | None:
+    """``initdb``, ``pg_ctl`` or ``postgres`` on ``PATH``, else in the newest ``/usr/lib/postgresql/*/bin``."""
+    found = shutil.which(name)
+    if found:
+        return found
+    versions = sorted(Path("/usr/lib/postgresql").glob("*/bin"), key=lambda p: p.parent.name, reverse=True)
+    return next((str(folder / name) for folder in versions if (folder / name).is_file()), None)
+
+
+def server_account() -> pwd.struct_passwd | None:
+    """The account the server runs as: ``None`` (this process's own) unless running as root."""
+    if os.geteuid() != 0:
+        return None
+    for name in SERVER_ACCOUNTS:
+        try:
+            return pwd.getpwnam(name)
+        except KeyError:
+            continue
+    pytest.skip(f"running as root, and none of the accounts {SERVER_ACCOUNTS} exists to run PostgreSQL as")
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def run_as(account: pwd.struct_passwd | None, command: list[str], cwd: Path) -> None:
+    """Run a server command as ``account`` (None: as this process), failing with its output."""
+    ids = {} if account is None else {"user": account.pw_uid, "group": account.pw_gid, "extra_groups": []}
+    result = subprocess.run(
+        command, cwd=cwd, capture_output=True, text=True, timeout=SERVER_TIMEOUT_S, check=False, **ids
+    )
+    if result.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
+
+
+@pytest.fixture
+def postgres_url() -> Iterator[str]:
+    """A fresh PostgreSQL server with an empty database; its SQLAlchemy URL. Stopped and removed afterwards."""
+    binaries = {name: postgres_binary(name) for name in ("initdb", "pg_ctl", "postgres")}
+    missing = [name for name, path in binaries.items() if path is None]
+    if missing:
+        pytest.skip(f"PostgreSQL binaries not found: {', '.join(missing)} (not on PATH nor in /usr/lib/postgresql)")
+    account = server_account()
+    # In the system temp dir, not pytest's: the server's account must reach it (pytest's base folder is root's, 0700)
+    root = Path(tempfile.mkdtemp(prefix="optuna-postgres-"))
+    data = root / "data"
+    started = False
+    try:
+        if account is not None:
+            os.chown(root, account.pw_uid, account.pw_gid)
+        initdb = [binaries["initdb"], "-D", str(data), "-U", DATABASE_USER, "--auth=trust", "--no-locale"]
+        run_as(account, [*initdb, "-E", "UTF8", "--no-sync"], root)
+        port = free_port()
+        options = f"-c listen_addresses=127.0.0.1 -p {port} -c unix_socket_directories={root} -c fsync=off"
+        start = [binaries["pg_ctl"], "-D", str(data), "-l", str(root / "server.log"), "-o", options]
+        run_as(account, [*start, "-w", "-t", str(SERVER_TIMEOUT_S), "start"], root)
+        started = True
+        # autocommit: CREATE DATABASE cannot run in a transaction
+        with psycopg.connect(host="127.0.0.1", port=port, user=DATABASE_USER, dbname="postgres", autocommit=True) as db:
+            db.execute(f"CREATE DATABASE {DATABASE}")
+        yield f"postgresql+psycopg://{DATABASE_USER}@127.0.0.1:{port}/{DATABASE}"
+    finally:
+        if started:
+            run_as(account, [binaries["pg_ctl"], "-D", str(data), "-m", "fast", "-w", "stop"], root)
+        shutil.rmtree(root, ignore_errors=True)
+
+
+def start_worker(storage: str, folder: Path) -> subprocess.Popen:
+    """One ``dcqn-zoo`` sweep worker (the console script's code) in ``folder``, as on a machine of its own."""
+    folder.mkdir()
+    code = "import sys; from sb3_dcqn.campusnav.zoo import main; main(sys.argv[1:])"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "CAMPUSNAV_CACHE": str(folder / "cache")}
+    return subprocess.Popen(
+        [sys.executable, "-c", code, *SWEEP_ARGS, "--storage", storage],
+        cwd=folder,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def test_two_sweep_workers_share_one_study_in_postgresql(postgres_url: str, tmp_path: Path) -> None:
+    workers = [start_worker(postgres_url, tmp_path / f"machine-{i}") for i in range(WORKERS)]
+    outputs = []
+    try:
+        for worker in workers:
+            outputs.append(worker.communicate(timeout=WORKER_TIMEOUT_S))
+    finally:
+        for worker in workers:
+            if worker.poll() is None:
+                worker.kill()
+                worker.wait()
+    for worker, (_, stderr) in zip(workers, outputs, strict=True):
+        assert worker.returncode == 0, stderr[-3000:]
+
+    study = optuna.load_study(study_name=STUDY, storage=postgres_url)
+    numbers = sorted(trial.number for trial in study.trials)
+    assert numbers == list(range(WORKERS * TRIALS_PER_WORKER))
+    assert all(trial.state == optuna.trial.TrialState.COMPLETE for trial in study.trials), study.trials
+    # Optuna logs each finished trial (to stderr) in the process that ran it
+    finished_by = [{int(n) for n in FINISHED_TRIAL.findall(stderr)} for _, stderr in outputs]
+    assert all(len(finished) == TRIALS_PER_WORKER for finished in finished_by), finished_by
+    assert set.union(*finished_by) == set(numbers)
+    for i in range(WORKERS):  # each worker's report of the study, as on its own machine
+        assert list((tmp_path / f"machine-{i}" / "logs" / "dcqn").glob("report_*.csv")), f"machine-{i}"
