@@ -60,21 +60,22 @@ class InternedRows:
         """Bytes of the rows reserved, with their reference counts."""
         return int(self.rows.nbytes + self.refs.nbytes)
 
-    def intern(self, values: np.ndarray) -> np.ndarray:
+    def hold(self, row: np.ndarray) -> int:
         """
-        The row indices of ``values`` (one per row), new rows stored; the caller counts the references.
+        Count one more slot holding ``row``, stored if new.
 
-        :param values: Rows, shape ``(n, *row_shape)``
-        :return: Their indices, ``int32``, shape ``(n,)``
+        :param row: A row, shape ``row_shape``
+        :return: its index
         """
-        return np.fromiter((self._intern_one(row) for row in values), dtype=np.int32, count=len(values))
+        index = self._intern_one(row)
+        self.refs[index] += 1
+        return index
 
-    def replace(self, old: np.ndarray, new: np.ndarray) -> None:
-        """Count the references of slots moved from rows ``old`` to rows ``new``; rows left unheld are freed."""
-        np.add.at(self.refs, new, 1)  # before releasing: a slot rewritten with its own row keeps it
-        np.subtract.at(self.refs, old, 1)
-        for index in np.unique(old[self.refs[old] == 0]):
-            self._release(int(index))
+    def drop(self, index: int) -> None:
+        """Count one slot fewer holding row ``index``; a row no slot holds is freed for reuse."""
+        self.refs[index] -= 1
+        if self.refs[index] == 0:
+            self._release(index)
 
     def _intern_one(self, row: np.ndarray) -> int:
         digest = _row_digest(np.ascontiguousarray(row))
@@ -178,17 +179,15 @@ class ObservationTable:
         if row_key:
             raise IndexError("ObservationTable writes whole rows: index the slots only (e.g. table[pos] = rows)")
         slots = self._flat_slots(slot_key)
-        values = np.broadcast_to(np.asarray(value, dtype=self.dtype), (*slots.shape, *self.row_shape))
-        slots, values = slots.reshape(-1), values.reshape(-1, *self.row_shape)
-        if slots.size > 1 and np.unique(slots).size < slots.size:
-            # Repeated slots: the last write wins, as in numpy
-            last = slots.size - 1 - np.unique(slots[::-1], return_index=True)[1]
-            slots, values = slots[last], values[last]
+        values, shape = np.asarray(value, dtype=self.dtype), (*slots.shape, *self.row_shape)
+        if values.shape != shape:
+            values = np.broadcast_to(values, shape)
         flat_ids = self.ids.reshape(-1)
-        old = flat_ids[slots].copy()
-        new = self.rows.intern(values)
-        flat_ids[slots] = new
-        self.rows.replace(old, new)
+        # One slot after the other, as numpy writes (a slot indexed twice keeps the last row)
+        for slot, row in zip(slots.reshape(-1).tolist(), values.reshape(-1, *self.row_shape), strict=True):
+            old = int(flat_ids[slot])
+            flat_ids[slot] = self.rows.hold(row)  # before dropping: a slot rewritten with its own row keeps it
+            self.rows.drop(old)
 
     def _flat_slots(self, slot_key: Any) -> np.ndarray:
         """The flat slot numbers a slot index selects, in the index's shape."""

@@ -176,9 +176,9 @@ def test_a_campusnav_transition_costs_at_most_64_bytes_at_view_dim_64(tmp_path: 
     tables = [*buffer.observations.values(), *buffer.next_observations.values()]
     bytes_per_transition = (sum(a.nbytes for a in arrays) + sum(t.index_nbytes for t in tables)) / 5_000
     assert bytes_per_transition <= 64
-    # The views table holds one row (4 x 64 float32, 1 KB) per (intersection, heading) seen, the goal's views one
+    # The views table holds one row (4 x 64 float32 in compass order, 1 KB) per intersection seen, the goal's views one
     views = buffer.observations["views"].rows
-    assert views.rows.shape[1] == 4 * 64 and views.n_rows <= 4 * N_INTERSECTIONS + 1  # + the empty slots' zero row
+    assert views.rows.shape[1] == 4 * 64 and views.n_rows <= N_INTERSECTIONS + 1  # + the empty slots' zero row
     assert buffer.observations["goal_views"].rows.n_rows == 2
     plain = DictReplayBuffer(5_000, env.observation_space, env.action_space, device="cpu")
     plain_bytes = sum(a.nbytes for d in (plain.observations, plain.next_observations) for a in d.values())
