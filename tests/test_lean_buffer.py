@@ -202,10 +202,12 @@ def test_revision_with_lean_storage_rewrites_the_contradicted_next_observations(
     assert buffer.observations["views"].rows.n_rows == 2
 
 
-def test_hindsight_relabelling_with_lean_storage_gives_the_same_samples() -> None:
+def test_hindsight_relabelling_and_revision_with_lean_storage_give_the_same_samples() -> None:
     vec_env = DummyVecEnv([GoalChain, GoalChain])
     plain, lean = (
-        DCQNHerReplayBuffer(60, vec_env.observation_space, vec_env.action_space, vec_env, n_envs=2, lean=flag)
+        DCQNHerReplayBuffer(
+            60, vec_env.observation_space, vec_env.action_space, vec_env, n_envs=2, revise_experience=True, lean=flag
+        )
         for flag in (False, True)
     )
     obs = vec_env.reset()
@@ -221,6 +223,16 @@ def test_hindsight_relabelling_with_lean_storage_gives_the_same_samples() -> Non
         for buffer in (plain, lean):
             buffer.add({k: v.copy() for k, v in obs.items()}, stored, actions.reshape(2, 1), rewards, dones, infos)
         obs = next_obs
+    # The road from cell 1 to cell 2 closes: moving right from cell 1 (in either env) now stays at cell 1
+    eye = np.eye(5, dtype=np.float32)
+    at_1 = {"observation": eye[[1, 1]], "achieved_goal": eye[[1, 1]], "desired_goal": eye[[3, 3]]}
+    for buffer in (plain, lean):
+        buffer.add({k: v.copy() for k, v in at_1.items()}, {k: v.copy() for k, v in at_1.items()},
+                   np.array([[1], [1]]), np.array([-0.1, -0.1]), np.array([False, False]), [{}, {}])  # fmt: skip
+    assert lean.revised == plain.revised > 0
+    for key in lean.observations:
+        np.testing.assert_array_equal(np.asarray(lean.next_observations[key]), plain.next_observations[key])
+    np.testing.assert_array_equal(lean.rewards, plain.rewards)
     assert isinstance(lean.next_observations["achieved_goal"], ObservationTable)
     for seed in range(3):
         assert_same_samples(sample_seeded(lean, 64, seed), sample_seeded(plain, 64, seed))
