@@ -16,6 +16,26 @@ the algorithm) and their indices, with which the algorithm reports the new TD er
 
 Both options work with Box and Dict observations (:class:`DCQNReplayBuffer`, :class:`DCQNDictReplayBuffer`) and
 several envs; not with ``optimize_memory_usage`` (next observations must be stored to be relabelled).
+
+:class:`DCQNDictReplayBuffer` has three more options:
+
+**Lean storage** (``lean=True``, DCQN's ``lean_replay``). Each Dict key's distinct vectors are stored once, in a table
+shared by the observations and the next observations (:class:`~sb3_dcqn.observation_table.ObservationTable`), and
+transitions hold ``int32`` row indices, gathered at sample time; Discrete actions take the smallest integer dtype.
+Samples are the same as with the plain arrays. For an env whose observations repeat (CampusNav's views, the goal in
+every step) a transition costs a few tens of bytes instead of kilobytes; the tables hold the live distinct rows only.
+
+**n-step returns** (``n_steps > 1``, ``gamma``), as SB3's ``NStepReplayBuffer`` computes them (which does not take
+Dict observations): the discounted sum of up to ``n_steps`` rewards, cut at the first termination or time limit (and
+at the newest transition), the next observation and done of the window's last step, and ``discounts`` (``gamma ** k``
+for a window of ``k`` steps) for the target. Not with revision or prioritised replay.
+
+**Count bonus** (``count_bonus=beta > 0``), an exploration lever in the style of count-based bonuses (Strehl &
+Littman 2008; Bellemare et al. 2016): sampled rewards get ``beta / sqrt(n(o'))``, ``n(o')`` the number of times the
+transition's next observation (all keys) has been added to the buffer so far. The counts are of visits: they grow
+with every addition and are not decremented when slots are overwritten, so the bonus of a view shrinks as the agent
+keeps arriving there and stays large where it has rarely been. Cost: a digest per added transition, one ``int32``
+per transition and a count per distinct observation.
 """
 
 from __future__ import annotations
@@ -27,14 +47,17 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
-from stable_baselines3.common.type_aliases import TensorDict
+from stable_baselines3.common.type_aliases import DictReplayBufferSamples, TensorDict
 from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_dcqn.observation_table import ObservationTable
 
 __all__ = [
     "DCQNDictReplayBuffer",
     "DCQNReplayBuffer",
     "PrioritizedDictReplayBufferSamples",
     "PrioritizedReplayBufferSamples",
+    "use_observation_tables",
 ]
 
 
@@ -76,6 +99,24 @@ def index_transition(
     key_of[slot] = key
     outcome_of[slot] = outcome
     return stale
+
+
+def use_observation_tables(buffer: DictReplayBuffer) -> None:
+    """
+    Store a (new, empty) Dict replay buffer's observations in interned tables: one table of distinct rows per key,
+    shared by its observations and next observations; Discrete actions in the smallest integer dtype that holds them.
+
+    :param buffer: An SB3 Dict replay buffer (or a subclass: DCQN's, HER's) before anything was added
+    """
+    for key, array in buffer.observations.items():
+        table = ObservationTable(array.shape, array.dtype)
+        buffer.observations[key] = table  # type: ignore[assignment]
+        buffer.next_observations[key] = ObservationTable(array.shape, array.dtype, rows=table.rows)  # type: ignore
+    space = buffer.action_space
+    if isinstance(space, spaces.Discrete):
+        first, last = int(space.start), int(space.start + space.n - 1)
+        dtype = np.promote_types(np.min_scalar_type(first), np.min_scalar_type(last))
+        buffer.actions = np.zeros(buffer.actions.shape, dtype=dtype)
 
 
 class PrioritizedReplayBufferSamples(NamedTuple):
@@ -287,7 +328,8 @@ class DCQNReplayBuffer(_ReadaptationMixin, ReplayBuffer):
 
 class DCQNDictReplayBuffer(_ReadaptationMixin, DictReplayBuffer):
     """
-    SB3's ``DictReplayBuffer`` with experience revision and prioritised replay (see the module docstring).
+    SB3's ``DictReplayBuffer`` with experience revision, prioritised replay, lean storage, n-step returns and a count
+    bonus (see the module docstring).
 
     :param buffer_size: Max number of elements in the buffer
     :param observation_space: Observation space (a Dict)
@@ -302,11 +344,101 @@ class DCQNDictReplayBuffer(_ReadaptationMixin, DictReplayBuffer):
     :param alpha: Priority exponent (0: uniform)
     :param beta: Importance-weight exponent (1: full correction); the algorithm may anneal it
     :param priority_eps: Added to the absolute TD error so that no transition gets probability 0
+    :param lean: Store each key's distinct vectors once and row indices per transition
+    :param n_steps: Steps of the returns (1: one-step transitions); not with revision or priorities
+    :param gamma: Discount of the n-step returns (the algorithm's)
+    :param count_bonus: Scale of the intrinsic reward ``count_bonus / sqrt(n(next observation))`` (0: none)
     """
 
     _prioritized_type = PrioritizedDictReplayBufferSamples
     observations: dict[str, np.ndarray]
     next_observations: dict[str, np.ndarray]
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Dict,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        revise_experience: bool = False,
+        prioritized: bool = False,
+        alpha: float = 0.6,
+        beta: float = 0.4,
+        priority_eps: float = 1e-3,
+        lean: bool = False,
+        n_steps: int = 1,
+        gamma: float = 0.99,
+        count_bonus: float = 0.0,
+    ) -> None:
+        super().__init__(
+            buffer_size,
+            observation_space,
+            action_space,
+            device,
+            n_envs=n_envs,
+            optimize_memory_usage=optimize_memory_usage,
+            handle_timeout_termination=handle_timeout_termination,
+            revise_experience=revise_experience,
+            prioritized=prioritized,
+            alpha=alpha,
+            beta=beta,
+            priority_eps=priority_eps,
+        )
+        if n_steps < 1:
+            raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+        if n_steps > 1 and (revise_experience or prioritized):
+            raise ValueError(
+                "experience revision and prioritised replay do not support n-step returns (n_steps > 1): a revised "
+                "or prioritised transition is one step"
+            )
+        if count_bonus < 0:
+            raise ValueError(f"count_bonus must be >= 0, got {count_bonus}")
+        self.lean = lean
+        self.n_steps = n_steps
+        self.gamma = gamma
+        self.count_bonus = count_bonus
+        if lean:
+            use_observation_tables(self)
+        # Count bonus: each slot's next observation as a visit id; visits per distinct observation (never decremented)
+        self.next_visits = np.zeros((self.buffer_size, self.n_envs), dtype=np.int32) if count_bonus > 0 else None
+        self.visit_counts = np.zeros(16 if count_bonus > 0 else 0, dtype=np.int64)
+        self._visit_of: dict[bytes, int] = {}
+
+    def add(  # type: ignore[override]
+        self,
+        obs: dict[str, np.ndarray],
+        next_obs: dict[str, np.ndarray],
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        if self.next_visits is not None:  # before super().add: a revision copies the new slot's visit id
+            self.next_visits[self.pos] = [self._visit(next_obs, env) for env in range(self.n_envs)]
+        super().add(obs, next_obs, action, reward, done, infos)
+
+    def _visit(self, next_obs: dict[str, np.ndarray], env: int) -> int:
+        """Count one arrival at ``next_obs[env]``; its visit id."""
+        visit = self._visit_of.setdefault(digest(self._observation_bytes(next_obs, env)), len(self._visit_of))
+        if visit == len(self.visit_counts):
+            self.visit_counts = np.concatenate([self.visit_counts, np.zeros_like(self.visit_counts)])
+        self.visit_counts[visit] += 1
+        return visit
+
+    def visits(self, batch_inds: np.ndarray, env_inds: np.ndarray) -> np.ndarray:
+        """
+        How many times the next observations of the given transitions have been added so far.
+
+        :param batch_inds: Positions in the buffer
+        :param env_inds: Their envs
+        :return: The counts (``int64``, at least 1 for a stored transition)
+        """
+        if self.next_visits is None:
+            raise ValueError("visits are counted with count_bonus > 0 only")
+        return self.visit_counts[self.next_visits[batch_inds, env_inds]]
 
     def _observation_bytes(self, obs: Any, env: int) -> bytes:
         return b"".join(
@@ -320,19 +452,63 @@ class DCQNDictReplayBuffer(_ReadaptationMixin, DictReplayBuffer):
     def _copy_next_observation(self, to_pos: int, to_env: int, from_pos: int, from_env: int) -> None:
         for array in self.next_observations.values():
             array[to_pos, to_env] = array[from_pos, from_env]
+        if self.next_visits is not None:
+            self.next_visits[to_pos, to_env] = self.next_visits[from_pos, from_env]
+
+    def _get_samples(  # type: ignore[override]
+        self, batch_inds: np.ndarray, env: VecNormalize | None = None
+    ) -> DictReplayBufferSamples:
+        # The env of each sample drawn as SB3's DictReplayBuffer draws it (same samples for the same seed)
+        env_inds = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
+        return DictReplayBufferSamples(*self._samples_at(batch_inds, env_inds, env))
+
+    def _rewards_at(self, batch_inds: np.ndarray, env_inds: np.ndarray, env: VecNormalize | None) -> np.ndarray:
+        """The rewards of the given transitions (normalised), with the count bonus."""
+        rewards = self._normalize_reward(self.rewards[batch_inds, env_inds], env)
+        if self.next_visits is None:
+            return rewards
+        return rewards + (self.count_bonus / np.sqrt(self.visits(batch_inds, env_inds))).astype(np.float32)
 
     def _samples_at(self, batch_inds: np.ndarray, env_inds: np.ndarray, env: VecNormalize | None) -> tuple:
+        if self.n_steps > 1:
+            last_inds, rewards, discounts = self._n_step_windows(batch_inds, env_inds, env)
+        else:
+            last_inds, rewards, discounts = batch_inds, self._rewards_at(batch_inds, env_inds, env), None
         observations = self._normalize_obs({k: o[batch_inds, env_inds] for k, o in self.observations.items()}, env)
         next_observations = self._normalize_obs(
-            {k: o[batch_inds, env_inds] for k, o in self.next_observations.items()}, env
+            {k: o[last_inds, env_inds] for k, o in self.next_observations.items()}, env
         )
-        dones = self.dones[batch_inds, env_inds] * (1 - self.timeouts[batch_inds, env_inds])
-        rewards = self._normalize_reward(self.rewards[batch_inds, env_inds].reshape(-1, 1), env)
+        dones = self.dones[last_inds, env_inds] * (1 - self.timeouts[last_inds, env_inds])
         return (
             {k: self.to_torch(o) for k, o in observations.items()},  # type: ignore[union-attr]
             self.to_torch(self.actions[batch_inds, env_inds]),
             {k: self.to_torch(o) for k, o in next_observations.items()},  # type: ignore[union-attr]
             self.to_torch(dones).reshape(-1, 1),
-            self.to_torch(rewards),
-            None,
+            self.to_torch(rewards.reshape(-1, 1)),
+            None if discounts is None else self.to_torch(discounts),
         )
+
+    def _n_step_windows(
+        self, batch_inds: np.ndarray, env_inds: np.ndarray, env: VecNormalize | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """
+        The n-step windows from the given transitions, as SB3's ``NStepReplayBuffer`` forms them: up to ``n_steps``
+        steps, the last one the first that ends (termination or time limit) or the newest transition stored.
+
+        :return: the position of each window's last step, the discounted sum of its rewards, and the discount of the
+            bootstrap (``gamma ** steps``, shape ``(batch, 1)``)
+        """
+        steps = np.arange(self.n_steps)
+        indices = (batch_inds[:, None] + steps[None, :]) % self.buffer_size  # (batch, n_steps)
+        envs = env_inds[:, None]
+        dones = self.dones[indices, envs].astype(bool)
+        # The newest transition ends a window unless it ended its episode: the slot after it is another episode's
+        # (SB3 marks it as truncated for the duration of the sample; here without writing to the buffer)
+        newest = indices == (self.pos - 1) % self.buffer_size
+        ends = dones | self.timeouts[indices, envs].astype(bool) | (newest & ~dones)
+        last = np.where(ends.any(axis=1), ends.argmax(axis=1), self.n_steps - 1)
+        within = steps[None, :] <= last[:, None]
+        rewards = self._rewards_at(indices.reshape(-1), np.repeat(env_inds, self.n_steps), env)
+        rewards = rewards.reshape(indices.shape) * self.gamma ** steps.astype(np.float32) * within
+        discounts = (self.gamma ** within.sum(axis=1, keepdims=True)).astype(np.float32)
+        return (batch_inds + last) % self.buffer_size, rewards.sum(axis=1).astype(np.float32), discounts

@@ -65,7 +65,9 @@ class DCQN(OffPolicyAlgorithm):
     :param replay_buffer_kwargs: Keyword arguments to pass to the replay buffer on creation.
     :param optimize_memory_usage: Enable a memory efficient variant of the replay buffer
         at a cost of more complexity.
-    :param n_steps: When n_step > 1, uses n-step return (with the NStepReplayBuffer) when updating the critics.
+    :param n_steps: When n_step > 1, uses n-step return when updating the critics: SB3's ``NStepReplayBuffer`` for
+        Box observations, :class:`~sb3_dcqn.buffers.DCQNDictReplayBuffer` for Dict observations (SB3 has none);
+        not with hindsight relabelling, experience revision, prioritised replay or ``blocked_action_target``
     :param target_update_interval: update the target critics every ``target_update_interval``
         environment steps.
     :param exploration_fraction: fraction of entire training period over which the exploration rate is reduced
@@ -78,6 +80,14 @@ class DCQN(OffPolicyAlgorithm):
         match). Off by default: the paper's agent keeps its stale experience
     :param prioritized_replay: Replay transitions in proportion to their TD error, importance-weighted (Schaul et al.
         2016); ``beta`` is annealed to 1 over training. Off by default
+    :param lean_replay: Store each distinct observation vector once per Dict key and row indices per transition
+        (:class:`~sb3_dcqn.buffers.DCQNDictReplayBuffer` or, with ``HerReplayBuffer``,
+        :class:`~sb3_dcqn.her_buffer.DCQNHerReplayBuffer` with ``lean=True``): the same samples, a few tens of bytes
+        per transition where observations repeat (CampusNav). Dict observations only. Off by default
+    :param count_bonus: Exploration towards rarely seen observations: sampled rewards get
+        ``count_bonus / sqrt(n(next observation))``, ``n`` the times that observation was added to the replay buffer
+        (a count-based bonus, see :mod:`sb3_dcqn.buffers`). Dict observations, not with ``HerReplayBuffer``. 0 (off)
+        by default
     :param blocked_action_target: For a transition after which the observation did not change (a collision), leave
         the taken action out of the target's max (see :func:`blocked_actions`): a blocked action's value falls below
         the open roads' in one update instead of shrinking by ``gamma`` per target update. Off by default (the
@@ -137,6 +147,8 @@ class DCQN(OffPolicyAlgorithm):
         max_grad_norm: float = 10,
         experience_revision: bool = False,
         prioritized_replay: bool = False,
+        lean_replay: bool = False,
+        count_bonus: float = 0.0,
         blocked_action_target: bool = False,
         pessimistic_target: bool = True,
         stats_window_size: int = 100,
@@ -185,6 +197,8 @@ class DCQN(OffPolicyAlgorithm):
         self.exploration_rate = 0.0
         self.experience_revision = experience_revision
         self.prioritized_replay = prioritized_replay
+        self.lean_replay = lean_replay
+        self.count_bonus = count_bonus
         self.blocked_action_target = blocked_action_target
         self.pessimistic_target = pessimistic_target
         if blocked_action_target and n_steps > 1:
@@ -201,9 +215,11 @@ class DCQN(OffPolicyAlgorithm):
             self.replay_buffer_class = self.replay_buffer_substitutes.get(
                 self.replay_buffer_class, self.replay_buffer_class
             )
-        if self.experience_revision or self.prioritized_replay:
-            self._select_readaptation_buffer()
-        super()._setup_model()
+        own_n_steps = self._select_dcqn_buffer()
+        with warnings.catch_warnings():
+            if own_n_steps:  # SB3 warns that n_steps goes unused with a given buffer class: DCQN's buffer takes it
+                warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored")
+            super()._setup_model()
         self._beta0 = getattr(self.replay_buffer, "beta", 1.0)
         self._create_aliases()
         # Copy running stats, see SB3 GH issue #996
@@ -222,31 +238,59 @@ class DCQN(OffPolicyAlgorithm):
                 f"which corresponds to {self.n_envs} steps."
             )
 
-    def _select_readaptation_buffer(self) -> None:
-        """Use DCQN's replay buffer (revision, priorities) matching the observation space, configured by the flags."""
-        if self.n_steps > 1:
+    def _select_dcqn_buffer(self) -> bool:
+        """
+        Use DCQN's replay buffer matching the observation space where a flag asks for it (revision, priorities,
+        lean storage, count bonus) or SB3 has none (n-step returns with Dict observations), configured by the flags.
+
+        :return: whether DCQN's buffer computes the n-step returns (``n_steps`` passed to it)
+        """
+        is_dict = isinstance(self.observation_space, spaces.Dict)
+        given = self.replay_buffer_class
+        is_her = given is not None and issubclass(given, DCQNHerReplayBuffer)
+        if is_her and self.n_steps > 1:
+            raise ValueError("n-step returns (n_steps > 1) do not combine with hindsight relabelling (HerReplayBuffer)")
+        readaptation = self.experience_revision or self.prioritized_replay
+        dict_options = self.lean_replay or self.count_bonus > 0
+        dict_n_steps = is_dict and self.n_steps > 1 and (given is None or issubclass(given, DCQNDictReplayBuffer))
+        if not (readaptation or dict_options or dict_n_steps):
+            return False
+        if readaptation and self.n_steps > 1:
             raise ValueError("experience_revision and prioritized_replay do not support n-step returns (n_steps > 1)")
-        if self.replay_buffer_class is not None and issubclass(self.replay_buffer_class, DCQNHerReplayBuffer):
+        if dict_options and not is_dict:
+            raise ValueError(
+                "lean_replay and count_bonus need a Dict observation space (they store and count each key's "
+                f"vectors), got {type(self.observation_space).__name__}"
+            )
+        lean = {"lean": True} if self.lean_replay else {}
+        if is_her:
             if self.prioritized_replay:
                 raise ValueError(
                     "prioritized_replay does not combine with hindsight relabelling (HerReplayBuffer): a stored "
                     "transition stands for every goal it is relabelled with, its TD error for none of them"
                 )
-            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "revise_experience": True}
-            return
-        if self.replay_buffer_class is None:
-            is_dict = isinstance(self.observation_space, spaces.Dict)
+            if self.count_bonus > 0:
+                raise ValueError("count_bonus does not combine with hindsight relabelling (HerReplayBuffer)")
+            revision = {"revise_experience": True} if self.experience_revision else {}
+            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, **revision, **lean}
+            return False
+        if given is None:
             self.replay_buffer_class = DCQNDictReplayBuffer if is_dict else DCQNReplayBuffer
-        elif not issubclass(self.replay_buffer_class, (DCQNReplayBuffer, DCQNDictReplayBuffer)):
+        elif not issubclass(given, (DCQNReplayBuffer, DCQNDictReplayBuffer)):
             raise ValueError(
-                "experience_revision and prioritized_replay need DCQNReplayBuffer or DCQNDictReplayBuffer, got "
-                f"replay_buffer_class={self.replay_buffer_class.__name__} (or HerReplayBuffer, for revision)"
+                "experience_revision, prioritized_replay, lean_replay and count_bonus need DCQNReplayBuffer or "
+                f"DCQNDictReplayBuffer, got replay_buffer_class={given.__name__} (or HerReplayBuffer, for "
+                "experience_revision and lean_replay)"
             )
-        self.replay_buffer_kwargs = {
-            **self.replay_buffer_kwargs,
-            "revise_experience": self.experience_revision,
-            "prioritized": self.prioritized_replay,
-        }
+        kwargs: dict[str, Any] = {**lean}
+        if readaptation:
+            kwargs.update(revise_experience=self.experience_revision, prioritized=self.prioritized_replay)
+        if self.count_bonus > 0:
+            kwargs.update(count_bonus=self.count_bonus)
+        if dict_n_steps:
+            kwargs.update(n_steps=self.n_steps, gamma=self.gamma)
+        self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, **kwargs}
+        return dict_n_steps
 
     def _create_aliases(self) -> None:
         self.q_net = self.policy.q_net

@@ -19,6 +19,10 @@ are matched on every key but ``desired_goal``, the stored next observation gets 
 kept), and its reward and termination are computed anew for its own goal (``compute_reward``,
 ``compute_terminated``). Every goal a stored transition is relabelled with then sees the road as it is now.
 
+**Lean storage** (``lean=True``, DCQN's ``lean_replay``): as in :mod:`sb3_dcqn.buffers`, each key's distinct vectors
+stored once (one table per key, shared by observations and next observations) and row indices per transition;
+relabelling reads the achieved goals through the same indexing.
+
 DCQN uses this buffer whenever ``replay_buffer_class=HerReplayBuffer`` is asked for; ``terminal_relabels=False`` (in
 ``replay_buffer_kwargs``) restores SB3's dones, to measure what the fix does.
 """
@@ -36,7 +40,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from stable_baselines3.her.goal_selection_strategy import GoalSelectionStrategy
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
-from sb3_dcqn.buffers import digest, index_transition
+from sb3_dcqn.buffers import digest, index_transition, use_observation_tables
 
 __all__ = ["DCQNHerReplayBuffer"]
 
@@ -65,6 +69,7 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
     :param relabel_tries: How many times a relabelled goal that the env does not allow is drawn again
     :param revise_experience: Rewrite stored transitions that a new transition of the same observation (goal left
         out) and action contradicts (see the module docstring)
+    :param lean: Store each key's distinct vectors once and row indices per transition
     """
 
     def __init__(
@@ -83,6 +88,7 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
         terminal_relabels: bool = True,
         relabel_tries: int = 8,
         revise_experience: bool = False,
+        lean: bool = False,
     ) -> None:
         super().__init__(
             buffer_size,
@@ -112,6 +118,9 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
         self._slots_of: dict[bytes, set[int]] = {}
         self._key_of: list[bytes | None] = [None] * (self.buffer_size * self.n_envs)
         self._outcome_of: list[bytes | None] = [None] * (self.buffer_size * self.n_envs)
+        self.lean = lean
+        if lean:
+            use_observation_tables(self)
 
     def add(  # type: ignore[override]
         self,

@@ -93,8 +93,9 @@ def relabelled(buffer: DCQNHerReplayBuffer, draws: int = 400) -> set[tuple[int, 
     return set(zip(next_cells.tolist(), goals.tolist(), rewards, samples.dones.flatten().tolist(), strict=True))
 
 
-def test_a_relabelled_transition_that_reaches_its_new_goal_is_terminal() -> None:
-    seen = relabelled(walk_right(ChainGoalEnv, "future"))
+@pytest.mark.parametrize("lean", [False, True])
+def test_a_relabelled_transition_that_reaches_its_new_goal_is_terminal(lean: bool) -> None:
+    seen = relabelled(walk_right(ChainGoalEnv, "future", lean=lean))
     # Known values: next cell == new goal -> +1 and terminal. Future goals of 0->1: 1, 2, 3; of 1->2: 2, 3; of 2->3: 3
     expected = {(1, 1, 1.0, 1.0), (1, 2, STEP_REWARD, 0.0), (1, 3, STEP_REWARD, 0.0)}
     expected |= {(2, 2, 1.0, 1.0), (2, 3, STEP_REWARD, 0.0), (3, 3, 1.0, 1.0)}
