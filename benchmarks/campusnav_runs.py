@@ -118,7 +118,7 @@ class Variant:
         # Exploration is set in steps by the YAML's n_timesteps; keep that many steps whatever the step cap
         explore_steps = hyperparams.get("exploration_fraction", 0.1) * entry.n_timesteps
         hyperparams["exploration_fraction"] = min(explore_steps / task.max_steps, 1.0)
-        return ZooEntry(task.max_steps, hyperparams, env_kwargs, entry.n_envs)
+        return ZooEntry(task.max_steps, hyperparams, env_kwargs, entry.n_envs, entry.callbacks)
 
     def make_model(self, env: gym.Env, entry: ZooEntry, seed: int, **kwargs: Any) -> BaseAlgorithm:
         algo = {"DCQN": DCQN, "DQN": DQN}[self.algo]

@@ -275,7 +275,7 @@ def make_agent(job: Job) -> tuple[BaseAlgorithm, CampusNavEnv]:
             **entry.hyperparams,
             "learning_starts": min(entry.hyperparams["learning_starts"], job.steps // 4),
         }
-        entry = ZooEntry(entry.n_timesteps, hyperparams, entry.env_kwargs, entry.n_envs)
+        entry = ZooEntry(entry.n_timesteps, hyperparams, entry.env_kwargs, entry.n_envs, entry.callbacks)
         env_kwargs = quick_env_kwargs()
     env = task.make_env(entry, **env_kwargs)
     return variant.make_model(env, entry, job.seed), env.unwrapped  # type: ignore[return-value]

@@ -36,6 +36,7 @@ Requires the ``zoo`` extra: ``pip install "sb3-dcqn[zoo]"``.
 from __future__ import annotations
 
 import difflib
+import importlib
 import inspect
 import runpy
 import sys
@@ -55,7 +56,7 @@ from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
 ALGO_NAME = "dcqn"
 # Keys of a zoo entry that configure the zoo's env and wrappers rather than the algorithm (n_envs and env_kwargs are
 # kept in ZooEntry; the others are not supported outside the zoo and are dropped)
-_ZOO_ONLY_KEYS = ("normalize", "env_wrapper", "frame_stack", "callback", "vec_env_wrapper")
+_ZOO_ONLY_KEYS = ("normalize", "env_wrapper", "frame_stack", "vec_env_wrapper")
 # Keys whose string values the zoo evaluates as Python (rl_zoo3's ExperimentManager._preprocess_hyperparams)
 _EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs")
 # Arguments of a replay buffer that the algorithm passes itself (not replay_buffer_kwargs keys)
@@ -81,12 +82,20 @@ class ZooEntry:
     :param hyperparams: Algorithm keyword arguments (``policy`` included; ``policy_kwargs`` evaluated)
     :param env_kwargs: Keyword arguments for ``gym.make`` (``env_kwargs``)
     :param n_envs: Number of training envs (``n_envs``, default 1)
+    :param callbacks: The entry's ``callback`` key, as the zoo reads it: ``(class path, keyword arguments)`` pairs
+        (e.g. ``("campusnav_env.callbacks.StartCurriculumCallback", {"initial": 2})``), built by
+        :meth:`make_callbacks`
     """
 
     n_timesteps: int
     hyperparams: dict[str, Any]
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     n_envs: int = 1
+    callbacks: tuple[tuple[str, dict[str, Any]], ...] = ()
+
+    def make_callbacks(self) -> list[Any]:
+        """New instances of the entry's callbacks (SB3 ``BaseCallback``), one per call: a callback trains one model."""
+        return [_class_by_path(path)(**kwargs) for path, kwargs in self.callbacks]
 
 
 def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
@@ -127,6 +136,7 @@ def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
         raise ValueError(f"{path}: {env_id!r}: env_kwargs must be a mapping, got {env_kwargs!r}")
     for key in _ZOO_ONLY_KEYS:
         entry.pop(key, None)
+    callbacks = _callback_specs(entry.pop("callback", None), f"{path}: {env_id!r}")
     namespace = {"dict": dict, **hyperparams_namespace()}
     for key in _EVALUATED_KEYS:
         if isinstance(entry.get(key), str):
@@ -134,7 +144,40 @@ def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
                 entry[key] = eval(entry[key], namespace)  # the zoo's convention
             except Exception as error:
                 raise ValueError(f"{path}: {env_id!r}: cannot evaluate {key} {entry[key]!r}") from error
-    return ZooEntry(n_timesteps, entry, dict(env_kwargs), n_envs)
+    return ZooEntry(n_timesteps, entry, dict(env_kwargs), n_envs, callbacks)
+
+
+def _callback_specs(value: Any, where: str) -> tuple[tuple[str, dict[str, Any]], ...]:
+    """
+    The ``callback`` key in the zoo's forms (``rl_zoo3.utils.get_callback_list``): a class path, a one-key mapping
+    ``{class path: keyword arguments}``, or a list of those; every class is imported now, so a misspelt path fails
+    on loading, naming the entry.
+    """
+    if value is None:
+        return ()
+    specs = []
+    for item in value if isinstance(value, list) else [value]:
+        if isinstance(item, str):
+            path, kwargs = item, {}
+        elif isinstance(item, dict) and len(item) == 1 and isinstance(next(iter(item.values())), dict | None):
+            path, kwargs = next(iter(item.items()))
+            kwargs = dict(kwargs or {})
+        else:
+            raise ValueError(f"{where}: callback {item!r} is not a class path or {{class path: keyword arguments}}")
+        try:
+            _class_by_path(path)
+        except (ImportError, AttributeError, ValueError) as error:
+            raise ValueError(f"{where}: callback {path!r} cannot be imported ({error})") from None
+        specs.append((path, kwargs))
+    return tuple(specs)
+
+
+def _class_by_path(path: str) -> Any:
+    """``"package.module.Name"`` -> the object (the zoo's ``get_class_by_name``)."""
+    module_name, _, name = path.rpartition(".")
+    if not module_name:
+        raise ValueError(f"{path!r} is not a dotted path (module.Class)")
+    return getattr(importlib.import_module(module_name), name)
 
 
 def describe_yaml_error(error: yaml.YAMLError) -> str:

@@ -288,3 +288,28 @@ def test_bad_replay_buffer_settings_are_named(tmp_path: Path) -> None:
     conf.write_text(f"{GOAL_ENV}:\n  n_timesteps: 10\n  replay_buffer_class: HerReplayBufer\n")
     with pytest.raises(ValueError, match="cannot evaluate replay_buffer_class 'HerReplayBufer'"):
         load_zoo_entry(conf, GOAL_ENV)
+
+
+def test_an_entrys_callbacks_are_read_as_the_zoo_reads_them_and_built_anew_for_each_model(tmp_path: Path) -> None:
+    conf = tmp_path / "conf.yml"
+    conf.write_text(
+        "CampusNav-v0:\n  n_timesteps: 10\n  callback:\n"
+        "    - campusnav_env.callbacks.StartCurriculumCallback:\n        initial: 3\n        window: 7\n"
+        "    - stable_baselines3.common.callbacks.StopTrainingOnMaxEpisodes:\n        max_episodes: 5\n"
+    )
+    entry = load_zoo_entry(conf, "CampusNav-v0")
+    assert "callback" not in entry.hyperparams  # not a DCQN argument
+    first, second = entry.make_callbacks(), entry.make_callbacks()
+    assert [type(c).__name__ for c in first] == ["StartCurriculumCallback", "StopTrainingOnMaxEpisodes"]
+    assert first[0].window == 7 and first[1].max_episodes == 5
+    assert first[0] is not second[0]
+    # One class path alone, as the zoo also takes it
+    conf.write_text("CampusNav-v0:\n  n_timesteps: 10\n  callback: campusnav_env.callbacks.StartCurriculumCallback\n")
+    assert [type(c).__name__ for c in load_zoo_entry(conf, "CampusNav-v0").make_callbacks()] == [
+        "StartCurriculumCallback"
+    ]
+    conf.write_text("CampusNav-v0:\n  n_timesteps: 10\n  callback: campusnav_env.callbacks.NoSuchCallback\n")
+    with pytest.raises(
+        ValueError, match=r"conf.yml: 'CampusNav-v0': callback 'campusnav_env.callbacks.NoSuchCallback'"
+    ):
+        load_zoo_entry(conf, "CampusNav-v0")

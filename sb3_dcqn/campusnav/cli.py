@@ -563,7 +563,7 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
         recovery_eval_freq=args.recovery_eval_freq,
         stop_when_solved=not args.keep_training,
         stop_when_recovered=not args.keep_training,
-        callbacks=lever_callbacks(args.levers),
+        callbacks=[*lever_callbacks(args.levers), *entry.make_callbacks()],
         verbose=args.verbose,
         progress=not args.no_progress,
     )
