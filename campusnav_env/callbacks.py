@@ -31,12 +31,13 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, EventCallback
 from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -58,7 +59,7 @@ from campusnav_env.recovery import (
     RouteEvaluation,
     measure_recoveries,
 )
-from campusnav_env.route_evaluation import RouteReport, evaluate_routes
+from campusnav_env.route_evaluation import Policy, RouteReport, evaluate_routes
 
 __all__ = ["RoadClosureCallback", "RouteEvaluationCallback", "StartCurriculumCallback"]
 
@@ -132,6 +133,8 @@ class RouteEvaluationCallback(_TrainingProgress):
     :param every_goal: The map counts as solved only when each goal is at both thresholds on its own (not only the
         routes to all goals together)
     :param evaluate_at_end: Evaluate once more when training ends (unless the last evaluation is current)
+    :param policy: Makes the policy evaluated from the model, anew at each evaluation (default: the model's greedy
+        ``predict``); e.g. ``lambda model: ReplaySearchPolicy(model)``, a planner over what the model has stored
     :param verbose: 1 prints a line per evaluation
     """
 
@@ -149,6 +152,7 @@ class RouteEvaluationCallback(_TrainingProgress):
         stop_when_solved: bool = False,
         every_goal: bool = False,
         evaluate_at_end: bool = True,
+        policy: Callable[[BaseAlgorithm], Policy] | None = None,
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
@@ -170,6 +174,7 @@ class RouteEvaluationCallback(_TrainingProgress):
         self.stop_when_solved = stop_when_solved
         self.every_goal = every_goal
         self.evaluate_at_end = evaluate_at_end
+        self.policy = policy
         self.evaluations: list[RouteEvaluation] = []
         self.shares_training_env = False
         self._next_due = eval_freq
@@ -225,9 +230,10 @@ class RouteEvaluationCallback(_TrainingProgress):
         start = time.perf_counter()
         model = self.model
 
-        def policy(observations: Any) -> np.ndarray:
+        def greedy(observations: Any) -> np.ndarray:
             return model.predict(observations, deterministic=True)[0]
 
+        policy = greedy if self.policy is None else self.policy(model)
         report = evaluate_routes(self.eval_env, policy, goals=self.goals, max_steps=self.max_steps)
         others = {
             name: evaluate_routes(self.eval_env, policy, goals=goals, max_steps=self.max_steps)

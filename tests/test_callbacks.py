@@ -184,6 +184,22 @@ def test_stop_when_solved_ends_training_at_the_first_solved_evaluation(env_kwarg
     assert evaluation.evaluations[0].train_seconds > 0
 
 
+def test_the_evaluated_policy_can_be_made_from_the_model_anew_at_each_evaluation(env_kwargs) -> None:
+    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
+    model = explorer(env)  # explores only: its own greedy policy does not route
+    made: list[Any] = []
+
+    def planner(trained: Any) -> Callable[[Any], np.ndarray]:
+        made.append(trained)
+        predict = shortest_path_policy(env.envs[0].unwrapped)
+        return lambda observations: predict(observations)[0]
+
+    evaluation = RouteEvaluationCallback(eval_freq=50, policy=planner, evaluate_at_end=False)
+    model.learn(100, callback=evaluation)
+    assert made == [model, model]  # one policy per evaluation, made from the model being trained
+    assert [e.report.success_rate for e in evaluation.evaluations] == [1.0, 1.0]
+
+
 def test_a_schedule_continues_over_several_learn_calls(env_kwargs) -> None:
     env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
     road = next(r for r in WORLD.roads if min(WORLD.degrees[list(r)]) > 2)  # not a bridge

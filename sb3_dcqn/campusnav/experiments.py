@@ -78,6 +78,7 @@ def train_until_solved(
     budget_seconds: float,
     eval_freq: int,
     evaluation: RouteEvaluationCallback | None = None,
+    callbacks: Sequence[BaseCallback] = (),
     **learn_kwargs: Any,
 ) -> SolveResult:
     """
@@ -88,6 +89,7 @@ def train_until_solved(
     :param budget_seconds: Training-time cap, evaluations excluded
     :param eval_freq: Evaluate every this many env steps
     :param evaluation: An evaluation callback of your own (default: one at the solved bar)
+    :param callbacks: More callbacks for the training (e.g. an entry's :meth:`~sb3_dcqn.zoo.ZooEntry.make_callbacks`)
     :return: the first evaluation at the thresholds (or ``None``) and all evaluations
     """
     if evaluation is None:
@@ -100,7 +102,9 @@ def train_until_solved(
         )
     start = time.perf_counter()
     model.learn(
-        max_steps, callback=CallbackList([evaluation, TrainingBudget(evaluation, budget_seconds)]), **learn_kwargs
+        max_steps,
+        callback=CallbackList([*callbacks, evaluation, TrainingBudget(evaluation, budget_seconds)]),
+        **learn_kwargs,
     )
     wall = time.perf_counter() - start
     solved = next(
