@@ -19,11 +19,13 @@ ENV_IDS: dict[str, tuple[str, dict[str, Any]]] = {
     # A generated city (1,000 intersections, seed 0, goal Dreese Lab, max_steps="auto"); no defaults here, so that
     # world= (a real map) can replace n_intersections
     "CampusNavCity-v0": (CAMPUSNAV_CITY, {}),
+    # The 10,000-intersection city (its own id, so that it has a YAML entry of its own)
+    "CampusNavCity10k-v0": (CAMPUSNAV_CITY, {"n_intersections": 10_000}),
 }
 
 
 def register_envs() -> None:
-    """Register ``CampusNav-v0``, ``CampusNavMulti-v0``, ``CampusNavGoal-v0`` and ``CampusNavCity-v0`` (idempotent)."""
+    """Register the ids of :data:`ENV_IDS` (idempotent)."""
     for env_id, (entry_point, kwargs) in ENV_IDS.items():
         if env_id not in registry:
             register(id=env_id, entry_point=entry_point, kwargs=kwargs)

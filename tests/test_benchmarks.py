@@ -61,3 +61,11 @@ def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: P
     for row in rows:
         assert f"| {row}" in text
     assert "| strict | 8 relabelled goals per transition | 0 |" in text
+
+
+def test_long_routes_quick_run_writes_the_ablation_table(tmp_path: Path) -> None:
+    text = _quick_run("long_routes.py", tmp_path, "--rows", "curriculum", "search")
+    assert "| intersections | features | row | seeds | solved |" in text
+    assert "| 101 | pixels | + start curriculum (near to far) | 0 |" in text
+    assert "| 101 | pixels | + replay search at evaluation (SoRB-style) | 0 |" in text
+    assert "Command: `python benchmarks/long_routes.py --quick --out" in text

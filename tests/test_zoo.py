@@ -132,6 +132,14 @@ def test_shipped_hyperparams_cover_the_classic_control_envs_and_campusnav() -> N
     assert Path("hyperparams/dcqn.yml").resolve() == default_hyperparams_path().resolve()
 
 
+@pytest.mark.parametrize("env_id", ["CampusNavCity-v0", "CampusNavCity10k-v0"])
+def test_the_shipped_city_entries_pass_the_checks_and_bring_their_curriculum(env_id: str) -> None:
+    entry = load_zoo_entry(default_hyperparams_path(), env_id)
+    check_hyperparams(entry.hyperparams, DCQN, f"dcqn.yml: entry {env_id!r}")
+    assert entry.hyperparams["lean_replay"] is True and entry.hyperparams["n_steps"] > 1
+    assert [type(c).__name__ for c in entry.make_callbacks()] == ["StartCurriculumCallback"]
+
+
 def test_dcqn_zoo_trains_and_saves_a_model(cartpole_run: Path, campusnav_run: Path) -> None:
     model_path = cartpole_run / "logs" / "dcqn" / "CartPole-v1_1" / "CartPole-v1.zip"
     assert model_path.is_file()
