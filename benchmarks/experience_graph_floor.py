@@ -20,8 +20,8 @@ generalise across observations; :func:`floor_steps` is importable so other bench
 
 Features: 64x48 pixel features (the scale benchmarks' cheap build; the floor sees only whether observations are
 equal, so the encoder does not change its steps as long as distinct views stay distinct). Runs are appended to a
-JSON-lines file (``--runs-file``) as they finish, and a rerun skips those done (same size, seed, eval_every, quick);
-the table is rebuilt from the file. Usage::
+JSON-lines file (``--runs-file``) as they finish, and a rerun skips those done (same size, seed, eval_every, quick,
+step cap); the table is rebuilt from the file. Usage::
 
     python benchmarks/experience_graph_floor.py --sizes 101 1000 --seeds 0 1 2
     python benchmarks/experience_graph_floor.py --sizes 10000 --seeds 0
@@ -33,7 +33,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +44,7 @@ from scale_common import GOAL, PIXELS, env_kwargs_for, fmt, make_graph
 
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.recovery import RouteEvaluation
-from campusnav_env.route_evaluation import evaluate_routes
+from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 from sb3_dcqn.campusnav.solved import is_solved, solved_bar
 from sb3_dcqn.replay_graph import ExperienceGraph
 
@@ -73,6 +73,9 @@ class FloorResult:
     :param spl: SPL of the last evaluation
     :param states: Observations seen
     :param tried: (observation, action) pairs tried
+    :param driven_solved_steps: Env steps at the first evaluation at the solved bar on the routes from the states a
+        move leads to (the start-only states left out: the coverage of random starts aside), ``None`` if never
+    :param driven_solved_episodes: Episodes started by then
     """
 
     solved: bool
@@ -85,6 +88,8 @@ class FloorResult:
     spl: float
     states: int
     tried: int
+    driven_solved_steps: int | None = None
+    driven_solved_episodes: int | None = None
 
 
 class FloorAgent:
@@ -147,13 +152,16 @@ def floor_steps(env: CampusNavEnv, seed: int, eval_every: int, max_env_steps: in
         raise ValueError(f"eval_every must be at least 1, got {eval_every}")
     graph = ExperienceGraph.for_env(env)
     agent = FloorAgent(graph)
+    driven = entered_states(env)  # for the report only: the agent is never told
     cap = max_env_steps if max_env_steps is not None else 200 * env.graph.transition_table.size
     start = time.perf_counter()
     evaluation_seconds = 0.0
     steps = episodes = evaluations = 0
     evaluation: RouteEvaluation | None = None
+    driven_solved: tuple[int, int] | None = None
+    solved = False
     observation, _ = env.reset(seed=seed)
-    while steps < cap:
+    while steps < cap and not solved:
         episodes += 1
         done = False
         while not done and steps < cap:
@@ -168,23 +176,13 @@ def floor_steps(env: CampusNavEnv, seed: int, eval_every: int, max_env_steps: in
                 evaluation_seconds += time.perf_counter() - began
                 evaluations += 1
                 evaluation = RouteEvaluation(steps, episodes, time.perf_counter() - start, report)
-                if is_solved(evaluation):
-                    return _result(True, steps, episodes, start, evaluation_seconds, evaluations, evaluation, graph)
+                if driven_solved is None and is_solved(routes_from(evaluation, env, driven)):
+                    driven_solved = steps, episodes
+                solved = is_solved(evaluation)
+                if solved:
+                    break
         if done:
             observation, _ = env.reset()
-    return _result(False, steps, episodes, start, evaluation_seconds, evaluations, evaluation, graph)
-
-
-def _result(
-    solved: bool,
-    steps: int,
-    episodes: int,
-    start: float,
-    evaluation_seconds: float,
-    evaluations: int,
-    evaluation: RouteEvaluation | None,
-    graph: ExperienceGraph,
-) -> FloorResult:
     return FloorResult(
         solved=solved,
         env_steps=steps,
@@ -196,7 +194,30 @@ def _result(
         spl=evaluation.spl if evaluation else 0.0,
         states=graph.n_states,
         tried=graph.n_tried,
+        driven_solved_steps=driven_solved[0] if driven_solved else None,
+        driven_solved_episodes=driven_solved[1] if driven_solved else None,
     )
+
+
+def entered_states(env: CampusNavEnv) -> np.ndarray:
+    """Whether a move leads to each state (node, heading); the others the agent sees only as an episode's start."""
+    table = env.graph.transition_table
+    entered = np.zeros(table.shape[0], dtype=bool)
+    entered[table[table >= 0]] = True
+    return entered
+
+
+def start_only_states(env: CampusNavEnv) -> int:
+    """States no move leads to, the goal's excluded: seeing them all waits on the env's random starts."""
+    goal_states = np.isin(env.graph.map.state_nodes, env.goal_nodes)
+    return int((~entered_states(env) & ~goal_states).sum())
+
+
+def routes_from(evaluation: RouteEvaluation, env: CampusNavEnv, starts: np.ndarray) -> RouteEvaluation:
+    """The evaluation's routes from the start states marked in ``starts`` only."""
+    state_of = env.graph.map.state_of
+    kept = [route for route in evaluation.report.routes if starts[state_of[route.start, route.heading]]]
+    return replace(evaluation, report=RouteReport(kept))
 
 
 def make_env(n_nodes: int) -> CampusNavEnv:
@@ -204,16 +225,25 @@ def make_env(n_nodes: int) -> CampusNavEnv:
     return CampusNavEnv(world=make_graph(n_nodes, "scaled"), goals=GOAL, progress=False, **env_kwargs_for(PIXELS))
 
 
-def run_one(n_nodes: int, seed: int, eval_every: int, quick: bool, env: CampusNavEnv | None = None) -> dict[str, Any]:
-    """One run as a JSON-lines record."""
+def run_one(
+    n_nodes: int,
+    seed: int,
+    eval_every: int,
+    quick: bool,
+    max_env_steps: int | None = None,
+    env: CampusNavEnv | None = None,
+) -> dict[str, Any]:
+    """One run as a JSON-lines record (``env``: the size's env, if already built)."""
     env = make_env(n_nodes) if env is None else env
-    result = floor_steps(env, seed, eval_every)
+    result = floor_steps(env, seed, eval_every, max_env_steps)
     return {
         "size": n_nodes,
         "seed": seed,
         "eval_every": eval_every,
         "quick": quick,
+        "max_env_steps": max_env_steps,
         "state_actions": int(env.graph.transition_table.size),
+        "start_only_states": start_only_states(env),
         **asdict(result),
     }
 
@@ -228,9 +258,11 @@ def floor_table(runs: list[dict[str, Any]]) -> list[str]:
         solved = [r for r in group if r["solved"]]
         steps = [r["env_steps"] for r in solved]
         rows.append([
-            f"{size:,}", f"{group[0]['state_actions']:,}", f"{eval_every:,}", " ".join(str(r["seed"]) for r in group),
+            f"{size:,}", f"{group[0]['state_actions']:,}", f"{group[0]['start_only_states']:,}", f"{eval_every:,}",
+            " ".join(str(r["seed"]) for r in group),
             f"{len(solved)}/{len(group)}",
             _median_range(steps), _median_range([r["episodes"] for r in solved]),
+            _median_range([r["driven_solved_steps"] for r in group if r["driven_solved_steps"] is not None]),
             " ".join(f"{r['env_steps']:,}" for r in group),
             _median_range([r["tried"] for r in group]),
             _median_range([r["wall_seconds"] for r in group], 1),
@@ -239,11 +271,13 @@ def floor_table(runs: list[dict[str, Any]]) -> list[str]:
     header = [
         "intersections",
         "(state, action) pairs",
+        "start-only states",
         "eval every",
         "seeds",
         "solved",
         "env steps to solved",
         "episodes to solved",
+        "env steps to solved, driven-to states only",
         "env steps per seed",
         "pairs tried",
         "wall s",
@@ -270,8 +304,11 @@ def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None) 
         "observations, explores to the nearest untried (observation, action) and plans shortest routes over what it "
         f"saw (`benchmarks/experience_graph_floor.py`). Solved: {solved_bar()} from every (start, heading), goal "
         f"{GOAL}, evaluated every `eval every` env steps (steps to solved are exact to within that). Episodes from the "
-        "env's random starts, capped at its `max_steps`. Features: 64x48 pixel features. Median (range) over seeds; "
-        "wall time includes the evaluations, not the env build.",
+        "env's random starts, capped at its `max_steps`. Features: 64x48 pixel features. Start-only states: (node, "
+        "heading) pairs no move leads to (a move leaves the agent facing away from the road it came along), seen only "
+        "as an episode's random start; an agent that does not generalise across observations has to wait for each "
+        "of them, so the last column scores the same evaluations on the routes from the other starts only. Median "
+        "(range) over seeds; wall time includes the evaluations, not the env build.",
         "",
         machine,
         "",
@@ -285,20 +322,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sizes", nargs="+", type=int, help="intersections (default 101 1000; 101 with --quick)")
     parser.add_argument("--seeds", nargs="+", type=int, help="seeds of the starts (default 0 1 2; 0 with --quick)")
     parser.add_argument("--eval-every", type=int, help="env steps between evaluations (default: by size)")
+    parser.add_argument("--max-env-steps", type=int, help="step cap per run (default: 200 per (state, action) pair)")
     parser.add_argument("--quick", action="store_true", help="smoke run: 101 nodes, seed 0")
     parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "experience_graph_floor_runs.jsonl")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "experience_graph_floor.md")
     args = parser.parse_args(argv)
     sizes = args.sizes or ([101] if args.quick else [101, 1000])
     seeds = args.seeds or ([0] if args.quick else [0, 1, 2])
-    done = {(r["size"], r["seed"], r["eval_every"], r["quick"]) for r in read_runs(args.runs_file)}
+    done = {(r["size"], r["seed"], r["eval_every"], r["quick"], r["max_env_steps"]) for r in read_runs(args.runs_file)}
     for size in sizes:
         eval_every = args.eval_every or default_eval_every(size)
-        todo = [seed for seed in seeds if (size, seed, eval_every, args.quick) not in done]
+        todo = [seed for seed in seeds if (size, seed, eval_every, args.quick, args.max_env_steps) not in done]
         print(f"{size} intersections: {len(seeds) - len(todo)} runs already in {args.runs_file}, {len(todo)} to do")
         env = make_env(size) if todo else None
         for seed in todo:
-            record = run_one(size, seed, eval_every, args.quick, env)
+            record = run_one(size, seed, eval_every, args.quick, args.max_env_steps, env)
             append_run(args.runs_file, record)
             print(
                 f"{size} nodes seed {seed}: {'solved' if record['solved'] else 'NOT solved'} at "
