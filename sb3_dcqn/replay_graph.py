@@ -179,7 +179,8 @@ class ExperienceGraph:
 
     def add_batch(self, observations: Any, actions: Any, next_observations: Any, rewards: Any, terminated: Any) -> int:
         """
-        Record a batch of transitions in order (a later one of the same ``(obs, action)`` wins).
+        Record a batch of transitions in order (a later one of the same ``(obs, action)`` wins). Distances are
+        recomputed once, on the next query (cheaper than keeping them up to date edge by edge for a large batch).
 
         :return: how many changed the graph
         """
@@ -191,8 +192,15 @@ class ExperienceGraph:
         changed = 0
         for i in range(states.size):
             changed += self._set_outcome(
-                int(states[i]), int(actions[i]), int(next_states[i]), float(rewards[i]), bool(terminated[i])
+                int(states[i]),
+                int(actions[i]),
+                int(next_states[i]),
+                float(rewards[i]),
+                bool(terminated[i]),
+                shorten=False,
             )
+        if changed:  # one search over the whole graph on the next query, not one backward search per edge
+            self._distances_stale = True
         return changed
 
     def add_replay_buffer(self, buffer: Any, positions: np.ndarray | None = None) -> int:
@@ -228,7 +236,10 @@ class ExperienceGraph:
             terminated,
         )
 
-    def _set_outcome(self, state: int, action: int, next_state: int, reward: float, terminated: bool) -> bool:
+    def _set_outcome(
+        self, state: int, action: int, next_state: int, reward: float, terminated: bool, *, shorten: bool = True
+    ) -> bool:
+        """Set the outcome of ``(state, action)``; ``shorten``: bring the distances up to date at once."""
         if not 0 <= action < self.n_actions:
             raise ValueError(f"action {action} is out of range [0, {self.n_actions})")
         old = int(self.next_state[state, action])
@@ -246,7 +257,7 @@ class ExperienceGraph:
         if self._is_route_edge(state, next_state, terminated):
             self._predecessors[next_state].add(edge)
         self.version += 1
-        if not self._distances_stale:
+        if shorten and not self._distances_stale:
             self._shorten_from(state)
         return True
 

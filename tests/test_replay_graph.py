@@ -138,6 +138,52 @@ def test_the_nearest_untried_action_is_reached_over_known_edges() -> None:
     assert graph.untried_actions(two).size == 0 and graph.n_tried == 6
 
 
+def reference_hops(successors: np.ndarray, success: np.ndarray) -> np.ndarray:
+    """Hops to a success by a plain breadth-first search back from the success pairs (collisions: self-loops)."""
+    n = successors.shape[0]
+    before: list[list[int]] = [[] for _ in range(n)]
+    for state, following in zip(*np.nonzero(~success), strict=True):
+        target = int(successors[state, following])
+        if target != state:
+            before[target].append(int(state))
+    hops = np.full(n, UNKNOWN)
+    queue = [int(s) for s in np.flatnonzero(success.any(axis=1))]
+    hops[queue] = 1
+    for state in queue:  # grows as it goes: breadth first
+        for earlier in before[state]:
+            if hops[earlier] == UNKNOWN:
+                hops[earlier] = hops[state] + 1
+                queue.append(earlier)
+    return hops
+
+
+@pytest.mark.parametrize("one_by_one", [True, False])
+def test_distances_match_a_plain_search_on_a_random_graph(one_by_one: bool) -> None:
+    rng = np.random.default_rng(1)
+    n = 300
+    successors = rng.integers(0, n, size=(n, 3))
+    successors = np.where(rng.random((n, 3)) < 0.3, np.arange(n)[:, None], successors)  # collisions
+    success = rng.random((n, 3)) < 0.01
+    graph = ExperienceGraph(n_actions=3)
+    graph.states_of(np.arange(n, dtype=np.float32)[:, None], add=True)  # state i: observation i
+    pairs = rng.permutation(n * 3)
+    states, actions = pairs // 3, pairs % 3
+    after = np.where(success, -1, successors)[states, actions].astype(np.float32)  # successes lead to observation -1
+    rewards = np.where(success[states, actions], 1.0, -0.005)
+    if one_by_one:
+        for state, action, following, reward in zip(states, actions, after, rewards, strict=True):
+            graph.add(box(state), int(action), box(following), float(reward), bool(reward > 0))
+    else:
+        graph.add_batch(states.astype(np.float32)[:, None], actions, after[:, None], rewards, rewards > 0)
+    expected = reference_hops(successors, success)
+    np.testing.assert_array_equal(graph.distances()[:n], expected)
+    # A route's first action leads to a state one hop closer, or is the success itself
+    routed = np.flatnonzero(expected != UNKNOWN)
+    first = graph.route_actions(routed)
+    closer = expected[successors[routed, first]] == expected[routed] - 1
+    assert (closer | success[routed, first]).all()
+
+
 def test_shortest_stored_routes_are_the_maps_shortest_paths(env: CampusNavEnv) -> None:
     graph = ExperienceGraph.for_env(env)
     explore_fully(env, graph, np.random.default_rng(0))  # in random order: distances kept up to date edge by edge
