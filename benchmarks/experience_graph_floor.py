@@ -1,0 +1,351 @@
+"""The experience-graph floor: how few env steps an agent that only remembers what it saw needs to solve a map.
+
+The agent (:class:`FloorAgent`) is told nothing but observations, rewards and terminations: no map, no distances, no
+action mask. It keeps every transition in an :class:`sb3_dcqn.replay_graph.ExperienceGraph` (exact observations as
+states, the latest outcome of each (observation, action) as its edge) and acts:
+
+- **explore** while an untried (observation, action) can be reached over the transitions seen: drive to the nearest
+  one (breadth-first search over the known graph) and try it; a collision counts as tried;
+- **plan** once nothing untried can be reached from where it stands: drive the shortest route over the transitions
+  seen to the goal (breadth-first search back from the transitions that reached it); where it knows none, a fixed
+  action.
+
+It runs episodes like a learner (the env's random starts, the env's ``max_steps`` cap) and every ``eval_every`` env
+steps its greedy plan-or-explore policy (:meth:`FloorAgent.policy`: the planned action where a route is known, else
+the first action towards the nearest untried one, else a fixed action; an unseen observation: the fixed action) is
+evaluated from every (start, heading) with ``evaluate_routes``, until solved (``sb3_dcqn.campusnav.solved``: success
+>= 0.99 and SPL >= 0.98). Steps to solved are counted at the evaluation that first finds it solved, so they are
+exact to within ``eval_every``. It is the floor of sample efficiency for any learner of this env that does not
+generalise across observations; :func:`floor_steps` is importable so other benchmarks can report ratios to it.
+
+Features: 64x48 pixel features (the scale benchmarks' cheap build; the floor sees only whether observations are
+equal, so the encoder does not change its steps as long as distinct views stay distinct). Runs are appended to a
+JSON-lines file (``--runs-file``) as they finish, and a rerun skips those done (same size, seed, eval_every, quick,
+step cap); the table is rebuilt from the file. Usage::
+
+    python benchmarks/experience_graph_floor.py --sizes 101 1000 --seeds 0 1 2
+    python benchmarks/experience_graph_floor.py --sizes 10000 --seeds 0
+    python benchmarks/experience_graph_floor.py --quick            # smoke run: 101 nodes, seed 0
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from campusnav_runs import machine_line  # beside this script
+from report import append_run, markdown_table, measured_on, publish, read_runs
+from scale_common import GOAL, PIXELS, env_kwargs_for, fmt, make_graph
+
+from campusnav_env.env import CampusNavEnv
+from campusnav_env.recovery import RouteEvaluation
+from campusnav_env.route_evaluation import RouteReport, evaluate_routes
+from sb3_dcqn.campusnav.solved import is_solved, solved_bar
+from sb3_dcqn.replay_graph import ExperienceGraph
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+FIXED_ACTION = 0  # forward: what the agent does where it knows nothing
+RUNS_LINE = "runs one after another in one process, evaluations included in the wall time"
+
+
+def default_eval_every(n_nodes: int) -> int:
+    """Env steps between evaluations: an evaluation routes all ~4N (start, heading) pairs, so sparser on big maps."""
+    return 250 if n_nodes <= 200 else 2_500 if n_nodes <= 2_000 else 25_000
+
+
+@dataclass(frozen=True)
+class FloorResult:
+    """
+    One run of the experience-graph floor.
+
+    :param solved: Whether an evaluation found the map solved within the step cap
+    :param env_steps: Env steps at that evaluation (or at the cap)
+    :param episodes: Episodes started by then
+    :param wall_seconds: Wall time, evaluations included
+    :param evaluation_seconds: Of which evaluations
+    :param evaluations: Evaluations run
+    :param success: Success rate of the last evaluation
+    :param spl: SPL of the last evaluation
+    :param states: Observations seen
+    :param tried: (observation, action) pairs tried
+    :param driven_solved_steps: Env steps at the first evaluation at the solved bar on the routes from the states a
+        move leads to (the start-only states left out: the coverage of random starts aside), ``None`` if never
+    :param driven_solved_episodes: Episodes started by then
+    """
+
+    solved: bool
+    env_steps: int
+    episodes: int
+    wall_seconds: float
+    evaluation_seconds: float
+    evaluations: int
+    success: float
+    spl: float
+    states: int
+    tried: int
+    driven_solved_steps: int | None = None
+    driven_solved_episodes: int | None = None
+
+
+class FloorAgent:
+    """
+    The experience-graph agent (see the module docstring): explores towards untried actions, then plans.
+
+    :param graph: Its memory of transitions (empty to start with)
+    :param fixed_action: The action where it knows nothing
+    """
+
+    def __init__(self, graph: ExperienceGraph, fixed_action: int = FIXED_ACTION) -> None:
+        self.graph = graph
+        self.fixed_action = fixed_action
+        # The exploration path being driven: the states it expects to pass and the action at each
+        self._path: list[tuple[int, int]] = []
+
+    def act(self, observation: Any) -> int:
+        """The training action at one (unbatched) observation."""
+        state = self.graph.state_of(observation, add=True)
+        if self._path and self._path[0][0] == state:
+            return self._path.pop(0)[1]
+        actions = self.graph.path_to_untried(state)
+        if actions is None:
+            self._path = []
+            route = int(self.graph.route_actions(np.array([state]))[0])
+            return route if route >= 0 else self.fixed_action
+        self._path = self._states_along(state, actions)
+        return self._path.pop(0)[1]
+
+    def _states_along(self, state: int, actions: list[int]) -> list[tuple[int, int]]:
+        """The (state, action) pairs of a path of known edges (its last action untried)."""
+        pairs = []
+        for action in actions:
+            pairs.append((state, action))
+            state = int(self.graph.next_state[state, action])
+        return pairs
+
+    def policy(self, observations: Any) -> np.ndarray:
+        """The greedy batch policy that is evaluated: plan, else explore, else the fixed action."""
+        states = self.graph.states_of(observations)
+        actions = self.graph.route_actions(states)
+        unplanned = actions < 0
+        if unplanned.any():
+            actions[unplanned] = self.graph.explore_actions(states[unplanned])
+        actions[actions < 0] = self.fixed_action
+        return actions
+
+
+def floor_steps(env: CampusNavEnv, seed: int, eval_every: int, max_env_steps: int | None = None) -> FloorResult:
+    """
+    Run the experience-graph agent on ``env`` until its greedy policy solves the map (or ``max_env_steps``).
+
+    :param env: The environment (its goals, closures and ``max_steps`` apply)
+    :param seed: Seed of the env's starts (the agent itself is deterministic)
+    :param eval_every: Env steps between evaluations
+    :param max_env_steps: Step cap (default: 200 steps per (observation, action) pair, far beyond need)
+    :return: the run's figures
+    """
+    if eval_every < 1:
+        raise ValueError(f"eval_every must be at least 1, got {eval_every}")
+    graph = ExperienceGraph.for_env(env)
+    agent = FloorAgent(graph)
+    driven = entered_states(env)  # for the report only: the agent is never told
+    cap = max_env_steps if max_env_steps is not None else 200 * env.graph.transition_table.size
+    start = time.perf_counter()
+    evaluation_seconds = 0.0
+    steps = episodes = evaluations = 0
+    evaluation: RouteEvaluation | None = None
+    driven_solved: tuple[int, int] | None = None
+    solved = False
+    observation, _ = env.reset(seed=seed)
+    while steps < cap and not solved:
+        episodes += 1
+        done = False
+        while not done and steps < cap:
+            action = agent.act(observation)
+            next_observation, reward, terminated, truncated, _ = env.step(action)
+            graph.add(observation, action, next_observation, float(reward), terminated)
+            steps += 1
+            observation, done = next_observation, terminated or truncated
+            if steps % eval_every == 0:
+                began = time.perf_counter()
+                report = evaluate_routes(env, agent.policy)
+                evaluation_seconds += time.perf_counter() - began
+                evaluations += 1
+                evaluation = RouteEvaluation(steps, episodes, time.perf_counter() - start, report)
+                if driven_solved is None and is_solved(routes_from(evaluation, env, driven)):
+                    driven_solved = steps, episodes
+                solved = is_solved(evaluation)
+                if solved:
+                    break
+        if done:
+            observation, _ = env.reset()
+    return FloorResult(
+        solved=solved,
+        env_steps=steps,
+        episodes=episodes,
+        wall_seconds=time.perf_counter() - start,
+        evaluation_seconds=evaluation_seconds,
+        evaluations=evaluations,
+        success=evaluation.success_rate if evaluation else 0.0,
+        spl=evaluation.spl if evaluation else 0.0,
+        states=graph.n_states,
+        tried=graph.n_tried,
+        driven_solved_steps=driven_solved[0] if driven_solved else None,
+        driven_solved_episodes=driven_solved[1] if driven_solved else None,
+    )
+
+
+def entered_states(env: CampusNavEnv) -> np.ndarray:
+    """Whether a move leads to each state (node, heading); the others the agent sees only as an episode's start."""
+    table = env.graph.transition_table
+    entered = np.zeros(table.shape[0], dtype=bool)
+    entered[table[table >= 0]] = True
+    return entered
+
+
+def start_only_states(env: CampusNavEnv) -> int:
+    """States no move leads to, the goal's excluded: seeing them all waits on the env's random starts."""
+    goal_states = np.isin(env.graph.map.state_nodes, env.goal_nodes)
+    return int((~entered_states(env) & ~goal_states).sum())
+
+
+def routes_from(evaluation: RouteEvaluation, env: CampusNavEnv, starts: np.ndarray) -> RouteEvaluation:
+    """The evaluation's routes from the start states marked in ``starts`` only."""
+    state_of = env.graph.map.state_of
+    kept = [route for route in evaluation.report.routes if starts[state_of[route.start, route.heading]]]
+    return replace(evaluation, report=RouteReport(kept))
+
+
+def make_env(n_nodes: int) -> CampusNavEnv:
+    """The floor's env: the generated map of ``n_nodes`` (the built-in campus at 101), goal Dreese Lab, pixels."""
+    return CampusNavEnv(world=make_graph(n_nodes, "scaled"), goals=GOAL, progress=False, **env_kwargs_for(PIXELS))
+
+
+def run_one(
+    n_nodes: int,
+    seed: int,
+    eval_every: int,
+    quick: bool,
+    max_env_steps: int | None = None,
+    env: CampusNavEnv | None = None,
+) -> dict[str, Any]:
+    """One run as a JSON-lines record (``env``: the size's env, if already built)."""
+    env = make_env(n_nodes) if env is None else env
+    result = floor_steps(env, seed, eval_every, max_env_steps)
+    return {
+        "size": n_nodes,
+        "seed": seed,
+        "eval_every": eval_every,
+        "quick": quick,
+        "max_env_steps": max_env_steps,
+        "state_actions": int(env.graph.transition_table.size),
+        "start_only_states": start_only_states(env),
+        **asdict(result),
+    }
+
+
+def floor_table(runs: list[dict[str, Any]]) -> list[str]:
+    """One row per (size, eval_every): median and range over seeds."""
+    groups: dict[tuple[int, int], list[dict[str, Any]]] = {}
+    for run in sorted(runs, key=lambda r: (r["size"], r["eval_every"], r["seed"])):
+        groups.setdefault((run["size"], run["eval_every"]), []).append(run)
+    rows = []
+    for (size, eval_every), group in groups.items():
+        solved = [r for r in group if r["solved"]]
+        steps = [r["env_steps"] for r in solved]
+        rows.append([
+            f"{size:,}", f"{group[0]['state_actions']:,}", f"{group[0]['start_only_states']:,}", f"{eval_every:,}",
+            " ".join(str(r["seed"]) for r in group),
+            f"{len(solved)}/{len(group)}",
+            _median_range(steps), _median_range([r["episodes"] for r in solved]),
+            _median_range([r["driven_solved_steps"] for r in group if r["driven_solved_steps"] is not None]),
+            " ".join(f"{r['env_steps']:,}" + ("" if r["solved"] else " (cap)") for r in group),
+            _median_range([r["tried"] for r in group]),
+            _median_range([r["wall_seconds"] for r in group], 1),
+            _median_range([r["evaluation_seconds"] for r in group], 1),
+        ])  # fmt: skip
+    header = [
+        "intersections",
+        "(state, action) pairs",
+        "start-only states",
+        "eval every",
+        "seeds",
+        "solved",
+        "env steps to solved",
+        "episodes to solved",
+        "env steps to solved, driven-to states only",
+        "env steps per seed (cap: not solved by then)",
+        "pairs tried",
+        "wall s",
+        "of which eval s",
+    ]
+    return markdown_table(header, rows)
+
+
+def _median_range(values: list[float], digits: int = 0) -> str:
+    """``median (min-max)``, ``-`` where there are none."""
+    if not values:
+        return "-"
+    low, high = fmt(min(values), digits), fmt(max(values), digits)
+    middle = fmt(statistics.median(values), digits)
+    return middle if low == high else f"{middle} ({low}-{high})"
+
+
+def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None) -> None:
+    machine = measured_on(out, machine_line(RUNS_LINE))
+    lines = [
+        "# The experience-graph floor: env steps to solved",
+        "",
+        "An agent told only observations, rewards and terminations keeps every transition in a graph over exact "
+        "observations, explores to the nearest untried (observation, action) and plans shortest routes over what it "
+        f"saw (`benchmarks/experience_graph_floor.py`). Solved: {solved_bar()} from every (start, heading), goal "
+        f"{GOAL}, evaluated every `eval every` env steps (steps to solved are exact to within that). Episodes from the "
+        "env's random starts, capped at its `max_steps`. Features: 64x48 pixel features. Start-only states: (node, "
+        "heading) pairs no move leads to (a move leaves the agent facing away from the road it came along), seen only "
+        "as an episode's random start; an agent that does not generalise across observations has to wait for each "
+        "of them, so the last column scores the same evaluations on the routes from the other starts only. Median "
+        "(range) over seeds; wall time includes the evaluations, not the env build.",
+        "",
+        machine,
+        "",
+        *floor_table(runs),
+    ]
+    publish(out, lines, "experience_graph_floor.py", argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", nargs="+", type=int, help="intersections (default 101 1000; 101 with --quick)")
+    parser.add_argument("--seeds", nargs="+", type=int, help="seeds of the starts (default 0 1 2; 0 with --quick)")
+    parser.add_argument("--eval-every", type=int, help="env steps between evaluations (default: by size)")
+    parser.add_argument("--max-env-steps", type=int, help="step cap per run (default: 200 per (state, action) pair)")
+    parser.add_argument("--quick", action="store_true", help="smoke run: 101 nodes, seed 0")
+    parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "experience_graph_floor_runs.jsonl")
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR / "experience_graph_floor.md")
+    args = parser.parse_args(argv)
+    sizes = args.sizes or ([101] if args.quick else [101, 1000])
+    seeds = args.seeds or ([0] if args.quick else [0, 1, 2])
+    done = {(r["size"], r["seed"], r["eval_every"], r["quick"], r["max_env_steps"]) for r in read_runs(args.runs_file)}
+    for size in sizes:
+        eval_every = args.eval_every or default_eval_every(size)
+        todo = [seed for seed in seeds if (size, seed, eval_every, args.quick, args.max_env_steps) not in done]
+        print(f"{size} intersections: {len(seeds) - len(todo)} runs already in {args.runs_file}, {len(todo)} to do")
+        env = make_env(size) if todo else None
+        for seed in todo:
+            record = run_one(size, seed, eval_every, args.quick, args.max_env_steps, env)
+            append_run(args.runs_file, record)
+            print(
+                f"{size} nodes seed {seed}: {'solved' if record['solved'] else 'NOT solved'} at "
+                f"{record['env_steps']:,} env steps, {record['episodes']:,} episodes, {record['wall_seconds']:.1f} s "
+                f"(success {record['success']:.3f}, SPL {record['spl']:.3f})",
+                flush=True,
+            )
+    write_report(read_runs(args.runs_file), args.out, argv)
+
+
+if __name__ == "__main__":
+    main()
