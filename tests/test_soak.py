@@ -1,7 +1,8 @@
 """Soak test: a million env steps of DCQN on a 1,000-intersection city with road closures, watching for leaks.
 
-DCQN trains with the shipped CampusNav-v0 settings (``hyperparams/dcqn.yml``: replay buffer 50k, batch 64, ...) on a
-generated city of 1,000 intersections seen through the cheap ``pixels`` encoder. Every ``SOAK_CLOSURE_EVERY`` steps
+DCQN trains with the shipped CampusNavCity-v0 settings (``hyperparams/dcqn.yml``: lean replay buffer of 100k, 8-step
+returns, the start curriculum, ...) on ``CampusNavCity-v0`` (1,000 intersections) seen through the cheap ``pixels``
+encoder. Every ``SOAK_CLOSURE_EVERY`` steps
 the closures rotate: the roads closed last time reopen and ten others close (a new random draw that keeps the goal
 reachable, so the map stays solvable). A callback samples the process every ``SOAK_WINDOW`` steps: resident memory
 (``VmRSS``), the time per env step over the window (wall clock, and this process's CPU time), open file descriptors
@@ -24,7 +25,6 @@ table to that file. Linux only (it reads ``/proc/self``).
 
 from __future__ import annotations
 
-import math
 import os
 import statistics
 import tempfile
@@ -36,10 +36,8 @@ import gymnasium as gym
 import pytest
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-from campusnav_env import CampusNavEnv
 from campusnav_env.callbacks import RoadClosureCallback
 from campusnav_env.closures import ClosureEvent
-from campusnav_env.maps.campus import generate_campus
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
 from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
@@ -52,10 +50,11 @@ pytestmark = [
 STEPS = int(os.environ.get("SOAK_STEPS", 1_000_000))
 CLOSURE_EVERY = int(os.environ.get("SOAK_CLOSURE_EVERY", 50_000))
 WINDOW = int(os.environ.get("SOAK_WINDOW", 10_000))
-# Default: the CampusNav-v0 entry's buffer_size (50k); smaller only to run the test short
+# Default: the CampusNavCity-v0 entry's buffer_size (100k); smaller only to run the test short
 BUFFER_SIZE = int(os.environ["SOAK_BUFFER_SIZE"]) if os.environ.get("SOAK_BUFFER_SIZE") else None
 REPORT = os.environ.get("SOAK_REPORT")
 
+ENV_ID = "CampusNavCity-v0"
 INTERSECTIONS = 1_000
 ROADS_PER_CLOSURE = 10
 RSS_GROWTH_LIMIT = 0.05
@@ -65,13 +64,10 @@ COMPARED_WINDOWS = 3
 
 
 def make_city_env() -> gym.Env:
-    """The 1,000-intersection city with the CampusNav-v0 entry's env_kwargs (view_dim 64) and cheap pixel views."""
-    entry = load_zoo_entry(default_hyperparams_path(), "CampusNav-v0")
+    """``CampusNavCity-v0`` (1,000 intersections) with its entry's env_kwargs (view_dim 64) and cheap pixel views."""
+    entry = load_zoo_entry(default_hyperparams_path(), ENV_ID)
     kwargs = dict(entry.env_kwargs, encoder="pixels", render_settings=RenderSettings(64, 48), progress=False)
-    # The city at the built-in campus's street density (2.5 km x 1.7 km times sqrt(n / 101)). Once CampusNavCity-v0
-    # is registered, this line becomes: return gym.make("CampusNavCity-v0", n_intersections=INTERSECTIONS, **kwargs)
-    scale = math.sqrt(INTERSECTIONS / 101)
-    return CampusNavEnv(world=generate_campus(INTERSECTIONS, width=2500 * scale, height=1700 * scale, seed=0), **kwargs)
+    return gym.make(ENV_ID, n_intersections=INTERSECTIONS, **kwargs)
 
 
 def rotating_closures(total_steps: int, every: int) -> list[ClosureEvent]:
@@ -181,7 +177,7 @@ def test_a_long_run_with_closures_grows_no_memory_time_files_or_descriptors(
     monkeypatch.setenv("TMPDIR", str(temp_dir))
     monkeypatch.setattr(tempfile, "tempdir", str(temp_dir))  # gettempdir() caches its first answer
 
-    entry = load_zoo_entry(default_hyperparams_path(), "CampusNav-v0")
+    entry = load_zoo_entry(default_hyperparams_path(), ENV_ID)
     hyperparams = dict(entry.hyperparams)
     if BUFFER_SIZE is not None:
         hyperparams["buffer_size"] = BUFFER_SIZE
@@ -195,7 +191,7 @@ def test_a_long_run_with_closures_grows_no_memory_time_files_or_descriptors(
     closures = RoadClosureCallback(schedule)
     monitor = ResourceMonitor(WINDOW, temp_dir, verbose=1)
     print("\n" + TABLE_HEADER, flush=True)
-    model.learn(STEPS, callback=CallbackList([closures, monitor]))
+    model.learn(STEPS, callback=CallbackList([*entry.make_callbacks(), closures, monitor]))
 
     # Samples whose window lies wholly after the buffer filled (the buffer's pages are touched as it fills)
     filled = [s for s in monitor.samples if s.step - WINDOW >= buffer_size]
