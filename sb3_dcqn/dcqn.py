@@ -19,6 +19,7 @@ from torch.nn import functional as F
 from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
 from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
 from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
+from sb3_dcqn.replay_graph import ReplaySearchPolicy
 from sb3_dcqn.targets import blocked_actions, dcqn_td_target
 
 SelfDCQN = TypeVar("SelfDCQN", bound="DCQN")
@@ -88,6 +89,13 @@ class DCQN(OffPolicyAlgorithm):
         ``count_bonus / sqrt(n(next observation))``, ``n`` the times that observation was added to the replay buffer
         (a count-based bonus, see :mod:`sb3_dcqn.buffers`). Dict observations, not with ``HerReplayBuffer``. 0 (off)
         by default
+    :param replay_search: Greedy actions (``predict(..., deterministic=True)``: evaluation, routes) follow the shortest
+        route stored in the replay buffer where it has one, the critics' greedy action elsewhere
+        (:class:`~sb3_dcqn.replay_graph.ReplaySearchPolicy`, after SoRB, Eysenbach et al. 2019): routes longer than
+        the critics can value yet, for a world whose observations repeat exactly (stored transitions are exact
+        edges). The graph is read from the buffer when the model has trained since the last call, and is not saved
+        with the model (a model loaded without its buffer acts on its critics). Exploration is unchanged. Off by
+        default
     :param blocked_action_target: For a transition after which the observation did not change (a collision), leave
         the taken action out of the target's max (see :func:`blocked_actions`): a blocked action's value falls below
         the open roads' in one update instead of shrinking by ``gamma`` per target update. Off by default (the
@@ -149,6 +157,7 @@ class DCQN(OffPolicyAlgorithm):
         prioritized_replay: bool = False,
         lean_replay: bool = False,
         count_bonus: float = 0.0,
+        replay_search: bool = False,
         blocked_action_target: bool = False,
         pessimistic_target: bool = True,
         stats_window_size: int = 100,
@@ -199,6 +208,9 @@ class DCQN(OffPolicyAlgorithm):
         self.prioritized_replay = prioritized_replay
         self.lean_replay = lean_replay
         self.count_bonus = count_bonus
+        self.replay_search = replay_search
+        self._search: ReplaySearchPolicy | None = None
+        self._search_buffer: ReplayBuffer | None = None  # the buffer the search reads (a loaded one replaces it)
         self.blocked_action_target = blocked_action_target
         self.pessimistic_target = pessimistic_target
         if blocked_action_target and n_steps > 1:
@@ -432,6 +444,8 @@ class DCQN(OffPolicyAlgorithm):
         :return: the model's action and the next state
             (used in recurrent policies)
         """
+        if deterministic and self.replay_search and self.replay_buffer is not None:
+            return self._replay_search_policy().predict(observation, state, episode_start, deterministic)
         if not deterministic and np.random.rand() < self.exploration_rate:
             if self.policy.is_vectorized_observation(observation):
                 if isinstance(observation, dict):
@@ -463,8 +477,17 @@ class DCQN(OffPolicyAlgorithm):
             progress_bar=progress_bar,
         )
 
+    def _replay_search_policy(self) -> ReplaySearchPolicy:
+        """The replay search over this model's buffer, brought up to date with what was stored since its last use."""
+        if self._search is None or self._search_buffer is not self.replay_buffer:
+            self._search = ReplaySearchPolicy(self, fallback=self.policy.predict)
+            self._search_buffer = self.replay_buffer
+        else:
+            self._search.refresh()
+        return self._search
+
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "q_net", "q_net_target"]
+        return [*super()._excluded_save_params(), "q_net", "q_net_target", "_search", "_search_buffer"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts = ["policy", "policy.optimizer"]

@@ -483,10 +483,13 @@ class ReplaySearchPolicy:
     :param experience: An :class:`ExperienceGraph` (used as is, :meth:`refresh` does nothing), or a replay buffer to
         read (default: ``model.replay_buffer``, read again by :meth:`refresh`)
     :param success_reward: A terminated transition with a reward above this ends a route (a new graph only)
+    :param fallback: The ``predict`` used where the graph has no route (default: ``model.predict``; DCQN passes its
+        policy's own, so that its ``replay_search`` option does not call itself)
     """
 
-    def __init__(self, model: Any, experience: Any = None, success_reward: float = 0.0) -> None:
+    def __init__(self, model: Any, experience: Any = None, success_reward: float = 0.0, fallback: Any = None) -> None:
         self.model = model
+        self._fallback = model.predict if fallback is None else fallback
         if isinstance(experience, ExperienceGraph):
             self.graph, self._buffer = experience, None
         else:
@@ -538,7 +541,7 @@ class ReplaySearchPolicy:
                 rest = {key: np.asarray(value)[fallback] for key, value in batch.items()}
             else:
                 rest = np.asarray(batch)[fallback]
-            greedy, _ = self.model.predict(rest, state, episode_start, deterministic)
+            greedy, _ = self._fallback(rest, state, episode_start, deterministic)
             actions[fallback] = np.asarray(greedy).reshape(-1)
         return (actions if batched else actions[0]), state
 

@@ -15,7 +15,18 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 # sb3_dcqn's algorithm modules work on any Gymnasium env with SB3 alone (as stable_baselines3/dqn does)
-ALGORITHM_MODULES = ("dcqn", "policies", "buffers", "her_buffer", "fusion", "targets", "adaptation_boost", "zoo")
+ALGORITHM_MODULES = (
+    "dcqn",
+    "policies",
+    "buffers",
+    "her_buffer",
+    "observation_table",
+    "replay_graph",
+    "fusion",
+    "targets",
+    "adaptation_boost",
+    "zoo",
+)
 ALGORITHM_DEPENDENCIES = {"stable_baselines3", "torch", "gymnasium", "numpy"}
 # The zoo glue also reads YAML and drives the RL Zoo (an optional extra) and its plots
 ZOO_DEPENDENCIES = {"yaml", "rl_zoo3", "matplotlib"}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from gymnasium import spaces
@@ -294,3 +296,36 @@ def test_untried_marks_are_minus_one() -> None:
     graph = ExperienceGraph(3, capacity=1)
     graph.add(box(0), 2, box(1), 0.0, False)  # grows past its capacity
     assert graph.next_state[graph.state_of(box(0))].tolist() == [UNTRIED, UNTRIED, graph.state_of(box(1))]
+
+
+def test_dcqn_replay_search_plans_greedy_actions_over_its_own_buffer_and_explores_as_before(
+    env: CampusNavEnv, tmp_path: Path
+) -> None:
+    # No gradient step: the critics know nothing, so whatever routes well comes from the stored transitions
+    kwargs = dict(learning_starts=100_000, buffer_size=20_000, policy_kwargs={"net_arch": [16]}, seed=0)
+    model = DCQN("MultiInputPolicy", env, replay_search=True, exploration_fraction=1.0, **kwargs)
+    model.learn(6_000)
+    graph = ExperienceGraph.for_env(env)
+    graph.add_replay_buffer(model.replay_buffer)
+    observations, _ = all_observations(env)
+    known = graph.route_actions(graph.states_of(observations)) >= 0
+    assert known.mean() > 0.5
+    actions, _ = model.predict(observations, deterministic=True)
+    np.testing.assert_array_equal(actions[known], graph.route_actions(graph.states_of(observations))[known])
+    greedy, _ = model.policy.predict(observations, deterministic=True)
+    np.testing.assert_array_equal(actions[~known], greedy[~known])  # the critics' choice where nothing is stored
+    searched = evaluate_routes(env, lambda batch: model.predict(batch, deterministic=True)[0])
+    critics = evaluate_routes(env, lambda batch: model.policy.predict(batch, deterministic=True)[0])
+    assert searched.success_rate > critics.success_rate + 0.3
+    # Exploration does not plan: the same seed collects the same transitions with and without the option
+    plain = DCQN("MultiInputPolicy", env, exploration_fraction=1.0, **kwargs)
+    plain.learn(6_000)
+    np.testing.assert_array_equal(plain.replay_buffer.actions[:6_000], model.replay_buffer.actions[:6_000])
+    # A model saved and loaded without its buffer acts on its critics; with the buffer loaded, it plans again
+    model.save(tmp_path / "model.zip")
+    model.save_replay_buffer(tmp_path / "buffer.pkl")
+    loaded = DCQN.load(tmp_path / "model.zip", env=env)
+    np.testing.assert_array_equal(loaded.predict(observations, deterministic=True)[0][~known], greedy[~known])
+    assert loaded.replay_search
+    loaded.load_replay_buffer(tmp_path / "buffer.pkl")
+    np.testing.assert_array_equal(loaded.predict(observations, deterministic=True)[0], actions)
