@@ -91,6 +91,8 @@ class ViewSource:
         :data:`MIN_NODES_FOR_WORKERS` nodes, else this process; 1: this process
     :param fit_views_to_encoder: Render at the size the encoder consumes (:func:`settings_for_encoder`); False renders
         at ``render_settings``' size, as before (the features of the caches made then)
+    :param world: The 3D world of ``graph`` and ``world_seed``, where the caller has built it; None: built on a cache
+        miss
     """
 
     def __init__(
@@ -106,6 +108,7 @@ class ViewSource:
         *,
         workers: int | None = None,
         fit_views_to_encoder: bool = True,
+        world: World | None = None,
     ) -> None:
         if observation_mode == "image":
             height, width = IMAGE_MODE_VIEW
@@ -127,7 +130,7 @@ class ViewSource:
         self.cache_dir = cache_dir
         self.progress = progress
         self.workers = workers
-        self._world: World | None = None
+        self._world = world
         self._renderer: StreetViewRenderer | None = None
         # Keyed without building the world: its inputs (graph, seed, generator version) determine it
         self.key_parts = {
