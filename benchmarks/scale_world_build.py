@@ -7,10 +7,11 @@ encoder on 64x48 views (every size gets a pixel build, for a like-for-like line)
 
 The EfficientNet build runs the way the env builds (``"workers"``: views rendered at the size the CNN consumes, 299x224
 for 640x480, by one worker process per core, :mod:`campusnav_env.features.parallel_build`) and, with
-``--paths workers serial``, also the way it built before (``"serial"``: 640x480 rendered, in one process). Render and
-encode columns are per core (one thread, in the stage's process, on a sample of nodes); the total is the wall time of
-the build (extrapolated from the sample's wall time where the map is not built in full: an upper bound, each sample
-pays the workers' start). Peak RSS of a worker build adds the workers' (each as big as the largest of them).
+``--paths workers serial``, also the way it built before (``"serial"``: 640x480 rendered, in one process);
+``"workers-bf16"``: the worker build with the CNN in bfloat16 (``precision="bfloat16"``, another cache entry).
+Render and encode columns are per core (one thread, in the stage's process, on a sample of nodes); the total is the
+wall time of the build (extrapolated from the sample's wall time where the map is not built in full: an upper bound,
+each sample pays the workers' start). Peak RSS of a worker build adds the workers' (each as big as the largest of them).
 
 Run by ``scale.py`` (stage ``build``); alone::
 
@@ -51,7 +52,7 @@ STAGE = "build"
 NODES_PER_BATCH = 8
 # The EfficientNet builds to measure (stage processes read it: set by this script's --paths)
 PATHS_ENV = "CAMPUSNAV_BUILD_PATHS"
-PATHS = ("workers", "serial")
+PATHS = ("workers", "workers-bf16", "serial")
 # Nodes rendered and encoded in the stage's process to time a worker build's render and encode per core
 PER_CORE_NODES = 16
 
@@ -210,11 +211,13 @@ def measure_env(graph: Any, encoder: str, plan: Plan) -> dict[str, Any]:
     return {"env_seconds": seconds, "env_extra_mb": env_peak.extra_mb, "env_peak_mb": env_peak.peak_mb}
 
 
-def measure_worker_build(graph: Any, world: Any, encoder: str, full: bool, plan: Plan) -> dict[str, Any]:
+def measure_worker_build(
+    graph: Any, world: Any, encoder: str, full: bool, plan: Plan, precision: str = "float32"
+) -> dict[str, Any]:
     """
     The env's build: views rendered at the size the encoder consumes, by one worker process per core, into a cold
     cache (``full``), or a sample of nodes whose wall time is extrapolated; render and encode per core timed in this
-    process on :data:`PER_CORE_NODES` nodes. A full build is the env's cache (then the env is built from it).
+    process on :data:`PER_CORE_NODES` nodes. A full float32 build is the env's cache (then the env is built from it).
 
     :return: the encoder's part of the build record
     """
@@ -225,11 +228,13 @@ def measure_worker_build(graph: Any, world: Any, encoder: str, full: bool, plan:
     requested = env_kwargs_for(encoder)["render_settings"]
     n_nodes = graph.n_nodes
     start = time.perf_counter()
-    source = ViewSource(graph, "features", encoder, None, requested, WORLD_SEED, plan.cache_dir, False, world=world)
+    kwargs = {"precision": precision}
+    source = ViewSource(graph, "features", encoder, kwargs, requested, WORLD_SEED, plan.cache_dir, False, world=world)
     load_seconds = time.perf_counter() - start
     settings, workers = source.settings, source.build_workers()
     record: dict[str, Any] = {"encoder": encoder, "view": f"{requested.width}x{requested.height}", "full": full}
     record |= {"path": "workers", "workers": workers, "rendered": f"{settings.width}x{settings.height}"}
+    record["precision"] = precision
     record["encoder_load_seconds"] = load_seconds
     # Per core: this process runs one torch thread
     timed = TimedEncoder(source.encoder)
@@ -262,7 +267,7 @@ def measure_worker_build(graph: Any, world: Any, encoder: str, full: bool, plan:
             record |= {"cache_bytes": features_bytes, "nodes_measured": int(sample.size)}
             record |= {"sample_seconds": wall, "build_seconds": wall * n_nodes / sample.size}
     record |= {"peak_mb": peak.peak_mb, "extra_mb": peak.extra_mb, "workers_peak_mb": workers * children_peak_mb()}
-    if full:
+    if full and precision == "float32":
         record |= measure_env(graph, encoder, plan)
     return record
 
@@ -292,8 +297,11 @@ def measure_build(n_nodes: int, plan: Plan) -> dict[str, Any]:
     effnet_in_full = not plan.quick and n_nodes <= plan.effnet_max_nodes
     record["encoders"] = [measure_views(graph, world, PIXELS, True, plan)]
     for path in build_paths():
-        measure = measure_worker_build if path == "workers" else measure_views
-        record["encoders"].append(measure(graph, world, EFFNET, effnet_in_full, plan))
+        if path == "serial":
+            record["encoders"].append(measure_views(graph, world, EFFNET, effnet_in_full, plan))
+        else:
+            precision = "bfloat16" if path == "workers-bf16" else "float32"
+            record["encoders"].append(measure_worker_build(graph, world, EFFNET, effnet_in_full, plan, precision))
     return record
 
 
@@ -338,6 +346,7 @@ def build_table(builds: dict[int, dict[str, Any]]) -> list[str]:
             views = enc["view"]
             if enc.get("path") == "workers":
                 views += f" rendered {enc['rendered']}, {enc['workers']} workers"
+                views += ", bfloat16" if enc.get("precision") == "bfloat16" else ""
             rows.append(
                 [
                     f"{size:,}",

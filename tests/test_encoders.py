@@ -286,3 +286,17 @@ def test_cnn_encoders_declare_their_input_size_and_default_to_the_gpu_where_ther
     assert ThumbnailEncoder().view_input_size is None
     expected = "cuda" if torch.cuda.is_available() else "cpu"
     assert lite0.device.type == random_resnet.device.type == expected
+
+
+def test_lite0_in_bfloat16_is_another_encoder_with_nearly_the_same_features(
+    lite0: EfficientNetLite0Encoder, street_views: np.ndarray
+) -> None:
+    bf16 = EfficientNetLite0Encoder(precision="bfloat16")
+    assert bf16.name == lite0.name + "-bf16"  # another cache entry
+    full, half = lite0.encode(street_views), bf16.encode(street_views)
+    assert half.dtype == np.float32
+    cosine = (full * half).sum(axis=1) / np.linalg.norm(full, axis=1) / np.linalg.norm(half, axis=1)
+    assert cosine.min() > 0.99
+    assert not np.array_equal(full, half)
+    with pytest.raises(ValueError, match="precision must be one of float32, bfloat16"):
+        EfficientNetLite0Encoder(precision="float16")
