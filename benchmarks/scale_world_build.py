@@ -10,13 +10,14 @@ for 640x480, by one worker process per core, :mod:`campusnav_env.features.parall
 ``--paths workers serial``, also the way it built before (``"serial"``: 640x480 rendered, in one process);
 ``"workers-bf16"``: the worker build with the CNN in bfloat16 (``precision="bfloat16"``, another cache entry).
 Render and encode columns are per core (one thread, in the stage's process, on a sample of nodes); the total is the
-wall time of the build (extrapolated from the sample's wall time where the map is not built in full: an upper bound,
-each sample pays the workers' start). Peak RSS of a worker build adds the workers' (each as big as the largest of them).
+wall time of the build (where the map is not built in full: the workers' start, timed on one batch per worker, plus
+the sample's further wall time per node times the remaining nodes). Peak RSS of a worker build adds the workers'
+(each counted as big as the largest of them).
 
 Run by ``scale.py`` (stage ``build``); alone::
 
     python benchmarks/scale_world_build.py --sizes 101 1000 --runs-file /tmp/build.jsonl --out /tmp/build.md
-    python benchmarks/scale_world_build.py --sizes 10000 --full-effnet --stages build  # the cold 10,000 build in full
+    python benchmarks/scale_world_build.py --sizes 10000 --full-effnet  # the cold 10,000 build in full
     python benchmarks/scale_world_build.py --sizes 1000 --paths workers serial --effnet-sample 500  # old vs new
 """
 
@@ -261,11 +262,21 @@ def measure_worker_build(
             record["build_seconds"] = time.perf_counter() - begin
         else:
             sample = np.unique(np.linspace(0, n_nodes - 1, plan.effnet_sample).astype(int))  # spread over the map
+            # The workers' start (unpickling the world, building renderer and CNN) and one batch each, timed apart so
+            # that the extrapolation pays it once
+            first = min(sample.size, workers * NODES_PER_BATCH)
+            encode_views_in_workers(
+                first, SampledRenderer(world, settings, sample[:first]), source.encoder, workers=workers, progress=False
+            )
+            start_seconds = time.perf_counter() - begin
+            begin = time.perf_counter()
             make_renderer = SampledRenderer(world, settings, sample)
             encode_views_in_workers(len(sample), make_renderer, source.encoder, workers=workers, progress=False)
             wall = time.perf_counter() - begin
+            per_node = (wall - start_seconds) / (sample.size - first) if sample.size > first else wall / sample.size
             record |= {"cache_bytes": features_bytes, "nodes_measured": int(sample.size)}
-            record |= {"sample_seconds": wall, "build_seconds": wall * n_nodes / sample.size}
+            record |= {"start_seconds": start_seconds, "sample_seconds": wall}
+            record["build_seconds"] = start_seconds + per_node * (n_nodes - first)
     record |= {"peak_mb": peak.peak_mb, "extra_mb": peak.extra_mb, "workers_peak_mb": workers * children_peak_mb()}
     if full and precision == "float32":
         record |= measure_env(graph, encoder, plan)
