@@ -275,3 +275,28 @@ def test_thumbnail_is_channel_first_rgb_uint8() -> None:
     assert (thumbs[:, 0] == 200).all() and (thumbs[:, 1] == 0).all()
     assert (thumbs[0, 2] == 0).all() and (thumbs[1, 2, :, :32] == 100).all() and (thumbs[1, 2, :, 32:] == 0).all()
     assert ThumbnailEncoder(height=24, width=32).encode(image).shape == (2, 3, 24, 32)
+
+
+def test_cnn_encoders_declare_their_input_size_and_default_to_the_gpu_where_there_is_one(
+    lite0: EfficientNetLite0Encoder, random_resnet: ResNet50Encoder
+) -> None:
+    # The feature build renders views at about this size (campusnav_env.features.view_source.settings_for_encoder)
+    assert lite0.view_input_size == random_resnet.view_input_size == (224, 224)
+    assert PixelProjectionEncoder().view_input_size is None  # thumbnails: shrunk from big renders on purpose
+    assert ThumbnailEncoder().view_input_size is None
+    expected = "cuda" if torch.cuda.is_available() else "cpu"
+    assert lite0.device.type == random_resnet.device.type == expected
+
+
+def test_lite0_in_bfloat16_is_another_encoder_with_nearly_the_same_features(
+    lite0: EfficientNetLite0Encoder, street_views: np.ndarray
+) -> None:
+    bf16 = EfficientNetLite0Encoder(precision="bfloat16")
+    assert bf16.name == lite0.name + "-bf16"  # another cache entry
+    full, half = lite0.encode(street_views), bf16.encode(street_views)
+    assert half.dtype == np.float32
+    cosine = (full * half).sum(axis=1) / np.linalg.norm(full, axis=1) / np.linalg.norm(half, axis=1)
+    assert cosine.min() > 0.99
+    assert not np.array_equal(full, half)
+    with pytest.raises(ValueError, match="precision must be one of float32, bfloat16"):
+        EfficientNetLite0Encoder(precision="float16")

@@ -27,7 +27,7 @@ import json
 import os
 import tempfile
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -42,15 +42,20 @@ __all__ = [
     "LOCK_TIMEOUT_ENV",
     "cache_key",
     "cache_path",
+    "cached_features",
     "cached_view_features",
     "default_cache_dir",
+    "encode_every_node",
+    "encode_nodes",
+    "node_batches",
+    "render_nodes",
 ]
 
 # Bump when the file layout or the meaning of cached arrays changes: old files then simply stop matching.
 CACHE_FORMAT_VERSION = 1
 VIEWS_PER_NODE = 4
 # Views encoded per call: amortises CNN batching (32 views = 8 nodes) while bounding memory (~30 MB at 640x480).
-_VIEWS_PER_BATCH = 32
+VIEWS_PER_BATCH = 32
 
 # Seconds to wait for another process building the same cache: a ResNet-50 pass over a large map on a CPU takes tens
 # of minutes, so an hour only gives up on owners that hang or died on another host.
@@ -172,28 +177,75 @@ def _check_views(views: object, node: int, first: tuple[int, ...] | None) -> np.
     return views
 
 
-def _compute(
+def render_nodes(
+    nodes: Sequence[int], render_node: Callable[[int], np.ndarray], view_shape: tuple[int, ...] | None = None
+) -> np.ndarray:
+    """
+    Render and check the four views of each node.
+
+    :param nodes: The nodes, in order
+    :param render_node: ``render_node(node)`` returns the node's views, ``(4, H, W, 3)`` uint8 RGB in N, E, S, W order
+    :param view_shape: The ``(4, H, W, 3)`` shape earlier nodes gave (None: take the first node's)
+    :return: ``(4 * len(nodes), H, W, 3)``, node after node
+    :raises ValueError: if a node's views have the wrong type, shape or dtype
+    """
+    batch = []
+    for node in nodes:
+        views = _check_views(render_node(node), node, view_shape)
+        view_shape = views.shape
+        batch.append(views)
+    return np.concatenate(batch)
+
+
+def encode_nodes(views: np.ndarray, encoder: ViewEncoder) -> np.ndarray:
+    """
+    Encode the views of :func:`render_nodes` and check the encoder's output.
+
+    :param views: ``(4 * n, H, W, 3)`` uint8 views, node after node
+    :param encoder: The encoder
+    :return: ``(n, 4, *encoder.output_shape)``
+    :raises ValueError: if the encoder returned the wrong shape
+    """
+    n_nodes = len(views) // VIEWS_PER_NODE
+    encoded = np.asarray(encoder.encode(views))
+    want = (len(views), *encoder.output_shape)
+    if encoded.shape != want:
+        raise ValueError(f"encoder {encoder.name!r} returned shape {encoded.shape}, expected {want}")
+    return encoded.reshape(n_nodes, VIEWS_PER_NODE, *encoder.output_shape)
+
+
+def node_batches(n_nodes: int) -> list[range]:
+    """The nodes ``0 .. n_nodes - 1`` in the batches that are rendered and then encoded in one call."""
+    nodes_per_batch = max(1, VIEWS_PER_BATCH // VIEWS_PER_NODE)
+    return [range(start, min(start + nodes_per_batch, n_nodes)) for start in range(0, n_nodes, nodes_per_batch)]
+
+
+def encode_every_node(
     n_nodes: int, render_node: Callable[[int], np.ndarray], encoder: ViewEncoder, progress: bool
 ) -> np.ndarray:
-    expected = (n_nodes, VIEWS_PER_NODE, *encoder.output_shape)
-    features = np.empty(expected, dtype=encoder.dtype)
-    nodes_per_batch = max(1, _VIEWS_PER_BATCH // VIEWS_PER_NODE)
-    first_shape: tuple[int, ...] | None = None
-    with tqdm(total=n_nodes, desc=f"encoding views ({encoder.name})", unit="node", disable=not progress) as bar:
-        for start in range(0, n_nodes, nodes_per_batch):
-            nodes = range(start, min(start + nodes_per_batch, n_nodes))
-            batch = []
-            for node in nodes:
-                views = _check_views(render_node(node), node, first_shape)
-                first_shape = views.shape
-                batch.append(views)
-            encoded = np.asarray(encoder.encode(np.concatenate(batch)))
-            want = (len(nodes) * VIEWS_PER_NODE, *encoder.output_shape)
-            if encoded.shape != want:
-                raise ValueError(f"encoder {encoder.name!r} returned shape {encoded.shape}, expected {want}")
-            features[start : start + len(nodes)] = encoded.reshape(len(nodes), VIEWS_PER_NODE, *encoder.output_shape)
+    """
+    Render and encode every node's views in this process, in batches of :func:`node_batches` (the serial build).
+
+    :param n_nodes: Number of nodes; nodes ``0 .. n_nodes - 1`` are rendered
+    :param render_node: As for :func:`cached_view_features`
+    :param encoder: Encoder applied to the views
+    :param progress: Show a tqdm progress bar
+    :return: ``(n_nodes, 4, *encoder.output_shape)`` array of dtype ``encoder.dtype``
+    """
+    features = np.empty((n_nodes, VIEWS_PER_NODE, *encoder.output_shape), dtype=encoder.dtype)
+    view_shape: tuple[int, ...] | None = None
+    with tqdm(total=n_nodes, desc=progress_label(encoder), unit="node", disable=not progress) as bar:
+        for nodes in node_batches(n_nodes):
+            views = render_nodes(nodes, render_node, view_shape)
+            view_shape = (VIEWS_PER_NODE, *views.shape[1:])
+            features[nodes.start : nodes.stop] = encode_nodes(views, encoder)
             bar.update(len(nodes))
     return features
+
+
+def progress_label(encoder: ViewEncoder) -> str:
+    """The progress bar's description of a feature build."""
+    return f"encoding views ({encoder.name})"
 
 
 def _resolve_lock_timeout(lock_timeout: float | None) -> float:
@@ -240,6 +292,39 @@ def cached_view_features(
     :raises PermissionError: if the cache directory is not writable (other ``OSError`` if it cannot be created)
     :raises TimeoutError: if another process still holds the file's lock after ``lock_timeout`` seconds
     """
+    return cached_features(
+        key_parts,
+        n_nodes,
+        encoder,
+        lambda: encode_every_node(n_nodes, render_node, encoder, progress),
+        cache_dir=cache_dir,
+        lock_timeout=lock_timeout,
+    )
+
+
+def cached_features(
+    key_parts: Mapping[str, str],
+    n_nodes: int,
+    encoder: ViewEncoder,
+    compute: Callable[[], np.ndarray],
+    *,
+    cache_dir: str | Path | None = None,
+    lock_timeout: float | None = None,
+) -> np.ndarray:
+    """
+    :func:`cached_view_features` with the computation given whole: ``compute()`` returns every node's encodings
+    (e.g. built by worker processes, :mod:`campusnav_env.features.parallel_build`). It is called only on a cache miss,
+    under the file's lock; its result is checked and stored atomically.
+
+    :param key_parts: As for :func:`cached_view_features`
+    :param n_nodes: Number of nodes
+    :param encoder: The encoder ``compute`` uses (its name, shape and dtype key the file)
+    :param compute: Returns the ``(n_nodes, 4, *encoder.output_shape)`` array of dtype ``encoder.dtype``
+    :param cache_dir: Cache directory; None uses :func:`default_cache_dir`
+    :param lock_timeout: As for :func:`cached_view_features`
+    :return: The cached or computed array
+    :raises ValueError: if ``compute`` returned another shape or dtype (and as :func:`cached_view_features`)
+    """
     n_nodes = _check_n_nodes(n_nodes)
     timeout = _resolve_lock_timeout(lock_timeout)
     document = _key_document(key_parts, n_nodes, encoder)
@@ -263,7 +348,10 @@ def cached_view_features(
                 return _load(path, key, shape, dtype)
             except ValueError as e:
                 warnings.warn(f"feature cache {path} is invalid: {e}; rebuilding it", RuntimeWarning, stacklevel=2)
-        features = _compute(n_nodes, render_node, encoder, progress)
+        features = compute()
+        if not isinstance(features, np.ndarray) or features.shape != shape or features.dtype != dtype:
+            got = f"{features.shape} {features.dtype}" if isinstance(features, np.ndarray) else type(features).__name__
+            raise ValueError(f"the feature build returned {got}, expected {shape} {dtype}")
         _save_atomic(path, features, {**document, "key": key, "checksum": _checksum(features)})
         return features
     finally:

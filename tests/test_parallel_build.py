@@ -1,0 +1,146 @@
+"""Specification of the parallel feature build (campusnav_env.features.parallel_build) and of rendering at the size
+the encoder consumes (campusnav_env.features.view_source.settings_for_encoder)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import campusnav_env.features.parallel_build as parallel_build
+import campusnav_env.features.view_source as view_source
+from campusnav_env.features.encoders import PixelProjectionEncoder, ThumbnailEncoder, ViewEncoder
+from campusnav_env.features.feature_cache import cache_path, encode_every_node
+from campusnav_env.features.parallel_build import ViewBuildError, default_workers, encode_views_in_workers
+from campusnav_env.features.view_source import ViewSource, settings_for_encoder
+from campusnav_env.maps.campus import generate_campus
+from campusnav_env.rendering.street_view import RenderSettings
+
+N_NODES = 20  # three batches of 8 nodes: both workers get work
+SMALL_VIEWS = RenderSettings(width=64, height=48)
+
+
+class NoiseRenderer:
+    """Picklable stand-in renderer (workers import it from this module): node n's views drawn from seed n."""
+
+    def __init__(self, fail_at: int | None = None) -> None:
+        self.fail_at = fail_at
+
+    def __call__(self) -> NoiseRenderer:  # its own factory: the worker calls it once
+        return self
+
+    def render_node(self, node: int) -> np.ndarray:
+        if node == self.fail_at:
+            raise RuntimeError("the renderer crashed")
+        return np.random.default_rng(node).integers(0, 256, (4, 24, 32, 3), dtype=np.uint8)
+
+
+class WhereEncoder(ViewEncoder):
+    """Encodes each view as (process id, torch threads): where and how it was encoded."""
+
+    name = "where"
+    output_shape = (2,)
+    dtype = np.dtype(np.int64)
+
+    def encode(self, images: np.ndarray) -> np.ndarray:
+        return np.tile([os.getpid(), torch.get_num_threads()], (len(images), 1))
+
+
+class CNNSizedEncoder(PixelProjectionEncoder):
+    """A pixel encoder that declares a CNN's 224 x 224 input size."""
+
+    view_input_size = (224, 224)
+
+
+def test_the_parallel_build_equals_the_serial_build() -> None:
+    encoder = PixelProjectionEncoder(dim=16)
+    serial = encode_every_node(N_NODES, NoiseRenderer().render_node, encoder, progress=False)
+    parallel = encode_views_in_workers(N_NODES, NoiseRenderer(), encoder, workers=2, progress=False)
+    assert parallel.shape == serial.shape == (N_NODES, 4, 16)
+    np.testing.assert_allclose(parallel, serial, rtol=1e-5, atol=1e-6)
+
+
+def test_workers_are_other_processes_with_one_torch_thread_each() -> None:
+    where = encode_views_in_workers(N_NODES, NoiseRenderer(), WhereEncoder(), workers=2, progress=False)
+    pids = set(where[..., 0].ravel().tolist())
+    assert os.getpid() not in pids
+    assert 1 <= len(pids) <= 2
+    assert set(where[..., 1].ravel().tolist()) == {1}
+
+
+def test_a_failing_node_is_named() -> None:
+    message = r"node 13: rendering its views failed: RuntimeError: the renderer crashed"
+    with pytest.raises(ViewBuildError, match=message) as failure:
+        encode_views_in_workers(N_NODES, NoiseRenderer(fail_at=13), PixelProjectionEncoder(), workers=1)
+    assert failure.value.nodes == (13,)
+
+
+def test_the_worker_count_is_checked() -> None:
+    with pytest.raises(ValueError, match="workers must be an int >= 1"):
+        encode_views_in_workers(N_NODES, NoiseRenderer(), PixelProjectionEncoder(), workers=0)
+    graph = generate_campus(16, seed=1)
+    with pytest.raises(ValueError, match="workers must be an int >= 1 or None"):
+        ViewSource(graph, "features", "pixels", None, SMALL_VIEWS, 0, None, False, workers=0)
+
+
+def test_workers_default_to_the_available_cores_on_big_maps(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(parallel_build.os, "sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    assert default_workers() == 3
+    graph = generate_campus(16, seed=1)
+
+    def source(**kwargs: object) -> ViewSource:
+        return ViewSource(graph, "features", "pixels", None, SMALL_VIEWS, 0, None, False, **kwargs)
+
+    assert source().build_workers() == 1  # a small map: starting workers would cost more than they save
+    assert source(workers=2).build_workers() == 2
+    monkeypatch.setattr(view_source, "MIN_NODES_FOR_WORKERS", 16)
+    assert source().build_workers() == 3
+    assert source(workers=1).build_workers() == 1
+
+
+def test_view_source_builds_in_workers_and_reuses_the_cache(tmp_path: Path) -> None:
+    graph = generate_campus(16, seed=1)
+
+    def source(cache_dir: Path, workers: int) -> ViewSource:
+        return ViewSource(graph, "features", "pixels", None, SMALL_VIEWS, 0, cache_dir, False, workers=workers)
+
+    serial = source(tmp_path / "serial", 1).open_views()
+    builder = source(tmp_path / "parallel", 2)
+    parallel = builder.open_views()
+    np.testing.assert_allclose(parallel, serial, rtol=1e-5, atol=1e-6)
+    # The workers' result went through the cache: the same file as the serial build's, read without building anything
+    path = cache_path(builder.key_parts, graph.n_nodes, builder.encoder, cache_dir=tmp_path / "parallel")
+    assert path.name == cache_path(builder.key_parts, graph.n_nodes, builder.encoder, cache_dir=tmp_path).name
+    assert path.is_file()
+    again = source(tmp_path / "parallel", 2)
+    np.testing.assert_array_equal(again.open_views(), parallel)
+    assert again._world is None  # nothing rendered
+
+
+def test_views_are_rendered_at_the_size_the_encoder_consumes() -> None:
+    default = RenderSettings()
+    fitted = settings_for_encoder(default, CNNSizedEncoder())
+    # 640 x 480 -> 299 x 224: the smallest size covering 224 x 224 with the aspect ratio kept (rounded up)
+    assert (fitted.width, fitted.height) == (299, 224)
+    assert (fitted.fov_deg, fitted.eye_height, fitted.time_of_day, fitted.cars) == (90.0, 2.5, None, False)
+    assert fitted.key() != default.key()  # another cache entry than the full-size renders
+    dusk = RenderSettings(width=800, height=450, time_of_day=19.0, cars=True)
+    assert settings_for_encoder(dusk, CNNSizedEncoder()) == RenderSettings(399, 224, time_of_day=19.0, cars=True)
+    # Encoders that shrink big renders to thumbnails, and views no bigger than the input, are left alone
+    assert settings_for_encoder(default, PixelProjectionEncoder()) == default
+    assert settings_for_encoder(default, ThumbnailEncoder()) == default
+    assert settings_for_encoder(RenderSettings(224, 168), CNNSizedEncoder()) == RenderSettings(224, 168)
+
+
+def test_view_source_keys_the_cache_on_the_settings_it_renders() -> None:
+    graph = generate_campus(16, seed=1)
+    fitted = ViewSource(graph, "features", CNNSizedEncoder(), None, None, 0, None, False)
+    assert fitted.requested_settings == RenderSettings()
+    assert (fitted.settings.width, fitted.settings.height) == (299, 224)
+    assert fitted.key_parts["render"] == fitted.settings.key()
+    as_asked = ViewSource(graph, "features", CNNSizedEncoder(), None, None, 0, None, False, fit_views_to_encoder=False)
+    assert as_asked.settings == RenderSettings()
+    assert as_asked.key_parts["render"] == RenderSettings().key()
