@@ -70,12 +70,15 @@ class CampusNavCityEnv(CampusNavEnv):
       ``n_intersections`` and ``map_seed`` must not be given).
     - ``goals``: one or several landmark names or node ids (default ``"Dreese Lab"``).
     - ``max_steps``: ``"auto"`` (default, see Episode End) or an int.
+    - ``fit_views_to_encoder``: render the views at the size the CNN consumes (default True here, unlike CampusNav:
+      about 1.8x less work per view, which a city's cold build needs; see :class:`~campusnav_env.env.CampusNavEnv`).
     - every other argument as in :class:`~campusnav_env.env.CampusNavEnv` (``observation_mode``, ``encoder``,
       ``encoder_kwargs``, ``render_settings``, ``world_seed``, rewards, ``normalize_features``, ``view_dim``,
       ``cache_dir``, ``progress``, ``render_mode``, ``visible_closures``).
 
     Building the env renders and encodes four views per intersection (cached on disk, ``cache_dir``): at 10,000
-    intersections a cold build takes minutes with ``encoder="pixels"`` and about half an hour with EfficientNet.
+    intersections a cold build takes minutes with ``encoder="pixels"`` and, with EfficientNet-Lite0, what
+    ``benchmarks/scale_world_build.py`` measures (worker processes, one per core, views at the CNN's size).
 
     ## Version History
     * v0: Initial version.
@@ -88,6 +91,7 @@ class CampusNavCityEnv(CampusNavEnv):
         world: RoadGraph | NavigationGraph | None = None,
         goals: str | int | Sequence[str | int] = "Dreese Lab",
         max_steps: int | str = "auto",
+        fit_views_to_encoder: bool = True,
         **env_kwargs: Any,
     ) -> None:
         if world is None:
@@ -102,4 +106,6 @@ class CampusNavCityEnv(CampusNavEnv):
             raise TypeError(
                 f"CampusNavCity: world must be a RoadGraph or a NavigationGraph, got {type(world).__name__}"
             )
-        super().__init__(world=world, goals=goals, max_steps=max_steps, **env_kwargs)
+        super().__init__(
+            world=world, goals=goals, max_steps=max_steps, fit_views_to_encoder=fit_views_to_encoder, **env_kwargs
+        )

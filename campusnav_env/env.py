@@ -130,6 +130,12 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
       the env then keeps its encoder and (built on first need) its 3D world and renderer. Closures of a
       ``NavigationGraph`` passed as ``world`` are shown from the start. Not available for scene files.
     - ``render_mode``: ``"rgb_array"`` for :meth:`render`, a map of roads, closures, agent, goal and route so far.
+    - ``build_workers``: processes that render and encode the views on a cold cache (default: one per core on maps of
+      256 intersections and more, see :class:`~campusnav_env.features.view_source.ViewSource`).
+    - ``fit_views_to_encoder``: render the views at the size the CNN consumes (about 299x224 for EfficientNet-Lite0's
+      224x224 input, instead of 640x480 shrunk to it: about 1.8x less work per view, features of a cosine similarity
+      of 0.98 to the full-size ones, cached under their own key). Off by default, so that the built-in campus keeps
+      its features; :class:`~campusnav_env.city_env.CampusNavCityEnv` turns it on.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -154,11 +160,23 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         progress: bool = True,
         render_mode: str | None = None,
         visible_closures: bool = False,
+        build_workers: int | None = None,
+        fit_views_to_encoder: bool = False,
     ) -> None:
         graph = _resolve_world(world)
         _check_observation_mode(observation_mode)
+        # How views are built (kept for the views a subclass builds too, e.g. the goal env's goal pictures)
+        self._view_build = {"workers": build_workers, "fit_views_to_encoder": fit_views_to_encoder}
         source = ViewSource(
-            graph.map, observation_mode, encoder, encoder_kwargs, render_settings, world_seed, cache_dir, progress
+            graph.map,
+            observation_mode,
+            encoder,
+            encoder_kwargs,
+            render_settings,
+            world_seed,
+            cache_dir,
+            progress,
+            **self._view_build,
         )
         node_views = source.open_views()
         self._init_core(

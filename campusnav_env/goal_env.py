@@ -108,6 +108,8 @@ class CampusNavGoalEnv(CampusNavEnv):
         progress: bool = True,
         render_mode: str | None = None,
         visible_closures: bool = False,
+        build_workers: int | None = None,
+        fit_views_to_encoder: bool = False,
     ) -> None:
         if observation_mode != "features":
             raise ValueError(
@@ -147,6 +149,8 @@ class CampusNavGoalEnv(CampusNavEnv):
             progress=progress,
             render_mode=render_mode,
             visible_closures=visible_closures,
+            build_workers=build_workers,
+            fit_views_to_encoder=fit_views_to_encoder,
         )
         self.training_goals: list[int] = training
         self.held_out_goals: frozenset[int] = frozenset(held_out)
@@ -157,7 +161,15 @@ class CampusNavGoalEnv(CampusNavEnv):
                 tables.append(self._open_views.reshape(self.graph.n_nodes, -1))
                 continue
             source = ViewSource(
-                graph.map, "features", encoder, encoder_kwargs, settings, world_seed, cache_dir, progress
+                graph.map,
+                "features",
+                encoder,
+                encoder_kwargs,
+                settings,
+                world_seed,
+                cache_dir,
+                progress,
+                **self._view_build,
             )
             tables.append(self._features.transform(source.open_views()).reshape(self.graph.n_nodes, -1))
         self.goal_conditions: tuple[RenderSettings | None, ...] = conditions
