@@ -1,0 +1,75 @@
+"""The command line on CampusNavCity-v0: an entry's curriculum callback, n-step returns, lean replay and replay search
+run through ``dcqn-campusnav train`` as they are, and the saved model evaluates with its buffer."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from sb3_dcqn import DCQN
+from sb3_dcqn.buffers import DCQNDictReplayBuffer
+from sb3_dcqn.campusnav.cli import build_parser, run
+
+CITY = "CampusNavCity-v0"
+FAST = ("--encoder", "pixels", "--render-size", "64", "48")
+# The shipped city entry's levers on a small city, with small networks and a short run
+TINY_CITY_CONF = """\
+CampusNavCity-v0:
+  n_timesteps: 600
+  policy: 'MultiInputPolicy'
+  env_kwargs:
+    n_intersections: 60
+    view_dim: 16
+  gamma: 0.98
+  n_steps: 4
+  lean_replay: True
+  replay_search: True
+  buffer_size: 2000
+  learning_starts: 100
+  batch_size: 32
+  target_update_interval: 100
+  callback:
+    - campusnav_env.callbacks.StartCurriculumCallback:
+        initial: 2
+        window: 5
+  policy_kwargs: "dict(features_extractor_class=EmbeddingFusionExtractor, features_extractor_kwargs=dict(embed_dim=16, \
+features_dim=16), share_features_extractor=True, net_arch=[16], heading_key='heading')"
+"""
+
+
+@pytest.fixture(autouse=True)
+def _own_feature_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    monkeypatch.setenv("CAMPUSNAV_CACHE", str(tmp_path / "cache"))
+    yield
+
+
+def cli(*argv: str) -> dict:
+    return run(build_parser().parse_args(list(argv)))
+
+
+def test_the_city_entry_trains_with_its_curriculum_and_lean_n_step_replay_and_evaluates_with_replay_search(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    conf = tmp_path / "city.yml"
+    conf.write_text(TINY_CITY_CONF)
+    out = tmp_path / "city"
+    summary = cli(
+        "train", "--env", CITY, "--conf", str(conf), *FAST, "--no-progress",
+        *("--timesteps", "600", "--eval-freq", "300", "--out", str(out)),
+    )  # fmt: skip
+    assert summary["settings"]["env"] == CITY and summary["num_timesteps"] >= 600
+    assert summary["trained"]["n_routes"] > 0
+    events = EventAccumulator(str(out / "tb" / "DCQN_1"))
+    events.Reload()
+    assert "curriculum/start_distance_limit" in events.Tags()["scalars"]  # the entry's callback ran
+    model = DCQN.load(out / "dcqn_campusnav.zip")
+    assert model.replay_search and model.lean_replay and model.n_steps == 4
+    model.load_replay_buffer(out / "dcqn_campusnav_replay_buffer.pkl")
+    assert isinstance(model.replay_buffer, DCQNDictReplayBuffer) and model.replay_buffer.lean
+    scores = cli("evaluate", str(out / "dcqn_campusnav.zip"))
+    assert "replay search over" in capsys.readouterr().err  # the buffer saved next to the model is planned over
+    assert scores["all"]["n_routes"] == summary["trained"]["n_routes"]
+    assert scores["all"]["success_rate"] == pytest.approx(summary["trained"]["success_rate"])
