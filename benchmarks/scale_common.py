@@ -93,13 +93,21 @@ def make_graph(n_nodes: int, extent: str) -> Any:
 
 
 def buffer_arrays(buffer: Any) -> dict[str, int]:
-    """Bytes of every per-transition array of a replay buffer (dicts of arrays by key), by attribute name."""
+    """
+    Bytes of every per-transition array of a replay buffer (dicts of arrays by key), by attribute name; a lean
+    buffer's observation table counts its row indices (its distinct rows are not per transition).
+    """
+    from sb3_dcqn.observation_table import ObservationTable
+
     arrays: dict[str, int] = {}
     for name, value in vars(buffer).items():
         items = value.items() if isinstance(value, dict) else [(None, value)]
         for key, array in items:
-            if isinstance(array, np.ndarray) and array.ndim and array.shape[0] == buffer.buffer_size:
-                arrays[name if key is None else f"{name}[{key}]"] = int(array.nbytes)
+            label = name if key is None else f"{name}[{key}]"
+            if isinstance(array, ObservationTable):
+                arrays[label] = array.index_nbytes
+            elif isinstance(array, np.ndarray) and array.ndim and array.shape[0] == buffer.buffer_size:
+                arrays[label] = int(array.nbytes)
     return arrays
 
 

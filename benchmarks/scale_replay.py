@@ -49,18 +49,6 @@ def make_buffer(label: str, size: int, dim: int) -> Any:
     return cls(size, observation_space(dim), spaces.Discrete(4), device="cpu", n_envs=1, **kwargs)
 
 
-def transition_arrays(buffer: Any) -> dict[str, int]:
-    """Bytes of every per-transition array, an observation table's row indices under its key's name."""
-    from sb3_dcqn.observation_table import ObservationTable
-
-    arrays = buffer_arrays(buffer)
-    for name in ("observations", "next_observations"):
-        for key, table in getattr(buffer, name).items():
-            if isinstance(table, ObservationTable):
-                arrays[f"{name}[{key}]"] = table.index_nbytes
-    return arrays
-
-
 def fill_with_a_walk(buffers: list[Any], dim: int, rng: np.random.Generator) -> list[float]:
     """
     Add the same random walk on TABLE_NODES intersections (random views, one goal) to every buffer.
@@ -107,7 +95,7 @@ def measure_replay_buffer(plan: Plan) -> dict[str, Any]:
         for dim in (VIEW_DIM, EFFNET_DIM):
             per_transition = {
                 name: nbytes / BUFFER_SIZE
-                for name, nbytes in transition_arrays(make_buffer(label, BUFFER_SIZE, dim)).items()
+                for name, nbytes in buffer_arrays(make_buffer(label, BUFFER_SIZE, dim)).items()
             }
             rows.append(
                 {
