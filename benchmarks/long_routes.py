@@ -175,6 +175,7 @@ def run_one(job: Job) -> dict[str, Any]:
         "seed": job.seed,
         "encoder": job.encoder,
         "budget": job.budget,
+        "max_steps": job.max_steps,
         "quick": job.quick,
         "solved": result.solved_at is not None,
         "steps": at.step,
@@ -232,6 +233,7 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
         "intersections",
         "features",
         "row",
+        "step cap",
         "seeds",
         "solved",
         "training s to solved: median (worst)",
@@ -243,12 +245,14 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
         "peak RSS (MB)",
         "replay B / transition",
     ]
-    groups: dict[tuple[int, str, str], list[dict[str, Any]]] = {}
+    groups: dict[tuple[int, str, str, int], list[dict[str, Any]]] = {}
     for run in runs:
-        groups.setdefault((run["size"], run["encoder"], run["row"]), []).append(run)
+        groups.setdefault((run["size"], run["encoder"], run["row"], run["max_steps"]), []).append(run)
     order = list(ROWS)
     lines = []
-    for (size, encoder, row), group in sorted(groups.items(), key=lambda item: (*item[0][:2], order.index(item[0][2]))):
+    for (size, encoder, row, cap), group in sorted(
+        groups.items(), key=lambda item: (item[0][0], item[0][1], order.index(item[0][2]), item[0][3])
+    ):
         solved = [r for r in group if r["solved"]]
         # A run that spent its budget counts with its budget: the worst case is at least that
         seconds = [r["seconds"] if r["solved"] else r["final_seconds"] for r in group]
@@ -261,6 +265,7 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
                 f"{size:,}",
                 encoder,
                 ROWS[row].name,
+                f"{cap:,}",
                 " ".join(str(r["seed"]) for r in sorted(group, key=lambda r: r["seed"])),
                 f"{len(solved)}/{len(group)}",
                 time_cell,
@@ -318,12 +323,12 @@ def main(argv: list[str] | None = None) -> None:
     eval_freq = args.eval_freq or (1_000 if args.size <= 200 else 5_000 if args.size <= 2_000 else 20_000)
     max_steps = args.max_steps or (3_000 if args.quick else 2_000_000)
     runs_file = args.runs_file or args.out.with_name(args.out.stem + "_runs.jsonl")
-    done = {(r["row"], r["size"], r["seed"], r["encoder"]) for r in read_runs(runs_file)}
+    done = {(r["row"], r["size"], r["seed"], r["encoder"], r["max_steps"]) for r in read_runs(runs_file)}
     jobs = [
         Job(row, args.size, seed, args.budget, max_steps, eval_freq, args.encoder, args.quick)
         for row in args.rows
         for seed in args.seeds
-        if (row, args.size, seed, args.encoder) not in done
+        if (row, args.size, seed, args.encoder, max_steps) not in done
     ]
     for run in run_in_workers(run_one, jobs, args.workers):
         append_run(runs_file, run)
