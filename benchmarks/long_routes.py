@@ -11,8 +11,8 @@ entry with one lever added, and the shipped ``CampusNavCity`` entry (its levers 
 - ``her``: hindsight relabelling with the goal-conditioned env on the same city (``CampusNavGoal``, episodes to the
   one goal, transitions relabelled with the places reached);
 - ``count``: a count bonus on observation digests (exploration towards unvisited views);
-- ``search``: routes planned over the replay buffer (:class:`~sb3_dcqn.replay_graph.ReplaySearchPolicy`,
-  SoRB-style) at evaluation, the critic's greedy action where the stored experience has no route;
+- ``search``: greedy actions planned over the replay buffer (DCQN's ``replay_search``, SoRB-style), the critics'
+  greedy action where the stored experience has no route;
 - ``lean``: lean replay (memory only: it must not change what is learned).
 
 Solved: success >= 0.99 and SPL >= 0.98 from every (start, heading) (``train_until_solved``; time: training seconds,
@@ -59,7 +59,6 @@ class Row:
     :param overrides: DCQN keyword arguments replaced
     :param callbacks: Callbacks added, as the zoo's ``callback`` key: ``(class path, keyword arguments)``
     :param her: Train on the goal-conditioned env of the same city with ``HerReplayBuffer``
-    :param search: Evaluate routes planned over the replay buffer instead of the greedy policy
     """
 
     name: str
@@ -67,7 +66,6 @@ class Row:
     overrides: dict[str, Any] = field(default_factory=dict)
     callbacks: tuple[tuple[str, dict[str, Any]], ...] = ()
     her: bool = False
-    search: bool = False
 
 
 ROWS = {
@@ -77,7 +75,7 @@ ROWS = {
     "curriculum": Row("+ start curriculum (near to far)", callbacks=((CURRICULUM, {}),)),
     "her": Row("+ hindsight relabelling (goal env, future k=4)", her=True),
     "count": Row("+ count bonus 0.05 on observation digests", overrides={"count_bonus": 0.05}),
-    "search": Row("+ replay search at evaluation (SoRB-style)", search=True),
+    "search": Row("+ replay search at evaluation (SoRB-style)", overrides={"replay_search": True}),
     "lean": Row("+ lean replay (memory only)", overrides={"lean_replay": True}),
     "shipped": Row("CampusNavCity entry as shipped", entry="shipped"),
 }
@@ -147,7 +145,6 @@ def run_one(job: Job) -> dict[str, Any]:
     from sb3_dcqn.campusnav.experiments import train_until_solved
     from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
-    row = ROWS[job.row]
     entry = job_entry(job)
     begin = time.perf_counter()
     env = make_env(job, entry.env_kwargs)
@@ -160,7 +157,6 @@ def run_one(job: Job) -> dict[str, Any]:
         spl_threshold=SOLVED_SPL,
         stop_when_solved=True,
         every_goal=True,
-        policy=replay_search() if row.search else None,
     )
     with peak_memory() as peak:
         result = train_until_solved(
@@ -192,22 +188,6 @@ def run_one(job: Job) -> dict[str, Any]:
         "replay_bytes_per_transition": sum(buffer_arrays(buffer).values()) / buffer.buffer_size,
         "curve": result.curve(),
     }
-
-
-def replay_search() -> Any:
-    """A policy factory for the evaluation: one planner per run, refreshed with what was stored since it last ran."""
-    from sb3_dcqn.replay_graph import ReplaySearchPolicy
-
-    planners: list[ReplaySearchPolicy] = []
-
-    def planner(model: Any) -> ReplaySearchPolicy:
-        if planners:
-            planners[0].refresh()
-        else:
-            planners.append(ReplaySearchPolicy(model))
-        return planners[0]
-
-    return planner
 
 
 # ------------------------------------------------------------------------------------------------ report
