@@ -151,29 +151,30 @@ def lever_entry(lever_set: LeverSet, task: Task) -> ZooEntry:
     return with_levers(VARIANTS["DCQN"].entry(task), lever_set.levers)
 
 
-# The closure benchmarks' rows: combinations of the levers of sb3_dcqn.campusnav.levers (the keys are the runs files'
-# "lever" field: keep them). The adaptation boost left DCQN for an SB3 callback (sb3_dcqn.adaptation_boost): the runs
-# made with DCQN's old option ("boost", "all") stay in the runs files as history; the callback's have keys of their own.
+# The closure benchmarks' rows: combinations of the levers of sb3_dcqn.campusnav.levers, named by the levers' names
+# (the keys are the runs files' "lever" field). The adaptation boost left DCQN for an SB3 callback
+# (sb3_dcqn.adaptation_boost): the runs made with DCQN's old option ("boost", "all") stay in the runs files as history;
+# the callback's have keys of their own.
 LEVER_SETS = {
     "baseline": LeverSet("baseline (DCQN as shipped)"),
     "revision": LeverSet(LEVERS["revision"].name, ("revision",)),
-    "per": LeverSet(LEVERS["per"].name, ("per",)),
+    "prioritized": LeverSet(LEVERS["prioritized"].name, ("prioritized",)),
     "visible": LeverSet(LEVERS["visible"].name, ("visible",)),
     "blocked": LeverSet(LEVERS["blocked"].name, ("blocked",)),
     "revision_blocked": LeverSet("revision + blocked-action target", ("revision", "blocked")),
     "revision_blocked_visible": LeverSet(
         "revision + blocked-action target + visible closures", ("revision", "blocked", "visible")
     ),
-    "revision_blocked_per": LeverSet(
-        "revision + blocked-action target + prioritised replay", ("revision", "blocked", "per")
+    "revision_blocked_prioritized": LeverSet(
+        "revision + blocked-action target + prioritized replay", ("revision", "blocked", "prioritized")
     ),
     # What "all" was without the boost, and with the boost as a callback
-    "revision_per_visible": LeverSet(
-        "revision + prioritised replay + visible closures", ("revision", "per", "visible")
+    "revision_prioritized_visible": LeverSet(
+        "revision + prioritized replay + visible closures", ("revision", "prioritized", "visible")
     ),
-    "revision_per_visible_boost": LeverSet(
-        "revision + prioritised replay + visible closures + boost (revision trigger)",
-        ("revision", "per", "visible", "boost_on_revision"),
+    "revision_prioritized_visible_boost": LeverSet(
+        "revision + prioritized replay + visible closures + boost (revision trigger)",
+        ("revision", "prioritized", "visible", "boost_on_revision"),
     ),
     "boost_callback": LeverSet("adaptation boost (episode-length trigger, callback)", ("boost",)),
 }

@@ -73,7 +73,7 @@ PAPER_EPISODES = 500
 Road = tuple[int, int]
 
 # The lever sets of the results file: the single levers and the two fastest combinations
-ELEVEN_LEVERS = ("baseline", "revision", "per", "visible", "revision_blocked", "revision_blocked_per")
+ELEVEN_LEVERS = ("baseline", "revision", "prioritized", "visible", "revision_blocked", "revision_blocked_prioritized")
 
 
 def eleven_roads(graph: NavigationGraph, goal: int, seed: int, n_roads: int = N_ROADS) -> list[Road]:

@@ -63,15 +63,15 @@ SCRIPT = "closures_one_at_a_time.py"
 DEFAULT_LEVERS = (
     "baseline",
     "revision",
-    "per",
+    "prioritized",
     "visible",
     "blocked",
     "revision_blocked",
     "revision_blocked_visible",
-    "revision_blocked_per",
+    "revision_blocked_prioritized",
 )
 # A smoke run's: DCQN as shipped and the demo's levers
-QUICK_LEVERS = ["baseline", "revision_blocked_per"]
+QUICK_LEVERS = ["baseline", "revision_blocked_prioritized"]
 # The goal per closure, and the paper's result
 GOAL_EPISODES = 50
 GOAL_SECONDS = 10.0

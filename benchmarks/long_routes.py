@@ -57,6 +57,7 @@ class Row:
     :param name: What the row is, in words
     :param entry: ``"base"`` (CampusNav-v0's entry) or ``"shipped"`` (the city's own)
     :param overrides: DCQN keyword arguments replaced
+    :param variants: Replay variants added to the entry's replay buffer class (``sb3_dcqn.replay``)
     :param callbacks: Callbacks added, as the zoo's ``callback`` key: ``(class path, keyword arguments)``
     :param her: Train on the goal-conditioned env of the same city with ``HerReplayBuffer``
     """
@@ -64,6 +65,7 @@ class Row:
     name: str
     entry: str = "base"
     overrides: dict[str, Any] = field(default_factory=dict)
+    variants: tuple[str, ...] = ()
     callbacks: tuple[tuple[str, dict[str, Any]], ...] = ()
     her: bool = False
 
@@ -74,9 +76,13 @@ ROWS = {
     "nstep": Row("+ 8-step returns", overrides={"n_steps": 8}),
     "curriculum": Row("+ start curriculum (near to far)", callbacks=((CURRICULUM, {}),)),
     "her": Row("+ hindsight relabelling (goal env, future k=4)", her=True),
-    "count": Row("+ count bonus 0.05 on observation digests", overrides={"count_bonus": 0.05}),
+    "count": Row(
+        "+ count bonus 0.05 on observation digests",
+        overrides={"replay_buffer_kwargs": {"count_bonus": 0.05}},
+        variants=("count_bonus",),
+    ),
     "search": Row("+ replay search at evaluation (SoRB-style)", overrides={"replay_search": True}),
-    "lean": Row("+ lean replay (memory only)", overrides={"lean_replay": True}),
+    "lean": Row("+ lean replay (memory only)", variants=("lean",)),
     "shipped": Row("CampusNavCity entry as shipped", entry="shipped"),
 }
 
@@ -107,6 +113,10 @@ def job_entry(job: Job) -> Any:
     entry = load_zoo_entry(default_hyperparams_path(), BASE_ENTRY if row.entry == "base" else city_id(job.size))
     hyperparams = copy.deepcopy(entry.hyperparams)
     hyperparams.update(row.overrides)
+    if row.variants:
+        from sb3_dcqn.replay import with_variants
+
+        hyperparams["replay_buffer_class"] = with_variants(hyperparams.get("replay_buffer_class"), *row.variants)
     if row.her:
         from stable_baselines3 import HerReplayBuffer
 

@@ -1,7 +1,7 @@
 """Scale, replay memory: bytes per transition of the replay buffers, the lean buffer's among them, and sampling times.
 
-The arrays of SB3's ``DictReplayBuffer`` (DCQN as shipped), of ``DCQNDictReplayBuffer`` (experience revision or
-prioritised replay on) and of ``DCQNDictReplayBuffer(lean=True)`` (DCQN's ``lean_replay``: one table of distinct
+The arrays of SB3's ``DictReplayBuffer`` (DCQN as shipped), of ``RevisionPrioritizedDictReplayBuffer`` (experience
+revision and prioritized replay on) and of ``LeanDictReplayBuffer`` (lean storage: one table of distinct
 vectors per Dict key, row indices per transition) for the Dict observation at ``view_dim`` 64 and at full 1280-d
 features (``nbytes / buffer_size``; the lean buffer's tables apart, per distinct vector); then the same random walk on
 a map of :data:`TABLE_NODES` intersections added to SB3's buffer and to the lean one, and the time to add a transition
@@ -25,7 +25,11 @@ STAGE = "buffer"
 BATCHES = (64, 256)
 SAMPLED_TRANSITIONS = 5_000
 TABLE_NODES = 1_000  # the map of the random walk the sampling buffers hold
-SHIPPED, READAPTATION, LEAN = "DictReplayBuffer (shipped)", "DCQNDictReplayBuffer", "DCQNDictReplayBuffer, lean"
+SHIPPED, READAPTATION, LEAN = (
+    "DictReplayBuffer (shipped)",
+    "RevisionPrioritizedDictReplayBuffer",
+    "LeanDictReplayBuffer",
+)
 
 
 def observation_space(dim: int) -> Any:
@@ -41,12 +45,12 @@ def make_buffer(label: str, size: int, dim: int) -> Any:
     from gymnasium import spaces
     from stable_baselines3.common.buffers import DictReplayBuffer
 
-    from sb3_dcqn.buffers import DCQNDictReplayBuffer
+    from sb3_dcqn import replay
 
-    cls = DictReplayBuffer if label == SHIPPED else DCQNDictReplayBuffer
-    kwargs = {"lean": True} if label == LEAN else {}
+    classes = {SHIPPED: DictReplayBuffer, READAPTATION: replay.RevisionPrioritizedDictReplayBuffer}
+    cls = classes.get(label, replay.LeanDictReplayBuffer)
     # np.zeros reserves the arrays without touching their pages: nothing is allocated here
-    return cls(size, observation_space(dim), spaces.Discrete(4), device="cpu", n_envs=1, **kwargs)
+    return cls(size, observation_space(dim), spaces.Discrete(4), device="cpu", n_envs=1)
 
 
 def fill_with_a_walk(buffers: list[Any], dim: int, rng: np.random.Generator) -> list[float]:
@@ -197,10 +201,11 @@ def replay_section(record: dict[str, Any], sizes: list[int]) -> list[str]:
         f"## Replay buffer bytes per transition ({record['buffer_size']:,} transitions, the shipped buffer_size)",
         "",
         "From the buffers' own arrays (`nbytes / buffer_size`). DCQN as shipped uses SB3's `DictReplayBuffer`; "
-        "with experience revision or prioritised replay on, `DCQNDictReplayBuffer` (plus, with revision, a "
-        "Python index of two 16-byte digests per transition, not counted). SB3 keeps `next_observations` apart "
-        "from `observations`, so every feature vector is stored twice per transition, and `goal_views` repeats "
-        "the goal's features in every transition. The lean buffer (`lean_replay=True`) stores each key's distinct "
+        "with experience revision and prioritized replay on, `RevisionPrioritizedDictReplayBuffer` (plus, with "
+        "revision, a Python index of two 16-byte digests per transition, not counted). SB3 keeps "
+        "`next_observations` apart from `observations`, so every feature vector is stored twice per transition, and "
+        "`goal_views` repeats the goal's features in every transition. The lean buffer (`LeanDictReplayBuffer`) "
+        "stores each key's distinct "
         "vectors once, in a table shared by observations and next observations, and an int32 row index per key "
         "for the observation and the next one (the rows `observations[...]` below), Discrete actions as uint8; "
         "its tables (second table: one 4 x view_dim float32 row per intersection in the views table, one per goal, "

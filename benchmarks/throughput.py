@@ -31,6 +31,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_dcqn import DCQN
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
+from sb3_dcqn.replay import RevisionPrioritizedReplayBuffer
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
@@ -83,7 +84,7 @@ class Config:
 
 
 # The demo's re-adaptation levers (DQN has none: the row shows what they cost on top of DCQN's step)
-LEVERS = dict(experience_revision=True, blocked_action_target=True, prioritized_replay=True)
+LEVERS = dict(replay_buffer_class=RevisionPrioritizedReplayBuffer, blocked_action_target=True)
 # Both algorithms with the same (fused) Adam: what the second critic costs when the optimizer is the same
 SAME_ADAM = dict(optimizer_kwargs=dict(fused=True))
 

@@ -65,6 +65,7 @@ from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingBudget, train_with_closures
 from sb3_dcqn.campusnav.settings import campus_of
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
+from sb3_dcqn.replay import RevisionHerReplayBuffer
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 HELD_OUT_FRACTION = 0.2
@@ -102,7 +103,7 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     ),
     "revision_blocked": (
         "experience revision + blocked-action target",
-        {"experience_revision": True, "blocked_action_target": True},
+        {"replay_buffer_class": RevisionHerReplayBuffer, "blocked_action_target": True},
         {},
     ),
     "goal_photos": (

@@ -2,17 +2,16 @@
 
 After a road closes, an agent that has settled on its routes explores little (epsilon at its floor) and replays each
 new transition a few times among thousands of stale ones. :class:`AdaptationBoost` raises both for a while when a
-trigger fires: the replay buffer revised contradicted experience (``"revision"``, needs DCQN's
-``experience_revision``), the last episodes ran much longer than usual (``"episode_length"``), or a training loss
-jumped above its running mean (``"td_error"``). It works with any SB3 off-policy algorithm with epsilon-greedy
-exploration (DCQN, DQN, QR-DQN)::
+trigger fires: the replay buffer revised contradicted experience (``"revision"``, needs a replay buffer with
+experience revision, :class:`~sb3_dcqn.replay.RevisionReplay`), the last episodes ran much longer than usual
+(``"episode_length"``), or a training loss jumped above its running mean (``"td_error"``). It works with any SB3
+off-policy algorithm with epsilon-greedy exploration (DCQN, DQN, QR-DQN)::
 
     model.learn(20_000, callback=AdaptationBoost(trigger="episode_length"))
 
-Measured on CampusNav's closures (``benchmarks/results/closures_one_at_a_time.md``, 3 seeds): added to revision,
-prioritised replay and visible closures it made the median recovery slower (26 against 20 episodes) and the worst
-closure faster (86 against 154 episodes); as DCQN's former option, alone, it was slower than no lever at all. It is
-off unless passed, and is not one of the demo's levers.
+What it does to recovery after closures is measured in ``benchmarks/closures_one_at_a_time.py`` (its results
+file has the figures; they are not repeated here, where they would go stale). It is off unless passed, and is not
+one of the demo's levers.
 """
 
 from __future__ import annotations
@@ -100,8 +99,11 @@ class AdaptationBoost(BaseCallback):
         model = self.model
         if not hasattr(model, "exploration_schedule"):
             raise ValueError(f"AdaptationBoost needs an epsilon-greedy algorithm, got {type(model).__name__}")
-        if self.trigger == "revision" and not getattr(model, "experience_revision", False):
-            raise ValueError("AdaptationBoost(trigger='revision') needs a DCQN with experience_revision=True")
+        if self.trigger == "revision" and not hasattr(model.replay_buffer, "revised"):
+            raise ValueError(
+                "AdaptationBoost(trigger='revision') needs a replay buffer with experience revision "
+                f"(sb3_dcqn.replay's Revision... classes), got {type(model.replay_buffer).__name__}"
+            )
         if self.replay_ratio > 1 and model.gradient_steps < 0:
             raise ValueError("AdaptationBoost: replay_ratio > 1 needs a fixed number of gradient_steps (not -1)")
         self._base_gradient_steps = model.gradient_steps

@@ -9,16 +9,16 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import LinearSchedule, get_parameters_by_name, polyak_update
-from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 from torch.nn import functional as F
 
-from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
-from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
 from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
+from sb3_dcqn.replay.combine import resolve_replay_buffer
+from sb3_dcqn.replay.prioritized import PrioritizedReplay
 from sb3_dcqn.replay_graph import ReplaySearchPolicy
 from sb3_dcqn.targets import blocked_actions, dcqn_td_target
 
@@ -42,7 +42,16 @@ class DCQN(OffPolicyAlgorithm):
     critics (``policy_kwargs=dict(share_features_extractor=True)``) or run once per critic (the default).
 
     The paper's settings are ``learning_rate=1e-4, gamma=0.95, buffer_size=412`` with Adam; the defaults below are
-    SB3 DQN's, so that DCQN is a drop-in replacement.
+    SB3 DQN's, so that DCQN is a drop-in replacement: its parameters are DQN's, plus three of its own (the target's
+    form: ``pessimistic_target``, ``blocked_action_target``; the planner: ``replay_search``).
+
+    Replay variants are replay buffer classes, as in SB3 (:mod:`sb3_dcqn.replay`): experience revision, prioritized
+    replay, lean storage, n-step returns with Dict observations and a count bonus are mix-ins that compose
+    (``replay_buffer_class=LeanRevisionHerReplayBuffer``, their arguments in ``replay_buffer_kwargs``). SB3's
+    ``HerReplayBuffer`` is served by :class:`~sb3_dcqn.replay.her.DCQNHerReplayBuffer` (same arguments): relabelled
+    transitions that reach their new goal are terminal (SB3's keep the episode's done, SB3 issue #627);
+    ``model.replay_buffer.terminal_relabels`` shows it, ``replay_buffer_kwargs=dict(terminal_relabels=False)`` turns
+    it off.
 
     :param policy: The policy model to use (MlpPolicy, CnnPolicy, MultiInputPolicy, ...)
     :param env: The environment to learn from (if registered in Gym, can be str)
@@ -58,37 +67,25 @@ class DCQN(OffPolicyAlgorithm):
     :param gradient_steps: How many gradient steps to do after each rollout (see ``train_freq``)
         Set to ``-1`` means to do as many gradient steps as steps done in the environment
         during the rollout.
-    :param replay_buffer_class: Replay buffer class to use (for instance ``HerReplayBuffer``).
+    :param replay_buffer_class: Replay buffer class to use (for instance ``HerReplayBuffer``, or one of
+        :mod:`sb3_dcqn.replay`'s: ``RevisionDictReplayBuffer``, ``LeanNStepDictReplayBuffer``, ...).
         If ``None``, it will be automatically selected. ``HerReplayBuffer`` is served by
-        :class:`~sb3_dcqn.her_buffer.DCQNHerReplayBuffer` (same arguments): relabelled transitions that reach their
+        :class:`~sb3_dcqn.replay.her.DCQNHerReplayBuffer` (same arguments): relabelled transitions that reach their
         new goal are terminal (``replay_buffer_kwargs=dict(terminal_relabels=False)`` for SB3's dones) and goals
         the env does not allow as relabelling targets are never used
     :param replay_buffer_kwargs: Keyword arguments to pass to the replay buffer on creation.
     :param optimize_memory_usage: Enable a memory efficient variant of the replay buffer
         at a cost of more complexity.
     :param n_steps: When n_step > 1, uses n-step return when updating the critics: SB3's ``NStepReplayBuffer`` for
-        Box observations, :class:`~sb3_dcqn.buffers.DCQNDictReplayBuffer` for Dict observations (SB3 has none);
-        not with hindsight relabelling, experience revision, prioritised replay or ``blocked_action_target``
+        Box observations, ``NStepDictReplayBuffer`` for Dict observations (SB3 has none), and the ``nstep`` variant
+        added to one of DCQN's replay buffer classes; not with hindsight relabelling, experience revision,
+        prioritized replay or ``blocked_action_target``
     :param target_update_interval: update the target critics every ``target_update_interval``
         environment steps.
     :param exploration_fraction: fraction of entire training period over which the exploration rate is reduced
     :param exploration_initial_eps: initial value of random action probability
     :param exploration_final_eps: final value of random action probability
     :param max_grad_norm: The maximum value for the gradient clipping
-    :param experience_revision: Relabel stored transitions that the agent's new experience contradicts (a collision
-        where a stored transition of the same observation and action drove on: a closed road), see
-        :mod:`sb3_dcqn.buffers` (with ``HerReplayBuffer``: :mod:`sb3_dcqn.her_buffer`, the goal left out of the
-        match). Off by default: the paper's agent keeps its stale experience
-    :param prioritized_replay: Replay transitions in proportion to their TD error, importance-weighted (Schaul et al.
-        2016); ``beta`` is annealed to 1 over training. Off by default
-    :param lean_replay: Store each distinct observation vector once per Dict key and row indices per transition
-        (:class:`~sb3_dcqn.buffers.DCQNDictReplayBuffer` or, with ``HerReplayBuffer``,
-        :class:`~sb3_dcqn.her_buffer.DCQNHerReplayBuffer` with ``lean=True``): the same samples, a few tens of bytes
-        per transition where observations repeat (CampusNav). Dict observations only. Off by default
-    :param count_bonus: Exploration towards rarely seen observations: sampled rewards get
-        ``count_bonus / sqrt(n(next observation))``, ``n`` the times that observation was added to the replay buffer
-        (a count-based bonus, see :mod:`sb3_dcqn.buffers`). Dict observations, not with ``HerReplayBuffer``. 0 (off)
-        by default
     :param replay_search: Greedy actions (``predict(..., deterministic=True)``: evaluation, routes) follow the shortest
         route stored in the replay buffer where it has one, the critics' greedy action elsewhere
         (:class:`~sb3_dcqn.replay_graph.ReplaySearchPolicy`, after SoRB, Eysenbach et al. 2019): routes longer than
@@ -117,10 +114,6 @@ class DCQN(OffPolicyAlgorithm):
     :param _init_setup_model: Whether or not to build the network at the creation of the instance
     """
 
-    # Replay buffers asked for that DCQN serves with its own subclass (same arguments)
-    replay_buffer_substitutes: ClassVar[dict[type[ReplayBuffer], type[ReplayBuffer]]] = {
-        HerReplayBuffer: DCQNHerReplayBuffer
-    }
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
         "MlpPolicy": MlpPolicy,
         "CnnPolicy": CnnPolicy,
@@ -153,10 +146,6 @@ class DCQN(OffPolicyAlgorithm):
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.05,
         max_grad_norm: float = 10,
-        experience_revision: bool = False,
-        prioritized_replay: bool = False,
-        lean_replay: bool = False,
-        count_bonus: float = 0.0,
         replay_search: bool = False,
         blocked_action_target: bool = False,
         pessimistic_target: bool = True,
@@ -204,35 +193,31 @@ class DCQN(OffPolicyAlgorithm):
         self.max_grad_norm = max_grad_norm
         # "epsilon" for the epsilon-greedy exploration
         self.exploration_rate = 0.0
-        self.experience_revision = experience_revision
-        self.prioritized_replay = prioritized_replay
-        self.lean_replay = lean_replay
-        self.count_bonus = count_bonus
         self.replay_search = replay_search
         self._search: ReplaySearchPolicy | None = None
         self._search_buffer: ReplayBuffer | None = None  # the buffer the search reads (a loaded one replaces it)
         self.blocked_action_target = blocked_action_target
         self.pessimistic_target = pessimistic_target
-        if blocked_action_target and n_steps > 1:
-            raise ValueError(
-                "blocked_action_target needs one-step transitions (n_steps=1): with n_steps > 1 an "
-                "unchanged observation after n steps does not mean the first action was blocked"
-            )
 
         if _init_setup_model:
             self._setup_model()
 
     def _setup_model(self) -> None:
-        if self.replay_buffer_class is not None:
-            self.replay_buffer_class = self.replay_buffer_substitutes.get(
-                self.replay_buffer_class, self.replay_buffer_class
-            )
-        own_n_steps = self._select_dcqn_buffer()
+        # DCQN's replay variants are buffer classes (sb3_dcqn.replay): which one, and whether they combine
+        given = self.replay_buffer_class
+        self.replay_buffer_class, self.replay_buffer_kwargs = resolve_replay_buffer(
+            given,
+            self.replay_buffer_kwargs,
+            isinstance(self.observation_space, spaces.Dict),
+            self.n_steps,
+            self.gamma,
+            self.blocked_action_target,
+        )
         with warnings.catch_warnings():
-            if own_n_steps:  # SB3 warns that n_steps goes unused with a given buffer class: DCQN's buffer takes it
+            if "n_steps" in self.replay_buffer_kwargs:
+                # SB3 warns that n_steps goes unused with a given buffer class: the class's n_steps is set
                 warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored")
             super()._setup_model()
-        self._beta0 = getattr(self.replay_buffer, "beta", 1.0)
         self._create_aliases()
         # Copy running stats, see SB3 GH issue #996
         self.batch_norm_stats = get_parameters_by_name(self.q_net, ["running_"])
@@ -249,60 +234,6 @@ class DCQN(OffPolicyAlgorithm):
                 "therefore the target critics will be updated after each call to env.step() "
                 f"which corresponds to {self.n_envs} steps."
             )
-
-    def _select_dcqn_buffer(self) -> bool:
-        """
-        Use DCQN's replay buffer matching the observation space where a flag asks for it (revision, priorities,
-        lean storage, count bonus) or SB3 has none (n-step returns with Dict observations), configured by the flags.
-
-        :return: whether DCQN's buffer computes the n-step returns (``n_steps`` passed to it)
-        """
-        is_dict = isinstance(self.observation_space, spaces.Dict)
-        given = self.replay_buffer_class
-        is_her = given is not None and issubclass(given, DCQNHerReplayBuffer)
-        if is_her and self.n_steps > 1:
-            raise ValueError("n-step returns (n_steps > 1) do not combine with hindsight relabelling (HerReplayBuffer)")
-        readaptation = self.experience_revision or self.prioritized_replay
-        dict_options = self.lean_replay or self.count_bonus > 0
-        dict_n_steps = is_dict and self.n_steps > 1 and (given is None or issubclass(given, DCQNDictReplayBuffer))
-        if not (readaptation or dict_options or dict_n_steps):
-            return False
-        if readaptation and self.n_steps > 1:
-            raise ValueError("experience_revision and prioritized_replay do not support n-step returns (n_steps > 1)")
-        if dict_options and not is_dict:
-            raise ValueError(
-                "lean_replay and count_bonus need a Dict observation space (they store and count each key's "
-                f"vectors), got {type(self.observation_space).__name__}"
-            )
-        lean = {"lean": True} if self.lean_replay else {}
-        if is_her:
-            if self.prioritized_replay:
-                raise ValueError(
-                    "prioritized_replay does not combine with hindsight relabelling (HerReplayBuffer): a stored "
-                    "transition stands for every goal it is relabelled with, its TD error for none of them"
-                )
-            if self.count_bonus > 0:
-                raise ValueError("count_bonus does not combine with hindsight relabelling (HerReplayBuffer)")
-            revision = {"revise_experience": True} if self.experience_revision else {}
-            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, **revision, **lean}
-            return False
-        if given is None:
-            self.replay_buffer_class = DCQNDictReplayBuffer if is_dict else DCQNReplayBuffer
-        elif not issubclass(given, (DCQNReplayBuffer, DCQNDictReplayBuffer)):
-            raise ValueError(
-                "experience_revision, prioritized_replay, lean_replay and count_bonus need DCQNReplayBuffer or "
-                f"DCQNDictReplayBuffer, got replay_buffer_class={given.__name__} (or HerReplayBuffer, for "
-                "experience_revision and lean_replay)"
-            )
-        kwargs: dict[str, Any] = {**lean}
-        if readaptation:
-            kwargs.update(revise_experience=self.experience_revision, prioritized=self.prioritized_replay)
-        if self.count_bonus > 0:
-            kwargs.update(count_bonus=self.count_bonus)
-        if dict_n_steps:
-            kwargs.update(n_steps=self.n_steps, gamma=self.gamma)
-        self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, **kwargs}
-        return dict_n_steps
 
     def _create_aliases(self) -> None:
         self.q_net = self.policy.q_net
@@ -327,9 +258,11 @@ class DCQN(OffPolicyAlgorithm):
     def train(self, gradient_steps: int, batch_size: int = 100) -> None:
         # Switch to train mode (this affects batch norm / dropout)
         self.policy.set_training_mode(True)
-        # Update learning rate according to schedule (and, with prioritised replay, the importance correction)
+        # Update learning rate according to schedule
         self._update_learning_rate(self.policy.optimizer)
-        self._update_importance_correction()
+        prioritized = isinstance(self.replay_buffer, PrioritizedReplay)
+        if prioritized:  # the importance correction reaches full (beta = 1) by the end of training
+            self.replay_buffer.anneal_beta(1.0 - self._current_progress_remaining)  # type: ignore[union-attr]
 
         losses = []
         for _ in range(gradient_steps):
@@ -345,8 +278,12 @@ class DCQN(OffPolicyAlgorithm):
             action_index = replay_data.actions.long().expand(current_q_values.shape[0], -1, -1)
             current_q_values = th.gather(current_q_values, dim=2, index=action_index)
 
-            loss = self.critic_loss(current_q_values, target_q_values, replay_data)
+            weights = replay_data.weights if prioritized else None
+            loss = self.critic_loss(current_q_values, target_q_values, weights)
             losses.append(loss.detach())
+            if prioritized:  # the batch's new TD errors (mean over the critics) become its priorities
+                td_errors = (current_q_values.detach() - target_q_values.expand_as(current_q_values)).abs().mean(dim=0)
+                self.replay_buffer.update_priorities(replay_data.indices, td_errors.cpu().numpy())  # type: ignore
 
             # Optimize the policy
             self.policy.optimizer.zero_grad()
@@ -361,8 +298,8 @@ class DCQN(OffPolicyAlgorithm):
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         if losses:
             self.logger.record("train/loss", th.stack(losses).mean().item())
-            self._record_critic_statistics(current_q_values.detach(), target_q_values)
-        if self.experience_revision:
+            _record_critic_statistics(self.logger, current_q_values.detach(), target_q_values)
+        if hasattr(self.replay_buffer, "revised"):  # experience revision: stored transitions rewritten so far
             self.logger.record("train/revised_transitions", self.replay_buffer.revised)  # type: ignore[union-attr]
 
     def td_target(self, replay_data: Any) -> th.Tensor:
@@ -387,45 +324,24 @@ class DCQN(OffPolicyAlgorithm):
             next_q_values, replay_data.rewards, replay_data.dones, discounts, excluded, self.pessimistic_target
         )
 
-    def critic_loss(self, current_q_values: th.Tensor, target_q_values: th.Tensor, replay_data: Any) -> th.Tensor:
+    def critic_loss(
+        self, current_q_values: th.Tensor, target_q_values: th.Tensor, weights: th.Tensor | None = None
+    ) -> th.Tensor:
         """
-        Huber loss of every critic against the shared target, summed over the critics.
-
-        With prioritised replay each sample is weighted by its importance weight, and the batch's new TD errors
-        (mean over the critics) become its priorities.
+        Huber loss of every critic against the shared target, summed over the critics (an extension point: the
+        training step samples, computes the target with :meth:`td_target`, and updates priorities itself).
 
         :param current_q_values: The critics' values of the taken actions, shape ``(n_critics, batch, 1)``
         :param target_q_values: The TD target, shape ``(batch, 1)``
-        :param replay_data: The batch (its importance ``weights`` and ``indices`` with prioritised replay)
+        :param weights: Per-sample importance weights, shape ``(batch, 1)`` (prioritized replay), or ``None``
         :return: The loss to minimise (a scalar)
         """
         n_critics = current_q_values.shape[0]
         targets = target_q_values.expand_as(current_q_values)
-        if not self.prioritized_replay:
+        if weights is None:
             # The mean over critics and samples times the number of critics: the sum of the critics' mean losses
             return n_critics * F.smooth_l1_loss(current_q_values, targets)
-        per_sample = F.smooth_l1_loss(current_q_values, targets, reduction="none") * replay_data.weights
-        td_errors = (current_q_values.detach() - targets).abs().mean(dim=0)
-        self.replay_buffer.update_priorities(replay_data.indices, td_errors.cpu().numpy())  # type: ignore[union-attr]
-        return n_critics * per_sample.mean()
-
-    def _update_importance_correction(self) -> None:
-        """Anneal prioritised replay's importance correction to full (beta = 1) by the end of training."""
-        if self.prioritized_replay:
-            elapsed = 1.0 - self._current_progress_remaining
-            self.replay_buffer.beta = self._beta0 + (1.0 - self._beta0) * elapsed  # type: ignore[union-attr]
-
-    def _record_critic_statistics(self, current_q_values: th.Tensor, target_q_values: th.Tensor) -> None:
-        """Log the last batch's per-critic losses, mean Q, mean |Q1 - Q2| and mean target (one sync)."""
-        targets = target_q_values.expand_as(current_q_values)
-        critic_losses = F.smooth_l1_loss(current_q_values, targets, reduction="none").mean(dim=(1, 2))
-        q_abs_diff = (current_q_values[0] - current_q_values[-1]).abs().mean()
-        summary = th.cat([th.stack([current_q_values.mean(), q_abs_diff, target_q_values.mean()]), critic_losses])
-        values = summary.cpu().numpy()
-        for name, value in zip(_STAT_NAMES, values[: len(_STAT_NAMES)], strict=True):
-            self.logger.record(f"train/{name}", float(value))
-        for critic, value in enumerate(values[len(_STAT_NAMES) :], start=1):
-            self.logger.record(f"train/critic_{critic}_loss", float(value))
+        return n_critics * (F.smooth_l1_loss(current_q_values, targets, reduction="none") * weights).mean()
 
     def predict(
         self,
@@ -492,3 +408,16 @@ class DCQN(OffPolicyAlgorithm):
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts = ["policy", "policy.optimizer"]
         return state_dicts, []
+
+
+def _record_critic_statistics(logger: Logger, current_q_values: th.Tensor, target_q_values: th.Tensor) -> None:
+    """Log the last batch's per-critic losses, mean Q, mean |Q1 - Q2| and mean target (one sync)."""
+    targets = target_q_values.expand_as(current_q_values)
+    critic_losses = F.smooth_l1_loss(current_q_values, targets, reduction="none").mean(dim=(1, 2))
+    q_abs_diff = (current_q_values[0] - current_q_values[-1]).abs().mean()
+    summary = th.cat([th.stack([current_q_values.mean(), q_abs_diff, target_q_values.mean()]), critic_losses])
+    values = summary.cpu().numpy()
+    for name, value in zip(_STAT_NAMES, values[: len(_STAT_NAMES)], strict=True):
+        logger.record(f"train/{name}", float(value))
+    for critic, value in enumerate(values[len(_STAT_NAMES) :], start=1):
+        logger.record(f"train/critic_{critic}_loss", float(value))

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from sb3_dcqn.buffers import digest
+from sb3_dcqn.replay.revision import digest
 
 __all__ = ["ExperienceGraph", "ReplaySearchPolicy", "observation_digests"]
 

@@ -51,7 +51,6 @@ import yaml
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
 from sb3_dcqn.dcqn import DCQN
-from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
 
 ALGO_NAME = "dcqn"
 # Keys of a zoo entry that configure the zoo's env and wrappers rather than the algorithm (n_envs and env_kwargs are
@@ -211,23 +210,38 @@ def check_hyperparams(hyperparams: dict[str, Any], algo: type, where: str) -> No
 
 
 def _check_replay_buffer(hyperparams: dict[str, Any], algo: type, where: str) -> None:
-    """``replay_buffer_class`` is a replay buffer class and ``replay_buffer_kwargs`` are arguments of the one built."""
+    """
+    ``replay_buffer_class`` is a replay buffer class, ``replay_buffer_kwargs`` are arguments of the one built, and
+    (for DCQN) its variants combine with ``n_steps`` and ``blocked_action_target``.
+    """
     from stable_baselines3.common.buffers import ReplayBuffer
+
+    from sb3_dcqn.replay.combine import resolve_replay_buffer
 
     buffer_class = hyperparams.get("replay_buffer_class")
     if buffer_class is not None and not (isinstance(buffer_class, type) and issubclass(buffer_class, ReplayBuffer)):
         names = ", ".join(name for name, value in hyperparams_namespace().items() if _is_buffer_class(value))
         raise ValueError(f"{where}: replay_buffer_class {buffer_class!r} is not a replay buffer class (known: {names})")
     buffer_kwargs = hyperparams.get("replay_buffer_kwargs")
-    if buffer_kwargs is None:
-        return
-    if not isinstance(buffer_kwargs, dict):
+    if buffer_kwargs is not None and not isinstance(buffer_kwargs, dict):
         raise ValueError(f"{where}: replay_buffer_kwargs must be a mapping, got {buffer_kwargs!r}")
-    if buffer_class is None:
-        return  # the algorithm picks the buffer from the observation space: its arguments are not known here
-    if issubclass(algo, DCQN):
-        buffer_class = algo.replay_buffer_substitutes.get(buffer_class, buffer_class)  # what DCQN builds
-    check_keywords(buffer_kwargs, buffer_class, where, "replay_buffer_kwargs key", skip=_BUFFER_ARGUMENTS)
+    if buffer_class is None or not issubclass(algo, DCQN):
+        if buffer_class is not None and buffer_kwargs:
+            check_keywords(buffer_kwargs, buffer_class, where, "replay_buffer_kwargs key", skip=_BUFFER_ARGUMENTS)
+        return  # without a class, the algorithm picks one from the observation space: its arguments are unknown here
+    try:  # what DCQN builds (Dict or Box observations alike for a given class)
+        built, _ = resolve_replay_buffer(
+            buffer_class,
+            buffer_kwargs or {},
+            is_dict=True,
+            n_steps=int(hyperparams.get("n_steps", 1)),
+            gamma=float(hyperparams.get("gamma", 0.99)),
+            blocked_action_target=bool(hyperparams.get("blocked_action_target", False)),
+        )
+    except ValueError as error:
+        raise ValueError(f"{where}: {error}") from None
+    if buffer_kwargs and built is not None:
+        check_keywords(buffer_kwargs, built, where, "replay_buffer_kwargs key", skip=_BUFFER_ARGUMENTS)
 
 
 def _is_buffer_class(value: Any) -> bool:
@@ -301,20 +315,18 @@ def hyperparams_namespace() -> dict[str, Any]:
     """
     Names that ``policy_kwargs``, ``replay_buffer_class`` and ``replay_buffer_kwargs`` strings in ``dcqn.yml`` may
     use (the zoo evaluates those strings): the fusion extractor, ``nn``, SB3's ``HerReplayBuffer`` and DCQN's replay
-    buffers.
+    buffers (its bases and every combination of variants, by class name: ``LeanNStepDictReplayBuffer``).
     """
     from torch import nn
 
-    from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
+    from sb3_dcqn import replay
     from sb3_dcqn.fusion import EmbeddingFusionExtractor
 
     return {
         "EmbeddingFusionExtractor": EmbeddingFusionExtractor,
         "nn": nn,
         "HerReplayBuffer": HerReplayBuffer,
-        "DCQNHerReplayBuffer": DCQNHerReplayBuffer,
-        "DCQNReplayBuffer": DCQNReplayBuffer,
-        "DCQNDictReplayBuffer": DCQNDictReplayBuffer,
+        **{cls.__name__: cls for cls in replay.all_replay_buffer_classes()},
     }
 
 

@@ -10,6 +10,7 @@ from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_dcqn import DCQN
 from sb3_dcqn.adaptation_boost import AdaptationBoost
+from sb3_dcqn.replay import RevisionReplayBuffer
 
 SMALL = dict(learning_starts=0, exploration_fraction=0.01, seed=0, policy_kwargs=dict(net_arch=[16]))
 
@@ -28,7 +29,7 @@ class RevisionNow(AdaptationBoost):
 
 
 def test_a_revision_boosts_exploration_and_the_replay_ratio_for_a_while() -> None:
-    model = DCQN("MlpPolicy", "CartPole-v1", experience_revision=True, **SMALL)
+    model = DCQN("MlpPolicy", "CartPole-v1", replay_buffer_class=RevisionReplayBuffer, **SMALL)
     model.learn(200)
     assert model.exploration_rate == pytest.approx(0.05)
     boost = RevisionNow(at_step=210, exploration=0.5, replay_ratio=3, steps=100)
@@ -42,7 +43,7 @@ def test_a_revision_boosts_exploration_and_the_replay_ratio_for_a_while() -> Non
 
 
 def test_the_boost_ends_after_its_steps() -> None:
-    model = DCQN("MlpPolicy", "CartPole-v1", experience_revision=True, **SMALL)
+    model = DCQN("MlpPolicy", "CartPole-v1", replay_buffer_class=RevisionReplayBuffer, **SMALL)
     model.learn(200)
     boost = RevisionNow(at_step=210, exploration=0.5, steps=20)
     model.learn(60, reset_num_timesteps=False, callback=boost)
@@ -74,5 +75,5 @@ def test_bad_settings_are_refused_naming_the_value() -> None:
     with pytest.raises(ValueError, match="replay_ratio >= 1"):
         AdaptationBoost(trigger="td_error", replay_ratio=0)
     model = DCQN("MlpPolicy", "CartPole-v1", **SMALL)
-    with pytest.raises(ValueError, match="needs a DCQN with experience_revision=True"):
+    with pytest.raises(ValueError, match="needs a replay buffer with experience revision"):
         model.learn(10, callback=AdaptationBoost(trigger="revision"))

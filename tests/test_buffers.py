@@ -1,15 +1,31 @@
-"""Re-adaptation options of DCQN's replay buffers: experience revision and prioritised replay; DCQN's flags."""
+"""DCQN's replay variants as buffer classes: experience revision, prioritized replay, how they compose and combine."""
 
 from __future__ import annotations
+
+import pickle
 
 import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium import spaces
-from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.buffers import DictReplayBuffer, NStepReplayBuffer, ReplayBuffer
+from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
-from sb3_dcqn import DCQN
-from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
+from sb3_dcqn import DCQN, replay
+from sb3_dcqn.replay import (
+    DCQNDictReplayBuffer,
+    DCQNHerReplayBuffer,
+    DCQNReplayBuffer,
+    PrioritizedReplay,
+    RevisionReplay,
+    replay_buffer_class,
+    variants_of,
+    with_variants,
+)
+
+RevisionBox = replay_buffer_class("revision", base="Box")
+RevisionDict = replay_buffer_class("revision")
+PrioritizedBox = replay_buffer_class("prioritized", base="Box")
 
 BOX = spaces.Box(-10.0, 10.0, shape=(3,), dtype=np.float32)
 DICT = spaces.Dict({"views": BOX, "heading": spaces.Box(0.0, 1.0, shape=(4,), dtype=np.float32)})
@@ -37,10 +53,10 @@ def drive(buffer, make_obs) -> None:
 
 
 @pytest.mark.parametrize(
-    ("buffer_class", "space", "make_obs"), [(DCQNReplayBuffer, BOX, box_obs), (DCQNDictReplayBuffer, DICT, dict_obs)]
+    ("buffer_class", "space", "make_obs"), [(RevisionBox, BOX, box_obs), (RevisionDict, DICT, dict_obs)]
 )
 def test_a_collision_relabels_every_stored_copy_it_contradicts(buffer_class, space, make_obs) -> None:
-    buffer = buffer_class(100, space, ACTIONS, device="cpu", revise_experience=True)
+    buffer = buffer_class(100, space, ACTIONS, device="cpu")
     drive(buffer, make_obs)
     assert buffer.revised == 0  # consistent history: nothing contradicted
     # The road closes: from node 1, action 0 now collides (the agent stays, collision penalty)
@@ -61,14 +77,14 @@ def test_a_collision_relabels_every_stored_copy_it_contradicts(buffer_class, spa
 
 
 def test_revision_tells_observations_apart_by_every_key() -> None:
-    buffer = DCQNDictReplayBuffer(100, DICT, ACTIONS, device="cpu", revise_experience=True)
+    buffer = RevisionDict(100, DICT, ACTIONS, device="cpu")
     add(buffer, dict_obs(1, heading=0), dict_obs(2), 0, -0.005)
     add(buffer, dict_obs(1, heading=1), dict_obs(1, heading=1), 0, -0.01)  # same views, other heading: other state
     assert buffer.revised == 0
 
 
 def test_overwritten_transitions_leave_the_index() -> None:
-    buffer = DCQNReplayBuffer(4, BOX, ACTIONS, device="cpu", revise_experience=True)
+    buffer = RevisionBox(4, BOX, ACTIONS, device="cpu")
     add(buffer, box_obs(1), box_obs(2), 0, -0.005)
     for node in range(5, 9):  # the ring buffer of 4 overwrites the first transition
         add(buffer, box_obs(node), box_obs(node + 1), 0, -0.005)
@@ -76,8 +92,8 @@ def test_overwritten_transitions_leave_the_index() -> None:
     assert buffer.revised == 0  # the contradicted copy is gone, nothing left to revise
 
 
-def test_prioritised_sampling_follows_the_priorities_with_importance_weights() -> None:
-    buffer = DCQNReplayBuffer(100, BOX, ACTIONS, device="cpu", prioritized=True, alpha=1.0, beta=1.0)
+def test_prioritized_sampling_follows_the_priorities_with_importance_weights() -> None:
+    buffer = PrioritizedBox(100, BOX, ACTIONS, device="cpu", alpha=1.0, beta=1.0)
     for node in range(10):
         add(buffer, box_obs(node), box_obs(node + 1), 0, -0.005)
     assert np.all(buffer.priorities[:10] == 1.0)  # new transitions come in at the highest priority
@@ -89,7 +105,7 @@ def test_prioritised_sampling_follows_the_priorities_with_importance_weights() -
     share_of_7 = np.mean(samples.indices == 7)
     expected = (9.0 + buffer.priority_eps) / (9.0 + 9 * 0.01 + 10 * buffer.priority_eps)
     assert share_of_7 == pytest.approx(expected, abs=0.02)
-    # Rarely drawn transitions weigh most; weights are normalised to a maximum of 1
+    # Rarely drawn transitions weigh most; weights are normalized to a maximum of 1
     weights = samples.weights.numpy().reshape(-1)
     assert weights.max() == pytest.approx(1.0) and weights[samples.indices == 7].max() < 0.05
     # Each sample is the transition its index names (node i was stored at row i)
@@ -99,38 +115,93 @@ def test_prioritised_sampling_follows_the_priorities_with_importance_weights() -
     assert buffer.priorities[10, 0] == pytest.approx(100.0 + buffer.priority_eps)  # max priority so far
 
 
-def test_bad_buffer_settings_are_refused() -> None:
+def test_each_variant_checks_its_own_arguments() -> None:
     with pytest.raises(ValueError, match="optimize_memory_usage"):
         DCQNReplayBuffer(100, BOX, ACTIONS, optimize_memory_usage=True, handle_timeout_termination=False)
-    with pytest.raises(ValueError, match="alpha"):
-        DCQNReplayBuffer(100, BOX, ACTIONS, alpha=2.0)
+    with pytest.raises(ValueError, match="alpha must be in"):
+        PrioritizedBox(100, BOX, ACTIONS, alpha=2.0)
+    with pytest.raises(ValueError, match="n_steps must be an integer >= 1"):
+        replay.NStepDictReplayBuffer(100, DICT, ACTIONS, n_steps=0)
+    with pytest.raises(ValueError, match=r"count_bonus=\.\.\.\) > 0"):
+        replay.CountBonusDictReplayBuffer(100, DICT, ACTIONS)
+    with pytest.raises(TypeError, match="alpha"):  # an argument of a variant the class does not have
+        RevisionDict(100, DICT, ACTIONS, alpha=0.5)
 
 
-def test_dcqn_selects_the_buffer_and_trains_with_priorities_and_revision() -> None:
+def test_a_combination_is_a_class_named_by_its_parts_importable_and_picklable() -> None:
+    cls = replay_buffer_class("revision", "lean", base="Her")  # any order
+    assert cls is replay.LeanRevisionHerReplayBuffer and cls.__name__ == "LeanRevisionHerReplayBuffer"
+    assert issubclass(cls, RevisionReplay) and issubclass(cls, DCQNHerReplayBuffer)
+    assert pickle.loads(pickle.dumps(cls)) is cls
+    assert variants_of(cls) == ("Her", frozenset({"lean", "revision"}))
+    assert replay_buffer_class() is DCQNDictReplayBuffer  # no variant: the base
+    assert replay_buffer_class("nstep", base="Box") is NStepReplayBuffer  # SB3's own, not a second class of its name
+    with pytest.raises(AttributeError, match="NoSuchDictReplayBuffer"):
+        _ = replay.NoSuchDictReplayBuffer
+
+
+def test_one_place_decides_what_combines_and_the_error_names_both_sides() -> None:
+    with pytest.raises(ValueError, match=r"n-step returns \(nstep\) does not combine with experience revision"):
+        replay_buffer_class("revision", "nstep")
+    with pytest.raises(
+        ValueError, match=r"hindsight relabelling \(HerReplayBuffer\) does not combine with prioritized"
+    ):
+        with_variants(HerReplayBuffer, "prioritized")
+    with pytest.raises(ValueError, match=r"Box observations \(ReplayBuffer\) does not combine with lean storage"):
+        replay_buffer_class("lean", base="Box")
+    with pytest.raises(ValueError, match=r"hindsight relabelling \(HerReplayBuffer\) does not combine with the count"):
+        replay_buffer_class("count_bonus", base="Her")
+    with pytest.raises(ValueError, match="unknown replay variant 'per'"):
+        replay_buffer_class("per")
+    assert with_variants(HerReplayBuffer, "revision") is replay.RevisionHerReplayBuffer
+    assert with_variants(DictReplayBuffer, "lean", "nstep") is replay.LeanNStepDictReplayBuffer
+    assert with_variants(replay.LeanDictReplayBuffer, "revision") is replay.LeanRevisionDictReplayBuffer
+
+
+def test_dcqn_builds_the_buffer_class_it_is_given_and_trains_with_priorities_and_revision() -> None:
     model = DCQN(
         "MlpPolicy",
         "CartPole-v1",
-        experience_revision=True,
-        prioritized_replay=True,
+        replay_buffer_class=replay.RevisionPrioritizedReplayBuffer,
         learning_starts=50,
         train_freq=1,
         seed=0,
         policy_kwargs=dict(net_arch=[16]),
     )
-    assert isinstance(model.replay_buffer, DCQNReplayBuffer)
-    assert model.replay_buffer.revise_experience and model.replay_buffer.prioritized
+    assert isinstance(model.replay_buffer, RevisionReplay) and isinstance(model.replay_buffer, PrioritizedReplay)
     model.learn(300)
-    assert model.replay_buffer.priorities[:300].std() > 0  # TD errors came back from train()
+    assert model.replay_buffer.priorities[:300].std() > 0  # TD errors came back from the training step
     assert model.replay_buffer.beta > 0.4  # annealed towards 1
-    dict_model = DCQN("MultiInputPolicy", DictCartPole(), experience_revision=True)
-    assert isinstance(dict_model.replay_buffer, DCQNDictReplayBuffer)
+    assert model.logger.name_to_value.get("train/revised_transitions", 0) >= 0
+    dict_model = DCQN("MultiInputPolicy", DictCartPole(), replay_buffer_class=RevisionDict)
+    assert isinstance(dict_model.replay_buffer, RevisionDict)
 
 
-def test_dcqn_flags_are_checked() -> None:
-    with pytest.raises(ValueError, match="n-step"):
-        DCQN("MlpPolicy", "CartPole-v1", experience_revision=True, n_steps=3)
-    with pytest.raises(ValueError, match="need DCQNReplayBuffer or DCQNDictReplayBuffer"):
-        DCQN("MlpPolicy", "CartPole-v1", prioritized_replay=True, replay_buffer_class=ReplayBuffer)
+def test_priorities_come_from_the_training_step_even_with_a_critic_loss_of_ones_own() -> None:
+    class OwnLoss(DCQN):
+        def critic_loss(self, current_q_values, target_q_values, weights=None):  # ignores the weights
+            return ((current_q_values - target_q_values.expand_as(current_q_values)) ** 2).mean()
+
+    model = OwnLoss(
+        "MlpPolicy", "CartPole-v1", replay_buffer_class=PrioritizedBox, learning_starts=50, train_freq=1, seed=0
+    )
+    model.learn(200)
+    assert model.replay_buffer.priorities[:200].std() > 0
+
+
+def test_dcqn_checks_its_options_with_the_buffer_class() -> None:
+    with pytest.raises(ValueError, match=r"n-step returns \(nstep\) does not combine with experience revision"):
+        DCQN("MlpPolicy", "CartPole-v1", replay_buffer_class=RevisionBox, n_steps=3)
+    with pytest.raises(ValueError, match=r"n-step returns \(nstep\) does not combine with blocked_action_target"):
+        DCQN("MultiInputPolicy", DictCartPole(), blocked_action_target=True, n_steps=3)
+    # n_steps with Dict observations (SB3 has no buffer for it) and with one of DCQN's classes adds the variant
+    model = DCQN("MultiInputPolicy", DictCartPole(), n_steps=3, gamma=0.9)
+    assert type(model.replay_buffer) is replay.NStepDictReplayBuffer
+    assert (model.replay_buffer.n_steps, model.replay_buffer.gamma) == (3, 0.9)
+    lean = DCQN("MultiInputPolicy", DictCartPole(), replay_buffer_class=replay.LeanDictReplayBuffer, n_steps=4)
+    assert type(lean.replay_buffer) is replay.LeanNStepDictReplayBuffer and lean.replay_buffer.n_steps == 4
+    # SB3's own buffers and a user's own class are built as given
+    assert type(DCQN("MlpPolicy", "CartPole-v1", replay_buffer_class=ReplayBuffer).replay_buffer) is ReplayBuffer
 
 
 class DictCartPole(gym.ObservationWrapper):

@@ -21,6 +21,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.cli import CommandError, build_parser, main, run
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
+from sb3_dcqn.replay import RevisionDictReplayBuffer
 from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
 
 FAST = ("--encoder", "pixels", "--render-size", "64", "48")
@@ -195,7 +196,7 @@ def test_train_with_closure_flags_and_two_envs(tmp_path: Path, tiny_conf: Path) 
     )  # fmt: skip
     # The levers reach DCQN and the env, and are saved with the model
     model = DCQN.load(out / "dcqn_campusnav.zip")
-    assert model.experience_revision and model.blocked_action_target and not model.prioritized_replay
+    assert model.replay_buffer_class is RevisionDictReplayBuffer and model.blocked_action_target
     assert summary["levers"] == ["revision", "blocked", "visible"]
     assert summary["settings"]["env_kwargs"]["visible_closures"] is True
     (closure,) = summary["closures"]

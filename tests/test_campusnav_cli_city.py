@@ -10,8 +10,8 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_dcqn import DCQN
-from sb3_dcqn.buffers import DCQNDictReplayBuffer
 from sb3_dcqn.campusnav.cli import build_parser, run
+from sb3_dcqn.replay import LeanNStepDictReplayBuffer
 
 CITY = "CampusNavCity-v0"
 FAST = ("--encoder", "pixels", "--render-size", "64", "48")
@@ -25,7 +25,7 @@ CampusNavCity-v0:
     view_dim: 16
   gamma: 0.98
   n_steps: 4
-  lean_replay: True
+  replay_buffer_class: LeanDictReplayBuffer
   replay_search: True
   buffer_size: 2000
   learning_starts: 100
@@ -66,9 +66,9 @@ def test_the_city_entry_trains_with_its_curriculum_and_lean_n_step_replay_and_ev
     events.Reload()
     assert "curriculum/start_distance_limit" in events.Tags()["scalars"]  # the entry's callback ran
     model = DCQN.load(out / "dcqn_campusnav.zip")
-    assert model.replay_search and model.lean_replay and model.n_steps == 4
+    assert model.replay_search and model.replay_buffer_class is LeanNStepDictReplayBuffer and model.n_steps == 4
     model.load_replay_buffer(out / "dcqn_campusnav_replay_buffer.pkl")
-    assert isinstance(model.replay_buffer, DCQNDictReplayBuffer) and model.replay_buffer.lean
+    assert type(model.replay_buffer) is LeanNStepDictReplayBuffer and model.replay_buffer.n_steps == 4
     scores = cli("evaluate", str(out / "dcqn_campusnav.zip"))
     assert "replay search over" in capsys.readouterr().err  # the buffer saved next to the model is planned over
     assert scores["all"]["n_routes"] == summary["trained"]["n_routes"]

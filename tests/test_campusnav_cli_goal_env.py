@@ -21,10 +21,9 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from campusnav_env import GOALS
 from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.cli import CommandError, build_parser, run
-from sb3_dcqn.campusnav.levers import LEVERS
 from sb3_dcqn.campusnav.pictures import picture_goals
 from sb3_dcqn.campusnav.settings import EnvSettings, make_env
-from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
+from sb3_dcqn.replay import DCQNHerReplayBuffer, RevisionHerReplayBuffer
 
 GOAL_ENV = "CampusNavGoal-v0"
 FAST = ("--encoder", "pixels", "--render-size", "64", "48")
@@ -153,11 +152,9 @@ def test_a_closure_that_cuts_off_any_intersection_is_refused_on_the_goal_env(tmp
         cli("train", "--env", GOAL_ENV, *FAST, "--close", *BRIDGE, "--out", str(tmp_path / "out"))
 
 
-@pytest.mark.parametrize(
-    "lever", [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer and not lever.runs_with_her]
-)
-def test_levers_that_need_dcqns_own_replay_buffer_are_refused_by_name(tmp_path: Path, lever: str) -> None:
-    message = rf"--levers: lever '{lever}' .*HerReplayBuffer.* every goal it is relabelled with"
+@pytest.mark.parametrize("lever", ["prioritized"])
+def test_levers_that_do_not_combine_with_hindsight_relabelling_are_refused_by_name(tmp_path: Path, lever: str) -> None:
+    message = rf"--levers: lever '{lever}' .*HerReplayBuffer.*every goal it is relabelled with"
     with pytest.raises(CommandError, match=message):
         cli("train", "--env", GOAL_ENV, *FAST, "--levers", "blocked", lever, "--out", str(tmp_path / "out"))
     assert not (tmp_path / "out").exists()  # refused before anything is trained or written
@@ -175,8 +172,8 @@ def test_demo_on_the_goal_env_runs_the_default_levers_revision_included(
     model = DCQN.load(
         tmp_path / "demo" / "dcqn_campusnav.zip", env=make_env(EnvSettings.from_json(summary["settings"]))
     )
-    assert model.blocked_action_target and model.experience_revision
-    assert model.replay_buffer.revise_experience
+    assert model.blocked_action_target and model.replay_buffer_class is RevisionHerReplayBuffer
+    assert isinstance(model.replay_buffer, RevisionHerReplayBuffer)
 
 
 def test_pictures_show_the_papers_four_goals_of_a_goal_env() -> None:

@@ -20,9 +20,8 @@ from stable_baselines3.common.envs import BitFlippingEnv
 from campusnav_env import CampusNavEnv
 from campusnav_env.closures import ClosureEvent
 from campusnav_env.rendering.street_view import RenderSettings
-from sb3_dcqn import DCQN
+from sb3_dcqn import DCQN, replay
 from sb3_dcqn.adaptation_boost import AdaptationBoost
-from sb3_dcqn.buffers import DCQNDictReplayBuffer
 from sb3_dcqn.campusnav.experiments import ClosurePlan, train_with_closures
 from sb3_dcqn.campusnav.levers import (
     DEMO_LEVERS,
@@ -32,12 +31,13 @@ from sb3_dcqn.campusnav.levers import (
     lever_callbacks,
     lever_options,
     options_text,
+    replay_variants,
     unusable_levers,
     usable_levers,
     with_levers,
 )
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS, is_solved
-from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
+from sb3_dcqn.replay import DCQNHerReplayBuffer, replay_buffer_class
 from sb3_dcqn.zoo import ZooEntry
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
@@ -91,75 +91,95 @@ def test_the_solved_bar_is_success_099_and_spl_098_for_every_goal() -> None:
     assert evaluation.asked == (0.99, 0.98, True)
 
 
-def test_levers_combine_their_dcqn_and_env_options_in_order() -> None:
+def test_levers_combine_their_replay_variants_dcqn_and_env_options_in_order() -> None:
     # The adaptation boost is a callback, not a DCQN option
-    assert set(LEVERS) == {"revision", "blocked", "per", "visible", "boost", "boost_on_revision"}
+    assert set(LEVERS) == {"revision", "blocked", "prioritized", "visible", "boost", "boost_on_revision"}
     dcqn_options, env_options = lever_options(("revision", "blocked", "visible"))
-    assert dcqn_options == {"experience_revision": True, "blocked_action_target": True}
+    assert dcqn_options == {"blocked_action_target": True}
     assert env_options == {"visible_closures": True}
-    # The results files' option text (run records are matched on it): DCQN options first, then the env's
-    text = "experience_revision=True, blocked_action_target=True, visible_closures=True"
+    assert replay_variants(("revision", "blocked", "prioritized", "boost_on_revision")) == ("revision", "prioritized")
+    # The results files' option text (run records are matched on it): replay variants, DCQN options, the env's
+    text = "replay variants revision, blocked_action_target=True, visible_closures=True"
     assert options_text(("revision", "blocked", "visible")) == text
     assert LeverSet("baseline").options_text() == "as shipped"
-    entry = with_levers(ZooEntry(100, {"policy": "MlpPolicy"}, {"view_dim": 16}), ("per", "visible"))
-    assert entry.hyperparams == {"policy": "MlpPolicy", "prioritized_replay": True}
+    entry = with_levers(ZooEntry(100, {"policy": "MultiInputPolicy"}, {"view_dim": 16}), ("prioritized", "visible"))
+    assert entry.hyperparams == {
+        "policy": "MultiInputPolicy",
+        "replay_buffer_class": replay.PrioritizedDictReplayBuffer,
+    }
     assert entry.env_kwargs == {"view_dim": 16, "visible_closures": True}
     with pytest.raises(KeyError, match="unknown lever 'moon'"):
         LeverSet("moon", ("moon",))
 
 
 def test_the_boost_lever_adds_a_callback_and_no_dcqn_option() -> None:
-    assert lever_options(("revision", "boost_on_revision")) == ({"experience_revision": True}, {})
-    assert lever_callbacks(("revision", "per")) == []
+    assert lever_options(("revision", "boost_on_revision")) == ({}, {})
+    assert lever_callbacks(("revision", "prioritized")) == []
     (boost,) = lever_callbacks(("revision", "boost_on_revision"))
     assert isinstance(boost, AdaptationBoost) and boost.trigger == "revision"
     assert lever_callbacks(("boost",))[0] is not lever_callbacks(("boost",))[0]  # a fresh callback for each run
-    text = "experience_revision=True, callback AdaptationBoost(trigger='revision')"
+    text = "replay variants revision, callback AdaptationBoost(trigger='revision')"
     assert options_text(("revision", "boost_on_revision")) == text
 
 
-def test_levers_that_need_dcqns_own_replay_buffer_are_left_out_or_refused_with_hindsight_relabelling() -> None:
+def test_levers_are_added_to_the_entrys_replay_buffer_and_refused_where_they_do_not_combine() -> None:
     her = {"policy": "MultiInputPolicy", "replay_buffer_class": HerReplayBuffer}
-    assert [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer] == [
-        "revision",
-        "per",
-        "boost_on_revision",
-    ]
-    # Revision (and its boost) run with DCQN's HER buffer too; prioritised replay does not
+    # Revision (and its boost) run with DCQN's HER buffer too; prioritized replay does not
     assert unusable_levers(("revision", "boost_on_revision", "blocked"), her) == {}
-    usable, left_out = usable_levers((*DEMO_LEVERS, "per"), her)
-    assert usable == DEMO_LEVERS and list(left_out) == ["per"]
-    assert "every goal it is relabelled with" in left_out["per"]
-    assert usable_levers(("revision", "per", "blocked"), {"policy": "MultiInputPolicy"}) == (
-        ("revision", "per", "blocked"),
+    usable, left_out = usable_levers((*DEMO_LEVERS, "prioritized"), her)
+    assert usable == DEMO_LEVERS and list(left_out) == ["prioritized"]
+    assert "every goal it is relabelled with" in left_out["prioritized"]
+    assert usable_levers(("revision", "prioritized", "blocked"), {"policy": "MultiInputPolicy"}) == (
+        ("revision", "prioritized", "blocked"),
         {},
     )
-    assert unusable_levers(("per",), {**her, "replay_buffer_class": DCQNDictReplayBuffer}) == {}  # DCQN's own
-    assert "not DictReplayBuffer" in unusable_levers(("per",), {**her, "replay_buffer_class": DictReplayBuffer})["per"]
-    with pytest.raises(ValueError, match=r"lever 'per' \(prioritised replay\) cannot run here: .*HerReplayBuffer"):
-        check_levers(("blocked", "visible", "boost", "per"), her)
-    with pytest.raises(ValueError, match="lever 'per'"):
-        with_levers(ZooEntry(100, her), ("per",))
-    assert with_levers(ZooEntry(100, her), ("revision",)).hyperparams["experience_revision"] is True
+    lean = {**her, "replay_buffer_class": replay.LeanDictReplayBuffer}
+    assert with_levers(ZooEntry(100, lean), ("prioritized",)).hyperparams["replay_buffer_class"] is (
+        replay.LeanPrioritizedDictReplayBuffer
+    )
+    assert (
+        "not replay_buffer_class=Own" in unusable_levers(("prioritized",), {"replay_buffer_class": Own})["prioritized"]
+    )
+    n_step = {"policy": "MultiInputPolicy", "n_steps": 8}
+    assert (
+        "n-step returns (nstep) does not combine with experience revision"
+        in unusable_levers(("revision",), n_step)["revision"]
+    )
+    assert "blocked_action_target" in unusable_levers(("blocked",), n_step)["blocked"]
+    with pytest.raises(
+        ValueError, match=r"lever 'prioritized' \(prioritized replay\) cannot run here: hindsight relabelling"
+    ):
+        check_levers(("blocked", "visible", "boost", "prioritized"), her)
+    with pytest.raises(ValueError, match="lever 'prioritized'"):
+        with_levers(ZooEntry(100, her), ("prioritized",))
+    assert with_levers(ZooEntry(100, her), ("revision",)).hyperparams["replay_buffer_class"] is (
+        replay.RevisionHerReplayBuffer
+    )
     assert with_levers(ZooEntry(100, her), ("blocked",)).hyperparams["blocked_action_target"] is True
 
 
-def test_the_replay_buffer_rule_is_the_one_dcqn_applies() -> None:
-    # Each lever with DCQN options builds a DCQN with hindsight relabelling exactly when the rule lets it run; the
-    # revision-triggered boost fails when training starts (SB3's BitFlippingEnv: a small goal env)
+class Own(DictReplayBuffer):
+    """A user's own replay buffer class: DCQN builds it as given and adds no variant to it."""
+
+
+def test_the_lever_rule_is_the_one_dcqn_applies() -> None:
+    # Each lever builds a DCQN with hindsight relabelling exactly when the rule lets it run (SB3's BitFlippingEnv:
+    # a small goal env)
     env = BitFlippingEnv(n_bits=4, max_steps=4)
     her = {"policy": "MultiInputPolicy", "replay_buffer_class": HerReplayBuffer, "learning_starts": 8}
-    for name, lever in LEVERS.items():
-        dcqn_options, _ = lever_options((name,))
-        if lever.needs_own_replay_buffer and not lever.runs_with_her and dcqn_options:
-            with pytest.raises(ValueError, match="stands for every goal"):
-                DCQN(env=env, **her, **dcqn_options)
-        elif dcqn_options:
-            assert isinstance(DCQN(env=env, **her, **dcqn_options).replay_buffer, DCQNHerReplayBuffer)
+    for name in LEVERS:
+        entry = ZooEntry(100, her)
+        if name in unusable_levers((name,), her):
+            with pytest.raises(ValueError, match="stands for every goal"):  # the class DCQN would be given
+                replay_buffer_class(*replay_variants((name,)), base="Her")
+            continue
+        hyperparams = with_levers(entry, (name,)).hyperparams
+        assert isinstance(DCQN(env=env, **hyperparams).replay_buffer, DCQNHerReplayBuffer)
     model = DCQN(env=env, **her)
-    with pytest.raises(ValueError, match="experience_revision"):
+    with pytest.raises(ValueError, match="needs a replay buffer with experience revision"):
         model.learn(8, callback=lever_callbacks(("boost_on_revision",)))  # a boost on revisions needs them on
-    DCQN(env=env, **her, experience_revision=True).learn(8, callback=lever_callbacks(("boost_on_revision",)))
+    revising = DCQN(env=env, **with_levers(ZooEntry(100, her), ("boost_on_revision",)).hyperparams)
+    revising.learn(8, callback=lever_callbacks(("boost_on_revision",)))
     model.learn(8, callback=lever_callbacks(("boost",)))  # the episode-length trigger needs no buffer of its own
 
 
@@ -194,6 +214,11 @@ def test_the_first_phase_stops_at_its_training_seconds() -> None:
 def test_benchmarks_keep_no_copy_of_the_bar_the_levers_or_the_loop(script: str) -> None:
     text = (BENCHMARKS / script).read_text()
     assert not re.search(r"\b0\.9[89]\b", text), "the solved bar is sb3_dcqn.campusnav.solved's"
-    for option in ("experience_revision", "blocked_action_target", "prioritized_replay", "visible_closures"):
+    for option in (
+        "RevisionDictReplayBuffer",
+        "blocked_action_target",
+        "PrioritizedDictReplayBuffer",
+        "visible_closures",
+    ):
         assert option not in text, f"{option}: the levers table is sb3_dcqn.campusnav.levers'"
     assert "RoadClosureCallback(" not in text, "the closure loop is sb3_dcqn.campusnav.experiments'"

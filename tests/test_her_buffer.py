@@ -18,7 +18,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
-from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
+from sb3_dcqn.replay import DCQNHerReplayBuffer, LeanHerReplayBuffer, RevisionHerReplayBuffer
 
 N_CELLS = 5
 GOAL_REWARD, STEP_REWARD = 1.0, -0.1
@@ -66,10 +66,12 @@ class ChainWithoutTerminated(Chain):
     """The chain of an env that predates ``compute_terminated`` (as SB3's BitFlippingEnv)."""
 
 
-def walk_right(env_class: type[gym.Env], strategy: str, **kwargs: Any) -> DCQNHerReplayBuffer:
+def walk_right(
+    env_class: type[gym.Env], strategy: str, buffer_class: type = DCQNHerReplayBuffer, **kwargs: Any
+) -> DCQNHerReplayBuffer:
     """A buffer holding one episode 0 -> 1 -> 2 -> 3 (goal 3: the last transition is terminal)."""
     vec_env = DummyVecEnv([env_class])
-    buffer = DCQNHerReplayBuffer(
+    buffer = buffer_class(
         100, vec_env.observation_space, vec_env.action_space, vec_env, goal_selection_strategy=strategy, **kwargs
     )
     obs = vec_env.reset()
@@ -93,9 +95,9 @@ def relabelled(buffer: DCQNHerReplayBuffer, draws: int = 400) -> set[tuple[int, 
     return set(zip(next_cells.tolist(), goals.tolist(), rewards, samples.dones.flatten().tolist(), strict=True))
 
 
-@pytest.mark.parametrize("lean", [False, True])
-def test_a_relabelled_transition_that_reaches_its_new_goal_is_terminal(lean: bool) -> None:
-    seen = relabelled(walk_right(ChainGoalEnv, "future", lean=lean))
+@pytest.mark.parametrize("buffer_class", [DCQNHerReplayBuffer, LeanHerReplayBuffer])
+def test_a_relabelled_transition_that_reaches_its_new_goal_is_terminal(buffer_class: type) -> None:
+    seen = relabelled(walk_right(ChainGoalEnv, "future", buffer_class))
     # Known values: next cell == new goal -> +1 and terminal. Future goals of 0->1: 1, 2, 3; of 1->2: 2, 3; of 2->3: 3
     expected = {(1, 1, 1.0, 1.0), (1, 2, STEP_REWARD, 0.0), (1, 3, STEP_REWARD, 0.0)}
     expected |= {(2, 2, 1.0, 1.0), (2, 3, STEP_REWARD, 0.0), (3, 3, 1.0, 1.0)}
@@ -230,12 +232,11 @@ def test_revision_rewrites_a_closed_road_for_every_goal_its_transitions_carry(tm
         progress=False,
     )  # fmt: skip
     model = DCQN(
-        "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, experience_revision=True,
-        learning_starts=10**6, seed=0,
+        "MultiInputPolicy", env, replay_buffer_class=RevisionHerReplayBuffer, learning_starts=10**6, seed=0,
     )  # fmt: skip
     model.learn(3_000)
     buffer = model.replay_buffer
-    assert isinstance(buffer, DCQNHerReplayBuffer) and buffer.revise_experience and buffer.revised == 0
+    assert isinstance(buffer, RevisionHerReplayBuffer) and buffer.revised == 0
     n = buffer.pos
     here = env.goal_nodes_of(buffer.observations["achieved_goal"][:n, 0])
     there = env.goal_nodes_of(buffer.next_observations["achieved_goal"][:n, 0])

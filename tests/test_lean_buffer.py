@@ -1,4 +1,4 @@
-"""DCQN's Dict replay buffer beyond SB3's: lean storage (observation tables), n-step returns and the count bonus."""
+"""DCQN's Dict replay variants beyond SB3's: lean storage (observation tables), n-step returns and the count bonus."""
 
 from __future__ import annotations
 
@@ -20,10 +20,11 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from campusnav_env import CampusNavEnv, generate_campus
 from campusnav_env.rendering.street_view import RenderSettings
-from sb3_dcqn import DCQN
-from sb3_dcqn.buffers import DCQNDictReplayBuffer
-from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
+from sb3_dcqn import DCQN, replay
 from sb3_dcqn.observation_table import ObservationTable
+from sb3_dcqn.replay import DCQNHerReplayBuffer, LeanReplay, replay_buffer_class
+
+Lean = replay.LeanDictReplayBuffer
 
 VIEW = spaces.Box(-10.0, 10.0, shape=(6,), dtype=np.float32)
 HEADING = spaces.Box(0.0, 1.0, shape=(4,), dtype=np.float32)
@@ -115,7 +116,7 @@ def test_the_table_reads_and_writes_like_the_array_it_stands_for() -> None:
 
 
 def test_rows_no_slot_holds_are_reused_so_the_table_stays_bounded() -> None:
-    buffer = DCQNDictReplayBuffer(10, SPACE, ACTIONS, device="cpu", lean=True)
+    buffer = Lean(10, SPACE, ACTIONS, device="cpu")
     for node in range(1_000):  # never the same views twice
         obs, next_obs = node_obs([node]), node_obs([node + 1])
         buffer.add(obs, next_obs, np.array([[0]]), np.array([0.0]), np.array([False]), [{}])
@@ -133,7 +134,7 @@ def test_rows_no_slot_holds_are_reused_so_the_table_stays_bounded() -> None:
 @pytest.mark.parametrize("n_envs", [1, 3])
 def test_lean_samples_equal_the_plain_dict_buffers_on_the_same_data(n_envs: int) -> None:
     plain = DictReplayBuffer(40, SPACE, ACTIONS, device="cpu", n_envs=n_envs)
-    lean = DCQNDictReplayBuffer(40, SPACE, ACTIONS, device="cpu", n_envs=n_envs, lean=True)
+    lean = Lean(40, SPACE, ACTIONS, device="cpu", n_envs=n_envs)
     random_walk([plain, lean], 50, n_envs=n_envs)  # wraps around: overwritten slots too
     assert isinstance(lean.observations["views"], ObservationTable)
     assert lean.actions.dtype == np.uint8
@@ -145,15 +146,15 @@ def test_lean_samples_equal_the_plain_dict_buffers_on_the_same_data(n_envs: int)
 
 def test_the_lean_buffer_survives_pickle_and_dcqns_save_and_load(tmp_path: Path) -> None:
     env = DictNodes()
-    model = DCQN("MultiInputPolicy", env, lean_replay=True, learning_starts=10**6, buffer_size=500, seed=0)
+    model = DCQN("MultiInputPolicy", env, replay_buffer_class=Lean, learning_starts=10**6, buffer_size=500, seed=0)
     model.learn(300)
     buffer = model.replay_buffer
-    assert isinstance(buffer, DCQNDictReplayBuffer) and buffer.lean
+    assert isinstance(buffer, Lean)
     copy = pickle.loads(pickle.dumps(buffer))
     # Observations and next observations still share one table of rows per key
     assert copy.observations["views"].rows is copy.next_observations["views"].rows
     model.save_replay_buffer(tmp_path / "buffer.pkl")
-    fresh = DCQN("MultiInputPolicy", env, lean_replay=True, learning_starts=10**6, buffer_size=500, seed=1)
+    fresh = DCQN("MultiInputPolicy", env, replay_buffer_class=Lean, learning_starts=10**6, buffer_size=500, seed=1)
     fresh.load_replay_buffer(tmp_path / "buffer.pkl")
     for loaded in (copy, fresh.replay_buffer):
         assert loaded.pos == buffer.pos
@@ -167,7 +168,7 @@ def test_a_campusnav_transition_costs_at_most_64_bytes_at_view_dim_64(tmp_path: 
         world=generate_campus(N_INTERSECTIONS, seed=1), encoder="pixels", render_settings=RenderSettings(64, 48),
         view_dim=64, cache_dir=tmp_path, progress=False,
     )  # fmt: skip
-    model = DCQN("MultiInputPolicy", env, lean_replay=True, buffer_size=5_000, learning_starts=10**6, seed=0)
+    model = DCQN("MultiInputPolicy", env, replay_buffer_class=Lean, buffer_size=5_000, learning_starts=10**6, seed=0)
     model.learn(1_000)
     buffer = model.replay_buffer
     # Every per-transition array (actions, rewards, dones, timeouts, priorities) and the tables' row indices
@@ -189,7 +190,7 @@ def test_a_campusnav_transition_costs_at_most_64_bytes_at_view_dim_64(tmp_path: 
 
 
 def test_revision_with_lean_storage_rewrites_the_contradicted_next_observations() -> None:
-    buffer = DCQNDictReplayBuffer(100, SPACE, ACTIONS, device="cpu", revise_experience=True, lean=True)
+    buffer = replay.LeanRevisionDictReplayBuffer(100, SPACE, ACTIONS, device="cpu")
     for _ in range(3):  # node 1 --(action 0)--> node 2, three times
         buffer.add(node_obs([1]), node_obs([2]), np.array([[0]]), np.array([-0.005]), np.array([False]), [{}])
     # The road closes: from node 1, action 0 now stays at node 1
@@ -205,10 +206,8 @@ def test_revision_with_lean_storage_rewrites_the_contradicted_next_observations(
 def test_hindsight_relabelling_and_revision_with_lean_storage_give_the_same_samples() -> None:
     vec_env = DummyVecEnv([GoalChain, GoalChain])
     plain, lean = (
-        DCQNHerReplayBuffer(
-            60, vec_env.observation_space, vec_env.action_space, vec_env, n_envs=2, revise_experience=True, lean=flag
-        )
-        for flag in (False, True)
+        buffer_class(60, vec_env.observation_space, vec_env.action_space, vec_env, n_envs=2)
+        for buffer_class in (replay.RevisionHerReplayBuffer, replay.LeanRevisionHerReplayBuffer)
     )
     obs = vec_env.reset()
     rng = np.random.default_rng(0)
@@ -238,13 +237,14 @@ def test_hindsight_relabelling_and_revision_with_lean_storage_give_the_same_samp
         assert_same_samples(sample_seeded(lean, 64, seed), sample_seeded(plain, 64, seed))
 
 
-def test_dcqn_passes_lean_replay_to_its_her_buffer() -> None:
+def test_dcqn_learns_with_lean_hindsight_relabelling() -> None:
     model = DCQN(
-        "MultiInputPolicy", GoalChain(), replay_buffer_class=HerReplayBuffer, lean_replay=True, buffer_size=1_000,
+        "MultiInputPolicy", GoalChain(), replay_buffer_class=replay.LeanHerReplayBuffer, buffer_size=1_000,
         learning_starts=50, batch_size=16, policy_kwargs=dict(net_arch=[16]), seed=0,
     )  # fmt: skip
     model.learn(120)
-    assert isinstance(model.replay_buffer, DCQNHerReplayBuffer) and model.replay_buffer.lean
+    assert isinstance(model.replay_buffer, DCQNHerReplayBuffer) and isinstance(model.replay_buffer, LeanReplay)
+    assert model.replay_buffer.terminal_relabels  # DCQN's HER: relabelled transitions that reach their goal end
 
 
 # --- n-step returns with Dict observations --------------------------------------------------------------------------
@@ -252,7 +252,7 @@ def test_dcqn_passes_lean_replay_to_its_her_buffer() -> None:
 
 def test_n_step_returns_stop_at_a_termination_and_at_a_time_limit() -> None:
     gamma = 0.5
-    buffer = DCQNDictReplayBuffer(20, SPACE, ACTIONS, device="cpu", n_steps=3, gamma=gamma, lean=True)
+    buffer = replay.LeanNStepDictReplayBuffer(20, SPACE, ACTIONS, device="cpu", n_steps=3, gamma=gamma)
     # Episode 1: nodes 1 -> 2 -> 3 -> 4 -> 5, terminated at 5; episode 2: 6 -> 1 -> 2, cut by the time limit at 2
     steps = [(1, 2, 1.0, False, False), (2, 3, 2.0, False, False), (3, 4, 4.0, False, False),
              (4, 5, 8.0, True, False), (6, 1, 16.0, False, False), (1, 2, 32.0, True, True),
@@ -281,7 +281,9 @@ def test_n_step_returns_stop_at_a_termination_and_at_a_time_limit() -> None:
 def test_n_step_samples_equal_sb3s_n_step_buffer_on_the_same_data() -> None:
     box = spaces.Box(-10.0, 10.0, shape=(6,), dtype=np.float32)
     theirs = NStepReplayBuffer(30, box, ACTIONS, device="cpu", n_envs=2, n_steps=3, gamma=0.9)
-    ours = DCQNDictReplayBuffer(30, spaces.Dict({"views": box}), ACTIONS, device="cpu", n_envs=2, n_steps=3, gamma=0.9)
+    ours = replay.NStepDictReplayBuffer(
+        30, spaces.Dict({"views": box}), ACTIONS, device="cpu", n_envs=2, n_steps=3, gamma=0.9
+    )
 
     class Views:  # SB3's buffer takes the views array, ours the Dict
         def add(self, obs, next_obs, *rest) -> None:
@@ -312,7 +314,7 @@ def test_dcqn_with_n_steps_and_a_dict_space_uses_its_own_buffer(recwarn: pytest.
         batch_size=16,
         seed=0,
     )
-    assert isinstance(model.replay_buffer, DCQNDictReplayBuffer)
+    assert type(model.replay_buffer) is replay.NStepDictReplayBuffer
     assert (model.replay_buffer.n_steps, model.replay_buffer.gamma) == (3, 0.9)
     assert not [w for w in recwarn if "n_steps" in str(w.message)]  # SB3's "n_steps is ignored" does not apply
     model.learn(120)
@@ -322,9 +324,12 @@ def test_dcqn_with_n_steps_and_a_dict_space_uses_its_own_buffer(recwarn: pytest.
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        (dict(n_steps=3, replay_buffer_class=HerReplayBuffer), "hindsight"),
-        (dict(n_steps=3, experience_revision=True), "n-step"),
-        (dict(count_bonus=0.1, replay_buffer_class=HerReplayBuffer), "count_bonus"),
+        (dict(n_steps=3, replay_buffer_class=HerReplayBuffer), r"hindsight relabelling .* n-step returns"),
+        (
+            dict(n_steps=3, replay_buffer_class=replay.RevisionDictReplayBuffer),
+            r"n-step returns .* experience revision",
+        ),
+        (dict(replay_buffer_class=HerReplayBuffer, blocked_action_target=True, n_steps=2), r"hindsight .* n-step"),
     ],
 )
 def test_dcqn_refuses_what_its_dict_buffer_cannot_do(kwargs: dict[str, Any], message: str) -> None:
@@ -332,19 +337,20 @@ def test_dcqn_refuses_what_its_dict_buffer_cannot_do(kwargs: dict[str, Any], mes
         DCQN("MultiInputPolicy", GoalChain(), **kwargs)
 
 
-def test_lean_replay_and_the_count_bonus_need_a_dict_space() -> None:
-    for kwargs in (dict(lean_replay=True), dict(count_bonus=0.1)):
-        with pytest.raises(ValueError, match="Dict observation space"):
-            DCQN("MlpPolicy", "CartPole-v1", **kwargs)
-    with pytest.raises(ValueError, match="n-step"):
-        DCQNDictReplayBuffer(10, SPACE, ACTIONS, device="cpu", n_steps=2, prioritized=True)
+def test_lean_storage_needs_a_dict_space_and_n_steps_no_priorities() -> None:
+    with pytest.raises(ValueError, match="Dict observations only"):
+        replay_buffer_class("lean", base="Box")
+    with pytest.raises(ValueError, match="Dict observations only"):  # the mix-in's own check, on any base
+        type("LeanBox", (LeanReplay, replay.DCQNReplayBuffer), {})(10, spaces.Box(0, 1, (3,)), ACTIONS)
+    with pytest.raises(ValueError, match=r"n-step returns \(nstep\) does not combine with prioritized replay"):
+        replay_buffer_class("nstep", "prioritized")
 
 
 # --- the count bonus ------------------------------------------------------------------------------------------------
 
 
 def test_the_count_bonus_is_scaled_by_one_over_the_root_of_the_visits() -> None:
-    buffer = DCQNDictReplayBuffer(4, SPACE, ACTIONS, device="cpu", count_bonus=0.3, lean=True)
+    buffer = replay.LeanCountBonusDictReplayBuffer(4, SPACE, ACTIONS, device="cpu", count_bonus=0.3)
     arrivals = [2, 3, 2, 2, 3, 4]  # node 2 reached 3 times, node 3 twice, node 4 once; the buffer of 4 wraps
     for node in arrivals:
         buffer.add(node_obs([1]), node_obs([node]), np.array([[0]]), np.array([-0.01]), np.array([False]), [{}])
@@ -358,9 +364,12 @@ def test_the_count_bonus_is_scaled_by_one_over_the_root_of_the_visits() -> None:
 
 
 def test_dcqn_passes_the_count_bonus_to_its_dict_buffer() -> None:
-    model = DCQN("MultiInputPolicy", DictNodes(), count_bonus=0.05, buffer_size=1_000, learning_starts=10**6, seed=0)
+    model = DCQN(
+        "MultiInputPolicy", DictNodes(), replay_buffer_class=replay.CountBonusDictReplayBuffer,
+        replay_buffer_kwargs=dict(count_bonus=0.05), buffer_size=1_000, learning_starts=10**6, seed=0,
+    )  # fmt: skip
     model.learn(50)
-    assert model.replay_buffer.count_bonus == 0.05 and not model.replay_buffer.lean
+    assert model.replay_buffer.count_bonus == 0.05 and not isinstance(model.replay_buffer, LeanReplay)
 
 
 # --- learning -------------------------------------------------------------------------------------------------------
@@ -391,7 +400,7 @@ def learner(**kwargs: Any) -> DCQN:
 
 def test_dcqn_learns_with_lean_replay_exactly_as_with_the_plain_buffer() -> None:
     # One after the other: each seeds numpy's global RNG when it is built and draws from it while it learns
-    lean = learner(lean_replay=True).learn(800)
+    lean = learner(replay_buffer_class=Lean).learn(800)
     plain = learner().learn(800)
     for a, b in zip(lean.q_net.parameters(), plain.q_net.parameters(), strict=True):
         assert th.allclose(a, b, rtol=0, atol=1e-6)  # the same samples, so the same updates

@@ -14,7 +14,8 @@ from campusnav_env.maps.navigation import RoadClosureError
 from campusnav_env.rendering.street_view import RenderSettings
 from campusnav_env.route_evaluation import evaluate_routes
 from sb3_dcqn import DCQN
-from sb3_dcqn.buffers import DCQNDictReplayBuffer, digest
+from sb3_dcqn.replay import LeanNStepDictReplayBuffer, RevisionDictReplayBuffer
+from sb3_dcqn.replay.revision import digest
 from sb3_dcqn.replay_graph import UNKNOWN, UNTRIED, ExperienceGraph, ReplaySearchPolicy, observation_digests
 
 GOAL = "Dreese Lab"
@@ -218,7 +219,7 @@ def test_routes_follow_a_closure_once_it_is_seen(env: CampusNavEnv) -> None:
 
 
 # -------------------------------------------------------------------------------------------- from a replay buffer
-@pytest.mark.parametrize("buffer_class", [DictReplayBuffer, DCQNDictReplayBuffer])
+@pytest.mark.parametrize("buffer_class", [DictReplayBuffer, RevisionDictReplayBuffer, LeanNStepDictReplayBuffer])
 def test_the_graph_reads_a_replay_buffer_filled_by_dcqn(env: CampusNavEnv, buffer_class: type) -> None:
     model = DCQN(
         "MultiInputPolicy",

@@ -26,8 +26,13 @@ from stable_baselines3 import HerReplayBuffer
 
 from campusnav_env.goal_env import CampusNavGoalEnv
 from sb3_dcqn import DCQN
-from sb3_dcqn.buffers import DCQNDictReplayBuffer
-from sb3_dcqn.her_buffer import DCQNHerReplayBuffer
+from sb3_dcqn.replay import (
+    DCQNDictReplayBuffer,
+    DCQNHerReplayBuffer,
+    LeanDictReplayBuffer,
+    LeanRevisionHerReplayBuffer,
+    RevisionDictReplayBuffer,
+)
 from sb3_dcqn.zoo import (
     COMMANDS,
     check_hyperparams,
@@ -136,7 +141,7 @@ def test_shipped_hyperparams_cover_the_classic_control_envs_and_campusnav() -> N
 def test_the_shipped_city_entries_pass_the_checks_and_bring_their_curriculum(env_id: str) -> None:
     entry = load_zoo_entry(default_hyperparams_path(), env_id)
     check_hyperparams(entry.hyperparams, DCQN, f"dcqn.yml: entry {env_id!r}")
-    assert entry.hyperparams["lean_replay"] is True and entry.hyperparams["n_steps"] > 1
+    assert entry.hyperparams["replay_buffer_class"] is LeanDictReplayBuffer and entry.hyperparams["n_steps"] > 1
     assert [type(c).__name__ for c in entry.make_callbacks()] == ["StartCurriculumCallback"]
 
 
@@ -292,7 +297,13 @@ def test_bad_replay_buffer_settings_are_named(tmp_path: Path) -> None:
     own = {**her, "replay_buffer_class": DCQNDictReplayBuffer, "replay_buffer_kwargs": {"n_sampled_goal": 4}}
     with pytest.raises(ValueError, match="unknown replay_buffer_kwargs key 'n_sampled_goal'"):
         check_hyperparams(own, DCQN, "here")
+    # Variants that do not combine are named, both of them, with the entry
+    with pytest.raises(ValueError, match=r"here: n-step returns \(nstep\) does not combine with experience revision"):
+        check_hyperparams({"replay_buffer_class": RevisionDictReplayBuffer, "n_steps": 3}, DCQN, "here")
+    # Every combination's class is a name a YAML entry may give
     conf = tmp_path / "conf.yml"
+    conf.write_text(f"{GOAL_ENV}:\n  n_timesteps: 10\n  replay_buffer_class: LeanRevisionHerReplayBuffer\n")
+    assert load_zoo_entry(conf, GOAL_ENV).hyperparams["replay_buffer_class"] is LeanRevisionHerReplayBuffer
     conf.write_text(f"{GOAL_ENV}:\n  n_timesteps: 10\n  replay_buffer_class: HerReplayBufer\n")
     with pytest.raises(ValueError, match="cannot evaluate replay_buffer_class 'HerReplayBufer'"):
         load_zoo_entry(conf, GOAL_ENV)

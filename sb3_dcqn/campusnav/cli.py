@@ -73,9 +73,9 @@ train     the same for any CampusNav env and zoo-format hyperparameter file, wit
           readapt can continue.
           --env CampusNavGoal-v0 (any intersection the goal; hindsight relabelling with HerReplayBuffer): the route
           evaluations cover all 101 goals (about 3 s each), the pictures the paper's four landmark goals, and
-          closures keep every intersection reachable (a road without a way around is refused). The levers revision,
-          per and boost_on_revision need DCQN's own replay buffer and are refused (a stored transition stands for
-          every goal it is relabelled with); demo's default levers shrink to blocked, with a note.
+          closures keep every intersection reachable (a road without a way around is refused). The lever prioritized
+          does not combine with hindsight relabelling and is refused (a stored transition stands for every goal it
+          is relabelled with); demo's default levers (revision, blocked) both run.
 evaluate  success rate, SPL, coverage, mean steps and optimality gap of a saved model's greedy routes from every
           (start, heading), overall and per goal (of an env with more than four goals: the four pictured, and the
           training and held-out goals of a goal env), optionally under closures (--close); --picture draws one route.
@@ -864,15 +864,15 @@ def _picture_flags(parser: argparse.ArgumentParser, default: str | None) -> None
 
 
 def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str]) -> None:
-    not_with_her = [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer and not lever.runs_with_her]
     parser.add_argument(
         "--levers",
         nargs="*",
         choices=sorted(LEVERS),
         help="re-adaptation levers: "
         + ", ".join(f"{name} ({lever.name})" for name, lever in LEVERS.items())
-        + f"; default: {' '.join(default) or 'none'}; --levers alone: none. {', '.join(not_with_her)} cannot run with "
-        "HerReplayBuffer (CampusNavGoal-v0), where the default leaves them out",
+        + f"; default: {' '.join(default) or 'none'}; --levers alone: none. A lever that does not combine with the "
+        "entry (prioritized with HerReplayBuffer, CampusNavGoal-v0) is refused with the reason; a default one is "
+        "left out with a note",
     )
     parser.set_defaults(default_levers=tuple(default))
 

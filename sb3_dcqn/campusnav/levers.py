@@ -5,13 +5,14 @@ tuple of their names (``("revision", "blocked")``: the demo's); the command line
 benchmarks' :class:`LeverSet` rows read this table, so an option is written once. Importing this module is cheap (no
 torch, no CampusNav).
 
-Levers that work on DCQN's own replay buffers cannot run with another ``replay_buffer_class``
-(``needs_own_replay_buffer``). Revision (and the boost it triggers) also runs with hindsight relabelling
-(``HerReplayBuffer``, as ``CampusNavGoal-v0``'s entry has: DCQN serves it with ``DCQNHerReplayBuffer``, which revises
-stored transitions with the goal left out of the match); prioritised replay does not: a stored transition stands for
-every goal it is relabelled with, its TD error for none of them. :func:`check_levers` refuses such a combination,
-naming the lever and why; :func:`usable_levers` leaves those levers out (the command line's default levers on a goal
-env: the demo's ``revision`` and ``blocked`` both stay).
+A lever that is a replay variant (``revision``, ``prioritized``) adds it to the entry's replay buffer class
+(:func:`sb3_dcqn.replay.with_variants`: ``HerReplayBuffer`` becomes ``RevisionHerReplayBuffer``, no class
+``RevisionDictReplayBuffer``); whether it combines with the entry's buffer, ``n_steps`` and DCQN options is decided
+where every combination is (:mod:`sb3_dcqn.replay.combine`). Revision (and the boost it triggers) runs with hindsight
+relabelling, as ``CampusNavGoal-v0``'s entry has; prioritized replay does not: a stored transition stands for every
+goal it is relabelled with, its TD error for none of them. :func:`check_levers` refuses such a combination, naming
+the lever and why; :func:`usable_levers` leaves those levers out (the command line's default levers on a goal env:
+the demo's ``revision`` and ``blocked`` both stay).
 """
 
 from __future__ import annotations
@@ -34,7 +35,8 @@ __all__ = [
     "lever_callbacks",
     "lever_options",
     "options_text",
-    "replay_buffer_conflict",
+    "replay_buffer_with_levers",
+    "replay_variants",
     "unusable_levers",
     "usable_levers",
     "with_levers",
@@ -47,48 +49,40 @@ class Lever:
     A re-adaptation lever.
 
     :param name: What it is, in words (tables, help)
+    :param replay_variants: Replay variants it adds to the replay buffer class (:data:`sb3_dcqn.replay.VARIANTS`)
     :param dcqn_options: DCQN keyword arguments it sets
     :param env_options: Env keyword arguments it sets
     :param boost_options: Keyword arguments of an :class:`~sb3_dcqn.adaptation_boost.AdaptationBoost` callback it
         adds to training (``None``: none)
-    :param needs_own_replay_buffer: It works on DCQN's own replay buffer (``DCQNReplayBuffer`` or
-        ``DCQNDictReplayBuffer``), so not with another ``replay_buffer_class``
-    :param runs_with_her: ... except ``HerReplayBuffer`` (DCQN's HER buffer does it too: experience revision)
     """
 
     name: str
+    replay_variants: tuple[str, ...] = ()
     dcqn_options: dict[str, Any] = field(default_factory=dict)
     env_options: dict[str, Any] = field(default_factory=dict)
     boost_options: dict[str, Any] | None = None
-    needs_own_replay_buffer: bool = False
-    runs_with_her: bool = False
 
 
 LEVERS: dict[str, Lever] = {
-    "revision": Lever(
-        "experience revision", {"experience_revision": True}, needs_own_replay_buffer=True, runs_with_her=True
-    ),
-    "blocked": Lever("blocked-action target", {"blocked_action_target": True}),
-    "per": Lever("prioritised replay", {"prioritized_replay": True}, needs_own_replay_buffer=True),
+    "revision": Lever("experience revision", replay_variants=("revision",)),
+    "blocked": Lever("blocked-action target", dcqn_options={"blocked_action_target": True}),
+    "prioritized": Lever("prioritized replay", replay_variants=("prioritized",)),
     "visible": Lever("visible closures", env_options={"visible_closures": True}),
     # An SB3 callback, not a DCQN option; alone it cannot be triggered by revisions: longer episodes are the sign
     "boost": Lever("adaptation boost (episode-length trigger)", boost_options={"trigger": "episode_length"}),
-    # Triggered by the replay buffer's count of revised transitions
+    # Triggered by the replay buffer's count of revised transitions: it needs revision, and switches it on
     "boost_on_revision": Lever(
-        "adaptation boost (revision trigger)",
-        boost_options={"trigger": "revision"},
-        needs_own_replay_buffer=True,
-        runs_with_her=True,
+        "adaptation boost (revision trigger)", replay_variants=("revision",), boost_options={"trigger": "revision"}
     ),
 }
-# The demo's: the levers that re-adapted fastest together in benchmarks/closures_one_at_a_time.py (median 8 episodes
-# per closure over 3 seeds, 8 of 9 closures within 50 episodes; with prioritised replay added: 32, 5 of 9)
+# The demo's: the levers that re-adapted fastest together in benchmarks/closures_one_at_a_time.py (see its results)
 DEMO_LEVERS = ("revision", "blocked")
 
 
 def lever_options(levers: Sequence[str]) -> tuple[dict[str, Any], dict[str, Any]]:
     """
-    The DCQN options and env options of a combination of levers.
+    The DCQN options and env options of a combination of levers (replay variants not included: see
+    :func:`with_levers`).
 
     :param levers: Lever names (keys of :data:`LEVERS`)
     :return: ``(dcqn_options, env_options)``, in the order of ``levers``
@@ -102,6 +96,39 @@ def lever_options(levers: Sequence[str]) -> tuple[dict[str, Any], dict[str, Any]
         dcqn_options.update(LEVERS[name].dcqn_options)
         env_options.update(LEVERS[name].env_options)
     return dcqn_options, env_options
+
+
+def replay_variants(levers: Sequence[str]) -> tuple[str, ...]:
+    """The replay variants a combination of levers adds, once each, in the order of ``levers``."""
+    lever_options(levers)  # unknown names fail here
+    return tuple(dict.fromkeys(v for name in levers for v in LEVERS[name].replay_variants))
+
+
+def replay_buffer_with_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> type | None:
+    """
+    The replay buffer class an entry's hyperparameters get with the levers' variants (``None``: none added, the
+    entry's own), checked with the entry's ``n_steps`` and the levers' DCQN options (CampusNav's observations are
+    Dicts).
+
+    :raises ValueError: if they do not combine, naming both sides (:mod:`sb3_dcqn.replay.combine`)
+    """
+    from sb3_dcqn.replay.combine import resolve_replay_buffer, with_variants
+
+    variants = replay_variants(levers)
+    buffer_class = hyperparams.get("replay_buffer_class")
+    if variants:
+        buffer_class = with_variants(buffer_class, *variants, base="Dict")
+    dcqn_options, _ = lever_options(levers)
+    options = {**hyperparams, **dcqn_options}
+    resolve_replay_buffer(
+        buffer_class,
+        dict(hyperparams.get("replay_buffer_kwargs") or {}),
+        is_dict=True,
+        n_steps=int(options.get("n_steps", 1)),
+        gamma=float(options.get("gamma", 0.99)),
+        blocked_action_target=bool(options.get("blocked_action_target", False)),
+    )
+    return buffer_class if variants else None
 
 
 def lever_callbacks(levers: Sequence[str]) -> list[BaseCallback]:
@@ -121,38 +148,16 @@ def lever_callbacks(levers: Sequence[str]) -> list[BaseCallback]:
 
 
 def options_text(levers: Sequence[str]) -> str:
-    """A combination's options as the results files write them: ``"experience_revision=True, ..."`` or
-    ``"as shipped"``."""
+    """A combination's options as the results files write them: ``"replay variants revision, blocked_action_target=True,
+    ..."`` or ``"as shipped"``."""
     dcqn_options, env_options = lever_options(levers)
-    words = [f"{key}={value}" for key, value in {**dcqn_options, **env_options}.items()]
+    variants = replay_variants(levers)
+    words = [f"replay variants {', '.join(variants)}"] if variants else []
+    words += [f"{key}={value}" for key, value in {**dcqn_options, **env_options}.items()]
     for name in levers:
         if (boost := LEVERS[name].boost_options) is not None:
             words.append("callback AdaptationBoost(" + ", ".join(f"{k}={v!r}" for k, v in boost.items()) + ")")
     return ", ".join(words) or "as shipped"
-
-
-def replay_buffer_conflict(hyperparams: Mapping[str, Any]) -> str | None:
-    """
-    Why a lever that needs DCQN's own replay buffer cannot run with these hyperparameters (``None``: it can).
-
-    :param hyperparams: Algorithm keyword arguments (``ZooEntry.hyperparams``), ``replay_buffer_class`` a class
-    :return: the reason in words, or ``None`` without ``replay_buffer_class`` or with one of DCQN's own buffers
-    """
-    buffer_class = hyperparams.get("replay_buffer_class")
-    if buffer_class is None:
-        return None  # DCQN picks its own buffer
-    from sb3_dcqn.buffers import DCQNDictReplayBuffer, DCQNReplayBuffer
-
-    name = getattr(buffer_class, "__name__", repr(buffer_class))
-    if _is_her(buffer_class):
-        return (
-            f"it needs DCQN's own replay buffer, and replay_buffer_class={name} relabels goals in hindsight: a stored "
-            "transition stands for every goal it is relabelled with, so its TD error is no single experience's to "
-            "prioritise"
-        )
-    if isinstance(buffer_class, type) and issubclass(buffer_class, (DCQNReplayBuffer, DCQNDictReplayBuffer)):
-        return None
-    return f"it needs DCQN's own replay buffer (DCQNReplayBuffer or DCQNDictReplayBuffer), not {name}"
 
 
 def unusable_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> dict[str, str]:
@@ -164,21 +169,13 @@ def unusable_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> di
     :return: lever name -> the reason, in the order of ``levers`` (empty: all can run)
     """
     lever_options(levers)  # unknown names fail here
-    conflict = replay_buffer_conflict(hyperparams)
-    if conflict is None:
-        return {}
-    her = _is_her(hyperparams.get("replay_buffer_class"))
-    return {
-        name: conflict
-        for name in levers
-        if LEVERS[name].needs_own_replay_buffer and not (her and LEVERS[name].runs_with_her)
-    }
-
-
-def _is_her(buffer_class: Any) -> bool:
-    from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
-
-    return isinstance(buffer_class, type) and issubclass(buffer_class, HerReplayBuffer)
+    left_out: dict[str, str] = {}
+    for name in levers:
+        try:
+            replay_buffer_with_levers([name], hyperparams)
+        except ValueError as error:
+            left_out[name] = str(error)
+    return left_out
 
 
 def usable_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> tuple[tuple[str, ...], dict[str, str]]:
@@ -208,15 +205,22 @@ def check_levers(levers: Sequence[str], hyperparams: Mapping[str, Any]) -> None:
 
 def with_levers(entry: ZooEntry, levers: Sequence[str]) -> ZooEntry:
     """
-    A zoo entry with the levers' DCQN options added to its hyperparameters and their env options to its
-    ``env_kwargs``.
+    A zoo entry with the levers' replay variants added to its replay buffer class, their DCQN options to its
+    hyperparameters and their env options to its ``env_kwargs``.
 
     :raises ValueError: if a lever cannot run with the entry's replay buffer (:func:`check_levers`)
     """
     check_levers(levers, entry.hyperparams)
+    try:
+        buffer_class = replay_buffer_with_levers(levers, entry.hyperparams)
+    except ValueError as error:  # each lever runs with the entry, but not all of them together
+        raise ValueError(f"levers {', '.join(levers)} cannot run together: {error}") from None
     dcqn_options, env_options = lever_options(levers)
+    replay = {} if buffer_class is None else {"replay_buffer_class": buffer_class}
     return replace(
-        entry, hyperparams={**entry.hyperparams, **dcqn_options}, env_kwargs={**entry.env_kwargs, **env_options}
+        entry,
+        hyperparams={**entry.hyperparams, **replay, **dcqn_options},
+        env_kwargs={**entry.env_kwargs, **env_options},
     )
 
 

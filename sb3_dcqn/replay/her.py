@@ -12,19 +12,18 @@ e.g. a collision flag) instead of deep copies of whole info dicts (``copy_info_d
 goal for which ``env.relabelling_allowed(goals)`` is false (goals held out of training: the new goal is drawn again
 from the episode's future, up to ``relabel_tries`` times, and the transition keeps its own goal if none is allowed).
 
-**Experience revision** (``revise_experience=True``, DCQN's ``experience_revision``): as in
-:mod:`sb3_dcqn.buffers`, a new transition that contradicts stored transitions of the same observation and action (a
-road has closed or reopened) rewrites them, here with the goal left out of "the same": the observation and action
-are matched on every key but ``desired_goal``, the stored next observation gets the new one's (its own desired goal
-kept), and its reward and termination are computed anew for its own goal (``compute_reward``,
-``compute_terminated``). Every goal a stored transition is relabelled with then sees the road as it is now.
+Variants: experience revision (:class:`~sb3_dcqn.replay.revision.RevisionReplay`: here the goal is left out of "the
+same observation", the stored next observation gets the new one's physical keys, its own desired goal kept, and its
+reward and termination are computed anew for its own goal with ``compute_reward`` / ``compute_terminated``: every
+goal a stored transition is relabelled with then sees the road as it is now) and lean storage
+(:class:`~sb3_dcqn.replay.lean.LeanReplay`), e.g. ``RevisionHerReplayBuffer``, ``LeanRevisionHerReplayBuffer``
+(:func:`~sb3_dcqn.replay.replay_buffer_class`).
 
-**Lean storage** (``lean=True``, DCQN's ``lean_replay``): as in :mod:`sb3_dcqn.buffers`, each key's distinct vectors
-stored once (one table per key, shared by observations and next observations) and row indices per transition;
-relabelling reads the achieved goals through the same indexing.
-
-DCQN uses this buffer whenever ``replay_buffer_class=HerReplayBuffer`` is asked for; ``terminal_relabels=False`` (in
-``replay_buffer_kwargs``) restores SB3's dones, to measure what the fix does.
+**DCQN serves SB3's ``HerReplayBuffer`` with this class.** ``DCQN(..., replay_buffer_class=HerReplayBuffer)`` builds
+a ``DCQNHerReplayBuffer`` with the same arguments (``model.replay_buffer_class`` and ``type(model.replay_buffer)``
+show it, ``model.replay_buffer.terminal_relabels`` says which dones it computes); ``replay_buffer_kwargs=
+dict(terminal_relabels=False)`` restores SB3's dones, to measure what the fix does. DQN with SB3's ``HerReplayBuffer``
+keeps SB3's dones.
 """
 
 from __future__ import annotations
@@ -40,7 +39,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from stable_baselines3.her.goal_selection_strategy import GoalSelectionStrategy
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
-from sb3_dcqn.buffers import digest, index_transition, use_observation_tables
+from sb3_dcqn.replay.base import observation_bytes
 
 __all__ = ["DCQNHerReplayBuffer"]
 
@@ -67,9 +66,6 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
     :param terminal_relabels: Relabelled transitions are terminal where they reach their new goal (the env's
         ``compute_terminated``); ``False``: the original episode's done (SB3)
     :param relabel_tries: How many times a relabelled goal that the env does not allow is drawn again
-    :param revise_experience: Rewrite stored transitions that a new transition of the same observation (goal left
-        out) and action contradicts (see the module docstring)
-    :param lean: Store each key's distinct vectors once and row indices per transition
     """
 
     def __init__(
@@ -87,8 +83,6 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
         copy_info_dict: bool = False,
         terminal_relabels: bool = True,
         relabel_tries: int = 8,
-        revise_experience: bool = False,
-        lean: bool = False,
     ) -> None:
         super().__init__(
             buffer_size,
@@ -112,15 +106,6 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
             key: np.zeros((self.buffer_size, self.n_envs), dtype=np.float32) for key in self.reward_info_keys
         }
         self._terminated_fallback_warned = False
-        self.revise_experience = revise_experience
-        self.revised = 0
-        # Revision index: (observation without the goal, action) digest -> slots; each slot's digest and outcome
-        self._slots_of: dict[bytes, set[int]] = {}
-        self._key_of: list[bytes | None] = [None] * (self.buffer_size * self.n_envs)
-        self._outcome_of: list[bytes | None] = [None] * (self.buffer_size * self.n_envs)
-        self.lean = lean
-        if lean:
-            use_observation_tables(self)
 
     def add(  # type: ignore[override]
         self,
@@ -135,29 +120,23 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
         for key, values in self.reward_infos.items():  # before super().add moves ``pos`` on
             values[pos] = [float(info[key]) for info in infos]
         super().add(obs, next_obs, action, reward, done, infos)
-        if self.revise_experience:
-            self._revise(pos, obs, action)
 
-    # ------------------------------------------------------------------ experience revision
+    # ------------------------------------------------------------------ what a transition is (experience revision)
     def _physical_keys(self) -> list[str]:
         return sorted(key for key in self.observations if key != "desired_goal")
 
-    def _revise(self, pos: int, obs: dict[str, np.ndarray], action: np.ndarray) -> None:
-        """Rewrite the stored transitions that the transitions just added at ``pos`` contradict."""
-        keys = self._physical_keys()
-        for env in range(self.n_envs):
-            slot = pos * self.n_envs + env
-            seen = b"".join(np.ascontiguousarray(obs[k][env], dtype=self.observations[k].dtype).tobytes() for k in keys)
-            key = digest(seen + np.asarray(action)[env].tobytes())
-            outcome = digest(b"".join(self.next_observations[k][pos, env].tobytes() for k in keys))
-            stale = index_transition(self._slots_of, self._key_of, self._outcome_of, slot, key, outcome)
-            if stale:
-                self._rewrite(np.array(stale), pos, env, keys)
+    def _transition_bytes(self, obs: dict[str, np.ndarray], action: np.ndarray, env: int) -> bytes:
+        """The observation without its goal, and the action: one transition for every goal."""
+        return observation_bytes(obs, env, self.observations, self._physical_keys()) + np.asarray(action)[env].tobytes()
 
-    def _rewrite(self, slots: np.ndarray, pos: int, env: int, keys: list[str]) -> None:
+    def _outcome_bytes(self, pos: int, env: int) -> bytes:
+        """Where the agent ended up (every key but the goal); the reward is each goal's own."""
+        return b"".join(self.next_observations[k][pos, env].tobytes() for k in self._physical_keys())
+
+    def _copy_outcome(self, slots: np.ndarray, pos: int, env: int) -> None:
         """Give the stored transitions in ``slots`` the outcome of ``(pos, env)``, each for its own goal."""
         rows, envs = np.divmod(slots, self.n_envs)
-        for k in keys:
+        for k in self._physical_keys():
             self.next_observations[k][rows, envs] = self.next_observations[k][pos, env]
         for values in self.reward_infos.values():
             values[rows, envs] = values[pos, env]
@@ -173,7 +152,6 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
             # A time limit stays a time limit; a transition that now ends its episode's task is a real termination
             self.dones[rows, envs] = np.maximum(terminated, self.timeouts[rows, envs])
             self.timeouts[rows, envs] = np.where(terminated > 0, 0.0, self.timeouts[rows, envs])
-        self.revised += len(slots)
 
     def _get_virtual_samples(
         self,
