@@ -5,7 +5,9 @@ Measures
   (resets included), against FrozenLake-v1 measured the same way in the same process (the ratio is what to compare
   across machines);
 - the time to generate the default campus graph, build its 3D world, render all 404 street views (640x480) and encode
-  them with the chosen encoder (into a fresh temporary cache, so nothing is reused).
+  them with the chosen encoder (into a fresh temporary cache, so nothing is reused);
+- the views/s of the pixel-projection encoder (the cheap default of tests and quick runs) on those 404 views in one
+  batch (a wall-clock rate, so a benchmark and not a unit test).
 
 Usage::
 
@@ -28,7 +30,7 @@ from report import command_line, write_results  # benchmarks/report.py, beside t
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import campusnav_env  # noqa: F401  (registers the ids)
-from campusnav_env.features.encoders import make_encoder
+from campusnav_env.features.encoders import PixelProjectionEncoder, make_encoder
 from campusnav_env.maps.campus import generate_campus
 from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
 from campusnav_env.rendering.world import build_world
@@ -60,7 +62,8 @@ def vec_env_steps_per_second(vec_env: DummyVecEnv, n_steps: int, seed: int = 0) 
     return n_calls * vec_env.num_envs / (time.perf_counter() - start)
 
 
-def build_timings(encoder_name: str) -> dict[str, float]:
+def build_timings(encoder_name: str) -> tuple[dict[str, float], np.ndarray]:
+    """Seconds of each step of building the default campus, and its ``(101, 4, 480, 640, 3)`` rendered views."""
     timings = {}
     start = time.perf_counter()
     graph = generate_campus()
@@ -77,7 +80,21 @@ def build_timings(encoder_name: str) -> dict[str, float]:
     for node_views in views:
         encoder.encode(node_views)
     timings[f"encode 404 views ({encoder.name})"] = time.perf_counter() - start
-    return timings
+    return timings, views
+
+
+def pixel_projection_views_per_second(views: np.ndarray) -> tuple[str, float]:
+    """
+    Views/s of :class:`PixelProjectionEncoder` (default size) encoding ``views`` in one batch, after a warm-up batch.
+
+    :param views: ``(n, H, W, 3)`` uint8 street views
+    :return: ``(encoder name, views per second)``
+    """
+    encoder = PixelProjectionEncoder()
+    encoder.encode(views[:4])  # first call: allocations and the projection matrix's pages
+    start = time.perf_counter()
+    encoder.encode(views)
+    return encoder.name, len(views) / (time.perf_counter() - start)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -89,7 +106,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     th.set_num_threads(args.threads)
 
-    timings = build_timings(args.encoder)
+    timings, views = build_timings(args.encoder)
+    all_views = views.reshape(-1, *views.shape[2:])
+    projection_name, projection_rate = pixel_projection_views_per_second(all_views)
     # The env as users get it: default encoder, features from the on-disk cache (built on first use)
     make_campus = dict(encoder=args.encoder, progress=False)
     rates = {
@@ -119,6 +138,10 @@ def main(argv: list[str] | None = None) -> None:
         "| building the default campus | seconds |",
         "|---|---|",
         *[f"| {name} | {seconds:.2f} |" for name, seconds in timings.items()],
+        "",
+        "| encoder throughput | views/s |",
+        "|---|---|",
+        f"| {projection_name}, one batch of {len(all_views)} views at 640x480 | {projection_rate:,.0f} |",
         "",
         command_line("campusnav_speed.py", argv),
     ]

@@ -114,7 +114,21 @@ def test_a_valid_schedule_passes_and_reopening_makes_room_for_later_closures(cam
             ClosureEvent(at=5, close_on_route="busiest"),
         ]
     )
-    schedule.validate(campus, [goal])
+    schedule.validate(campus, [goal])  # passes: no error
+    assert campus.closed_roads == frozenset()
+    # Without the reopening, episode 3's closure would close the goal's last road: refused
+    without_reopening = ClosureSchedule([event for event in schedule.events if event.reopen != "all"])
+    with pytest.raises(RoadClosureError, match=rf"episode 3: close .*would cut protected node {goal}"):
+        without_reopening.validate(campus, [goal])
+    # Applied in order, the fixed events leave the goal reachable from every node after each one
+    reach = campus.hops_to(goal) >= 0
+    for event, closed_after in zip(schedule.ordered()[:4], [roads[:-1], [], roads[-1:], None], strict=True):
+        closed, _ = apply_fixed_event(campus, event, [goal])
+        if closed_after is not None:
+            assert campus.closed_roads == {road_key(*road) for road in closed_after}, event.describe()
+        else:
+            assert len(closed) == 11 and set(closed) <= campus.closed_roads
+        np.testing.assert_array_equal(campus.hops_to(goal) >= 0, reach, err_msg=event.describe())
 
 
 def test_fixed_events_apply_closures_and_reopenings(campus: NavigationGraph) -> None:

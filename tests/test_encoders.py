@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -252,16 +251,6 @@ def test_pixel_projection_is_deterministic_and_discriminative(street_views: np.n
     red[..., 0], blue[..., 2] = 255, 255
     assert not np.allclose(encoder.encode(red[:1]), encoder.encode(blue))
     assert encoder.name == PixelProjectionEncoder(dim=32, seed=3).name != PixelProjectionEncoder(dim=32, seed=4).name
-
-
-def test_pixel_projection_encodes_thousands_of_views_per_second(street_views: np.ndarray) -> None:
-    encoder = PixelProjectionEncoder()
-    batch = np.repeat(street_views, 100, axis=0)  # 300 views at 640x480
-    encoder.encode(batch[:4])
-    start = time.perf_counter()
-    encoder.encode(batch)
-    rate = len(batch) / (time.perf_counter() - start)
-    assert rate > 500, f"{rate:.0f} views/s"  # thousands on an idle core; lenient for shared machines
 
 
 def test_thumbnail_is_channel_first_rgb_uint8() -> None:

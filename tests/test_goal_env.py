@@ -62,25 +62,49 @@ def test_observation_follows_the_goal_env_convention(cache_dir: Path) -> None:
     np.testing.assert_allclose(at_goal["achieved_goal"], at_goal["desired_goal"])
 
 
-def test_compute_reward_is_what_step_returns_collisions_included(cache_dir: Path) -> None:
-    env = make_env(cache_dir)
-    obs, info = env.reset(seed=1)
+def _walk_with_a_collision_to_the_goal(env: CampusNavGoalEnv, seed: int) -> tuple[list, list, list, dict]:
+    """
+    From ``env.reset(seed=seed)``: bump into a missing road once, then take a shortest route to the goal.
+
+    :return: ``(rewards, achieved goals, infos, last observation)`` of every step
+    """
+    obs, info = env.reset(seed=seed)
+    table = env.graph.transition_table
+    hops = env.graph.state_hops_to(info["goal_node"])
     rewards, achieved, infos = [], [], []
-    for action in [0, 1, 2, 3] * 10:
+    blocked = np.flatnonzero(table[env.graph.map.state_of[info["node"], env.heading]] < 0)
+    terminated = truncated = False
+    while not (terminated or truncated):
+        state = env.graph.map.state_of[env.node, env.heading]
+        if not infos and len(blocked):  # first step: the missing road
+            action = int(blocked[0])
+        else:  # then any action whose next state is one hop closer
+            action = int(np.flatnonzero((table[state] >= 0) & (hops[table[state]] == hops[state] - 1))[0])
         obs, reward, terminated, truncated, info = env.step(action)
         assert reward == env.compute_reward(obs["achieved_goal"], obs["desired_goal"], info)
         rewards.append(reward)
         achieved.append(obs["achieved_goal"])
         infos.append(info)
-        if terminated or truncated:
-            break
-    assert env.collision_penalty in rewards  # the walk bumps into a missing road at least once
-    batch = env.compute_reward(np.array(achieved), np.repeat(obs["desired_goal"][None], len(achieved), 0), infos)
+    assert terminated and not truncated and info["node"] == info["goal_node"]
+    return rewards, achieved, infos, obs
+
+
+def test_compute_reward_is_what_step_returns_collisions_and_the_goal_included(cache_dir: Path) -> None:
+    env = make_env(cache_dir)
+    # a start with a missing road in front and the goal some steps away
+    rewards, achieved, infos, obs = _walk_with_a_collision_to_the_goal(env, seed=1)
+    assert rewards[0] == env.collision_penalty and rewards[-1] == env.goal_reward
+    assert env.step_penalty in rewards[1:-1]
+    desired = np.repeat(obs["desired_goal"][None], len(achieved), 0)
+    batch = env.compute_reward(np.array(achieved), desired, infos)
     np.testing.assert_array_equal(batch, rewards)
     # A dict of arrays is accepted too (what DCQN's HER buffer keeps)
     flags = {"collision": np.array([i["collision"] for i in infos])}
+    np.testing.assert_array_equal(env.compute_reward(np.array(achieved), desired, flags), rewards)
+    # The goal reward wins over a collision flag: a relabelled goal reached by the step is reached
     np.testing.assert_array_equal(
-        env.compute_reward(np.array(achieved), np.repeat(obs["desired_goal"][None], len(achieved), 0), flags), rewards
+        env.compute_reward(np.array(achieved), desired, {"collision": np.ones(len(achieved), dtype=bool)}),
+        [env.collision_penalty] * (len(achieved) - 1) + [env.goal_reward],
     )
 
 

@@ -131,17 +131,57 @@ def test_rows_no_slot_holds_are_reused_so_the_table_stays_bounded() -> None:
 # --- lean storage: the same samples, a fraction of the bytes --------------------------------------------------------
 
 
+def drifting_walk(buffers: list[Any], steps: int, n_envs: int, start: int, seed: int = 0) -> None:
+    """
+    A walk whose views keep changing, added to every buffer: each step stays (shares the views) or moves 1-3 nodes on
+    along an endless street (new views); episodes end after 6 steps and restart 100 nodes on. Old views leave the
+    buffer for good, so a lean buffer must free their rows and reuse them. Env ``i`` starts at node
+    ``start + 1_000_000 * i`` (walks from starts 10,000 apart never meet in fewer than 90 steps).
+    """
+    rng = np.random.default_rng(seed)
+    nodes, ages = start + np.arange(n_envs) * 1_000_000, np.zeros(n_envs, dtype=int)
+    for _ in range(steps):
+        actions = rng.integers(0, 4, n_envs)
+        next_nodes = nodes + actions
+        ages += 1
+        dones = ages >= 6
+        infos = [{"TimeLimit.truncated": bool(done)} for done in dones]
+        rewards = np.where(actions == 0, -0.01, 0.1).astype(np.float32)
+        obs, next_obs = node_obs(list(nodes), list(actions)), node_obs(list(next_nodes), list(actions))
+        for buffer in buffers:
+            buffer.add(
+                {k: v.copy() for k, v in obs.items()}, {k: v.copy() for k, v in next_obs.items()},
+                actions.reshape(n_envs, 1), rewards, dones, infos,
+            )  # fmt: skip
+        nodes = np.where(dones, next_nodes + 100, next_nodes)
+        ages[dones] = 0
+
+
 @pytest.mark.parametrize("n_envs", [1, 3])
 def test_lean_samples_equal_the_plain_dict_buffers_on_the_same_data(n_envs: int) -> None:
     plain = DictReplayBuffer(40, SPACE, ACTIONS, device="cpu", n_envs=n_envs)
     lean = Lean(40, SPACE, ACTIONS, device="cpu", n_envs=n_envs)
-    random_walk([plain, lean], 50, n_envs=n_envs)  # wraps around: overwritten slots too
+    random_walk([plain, lean], 50, n_envs=n_envs)  # on 7 nodes, wrapping around: overwritten slots too
     assert isinstance(lean.observations["views"], ObservationTable)
     assert lean.actions.dtype == np.uint8
-    for seed in range(3):
-        assert_same_samples(sample_seeded(lean, 64, seed), sample_seeded(plain, 64, seed))
-    for key in SPACE:
-        np.testing.assert_array_equal(np.asarray(lean.next_observations[key]), plain.next_observations[key])
+    views = lean.observations["views"].rows
+    reserved = len(views.rows)
+    seen: set[bytes] = set()
+    for chunk in range(10):  # 10 x 40 steps: the buffer wraps 10 times over views it never saw before
+        drifting_walk([plain, lean], 40, n_envs=n_envs, start=10_000 * (chunk + 1), seed=chunk)
+        seen |= {row.tobytes() for row in plain.next_observations["views"].reshape(-1, 6)}
+        for seed in range(3):
+            assert_same_samples(sample_seeded(lean, 64, seed), sample_seeded(plain, 64, seed))
+        for key in SPACE:
+            np.testing.assert_array_equal(np.asarray(lean.observations[key]), plain.observations[key])
+            np.testing.assert_array_equal(np.asarray(lean.next_observations[key]), plain.next_observations[key])
+        # Exactly the views some slot holds are stored, each counted by the slots holding it
+        live = np.concatenate([plain.observations["views"], plain.next_observations["views"]]).reshape(-1, 6)
+        assert views.n_rows == len({row.tobytes() for row in live})
+        assert views.refs.sum() == 2 * lean.buffer_size * n_envs
+    # The rows of views that left the buffer were reused: the reserve stays bounded by the live views
+    assert len(seen) > 4 * len(views.rows)
+    assert len(views.rows) <= max(reserved, 2 * 2 * lean.buffer_size * n_envs)
 
 
 def test_the_lean_buffer_survives_pickle_and_dcqns_save_and_load(tmp_path: Path) -> None:

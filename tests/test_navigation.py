@@ -129,6 +129,12 @@ def test_protection_counts_only_nodes_that_reach_the_protected_node_now() -> Non
     graph = plus_graph()
     graph.close_road(0, 3, force=True)  # node 3 is cut off already
     graph.close_road(0, 2)  # allowed: node 3 cannot lose a route it does not have
+    assert graph.closed_roads == frozenset({(0, 3), (0, 2)})
+    assert graph.hops_to(5).tolist() == [2, 1, 1, -1, 3, 0]
+    # The nodes that do reach the goal are still protected: closing 0-1 would cut 0 and 4 off
+    with pytest.raises(RoadClosureError, match=r"\(0, 1\) would cut protected node 5 \(Goal\) off from 2 node"):
+        graph.close_road(0, 1)
+    assert graph.closed_roads == frozenset({(0, 3), (0, 2)})
 
 
 def test_dead_end_road_of_the_campus_cannot_be_closed() -> None:

@@ -1,22 +1,27 @@
 """
-Rendered pixels and placed worlds stay what they were: golden views, maps and world digests in
-``tests/data/render_golden.npz``.
+Rendered pixels and placed worlds stay what they were: golden views and maps in ``tests/data/render_golden.npz``,
+golden placed worlds in ``tests/data/world_golden.npz``.
 
-The golden file was written by this module's ``__main__`` block at commit d2f9cd7, before the renderer was split into
-parts (camera, ground, buildings, props), and checks that refactoring the renderer or ``build_world`` changes no pixel
-and no placement. Whoever changes the drawing on purpose bumps ``RENDERER_VERSION`` (or ``BARRIER_VERSION`` /
-``WORLD_VERSION``) and rewrites the file from the repository root::
+The views were written by this module's ``__main__`` block at commit d2f9cd7, before the renderer was split into parts
+(camera, ground, buildings, props), and check that refactoring the renderer or ``build_world`` changes no pixel and no
+placement. Whoever changes the drawing on purpose bumps ``RENDERER_VERSION`` (or ``BARRIER_VERSION`` /
+``WORLD_VERSION``) and rewrites both files from the repository root::
 
     PYTHONPATH=$PWD python tests/test_rendering_pixels.py
 
 Rendering is numpy + OpenCV; SIMD paths differ slightly between CPUs (ARM, x86), so views are compared with a
 tolerance: at least :data:`MIN_SHARE_WITHIN_ONE` of the values within 1 of the golden value and a mean absolute
 difference of at most :data:`MAX_MEAN_DIFF`. On the machine that wrote the file they are byte-identical.
+
+Placed worlds are not bit-identical across machines either: ``np.linalg.norm`` of a 2-vector is a BLAS ``ddot``, whose
+OpenBLAS SkylakeX kernel (AVX-512 CPUs) fuses a multiply-add that its Haswell, Zen, Nehalem and ARM kernels round
+twice, and numpy's AVX-512 ``arctan2`` (SVML) differs from libm's by 1 ulp. Both move building corners by at most
+2.3e-13 m. So counts, vertex counts, names, kinds, colours and landmark nodes are compared exactly, and positions,
+sizes, shares and bearings to :data:`WORLD_ATOL`.
 """
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -31,6 +36,10 @@ from campusnav_env.rendering.street_view import RenderSettings, StreetViewRender
 from campusnav_env.rendering.world import World, build_world
 
 GOLDEN = Path(__file__).parent / "data" / "render_golden.npz"
+GOLDEN_WORLDS = Path(__file__).parent / "data" / "world_golden.npz"
+# Positions and sizes of placed objects may differ by this much (m) from the golden ones; between the BLAS kernels and
+# numpy SIMD paths measured (OpenBLAS SkylakeX / Haswell, numpy with and without X86_V4) they differ by <= 2.3e-13 m.
+WORLD_ATOL = 1e-6
 MIN_SHARE_WITHIN_ONE = 0.999  # share of pixel values within 1 of the golden value
 MAX_MEAN_DIFF = 0.05  # mean absolute difference over all pixel values
 
@@ -59,29 +68,55 @@ def _worlds(graphs: dict[str, RoadGraph]) -> dict[str, World]:
     }
 
 
-def placement_digest(world: World) -> str:
-    """sha256 of every placed object (buildings, trees, fields, signs) and the road dimensions, field by field."""
-    digest = hashlib.sha256()
+def _rgb(colours: list[tuple[int, int, int]], n: int) -> np.ndarray:
+    return np.asarray(colours, dtype=np.int64).reshape(n, -1)
 
-    def add(*values: object) -> None:
-        for value in values:
-            if isinstance(value, np.ndarray):
-                digest.update(np.ascontiguousarray(value, dtype=np.float64).tobytes())
-            else:
-                digest.update(repr(value).encode())
 
-    add(world.road_width, world.verge_width, world.sidewalk_width, world.seed, world.clearance)
-    add(len(world.buildings), len(world.trees), len(world.fields), len(world.signs))
-    for b in world.buildings:
-        add(b.footprint, b.height, b.facade_rgb, b.window_rgb, b.roof_rgb, b.floor_height, b.window_spacing)
-        add(b.window_width, b.window_height, b.name, b.node, b.sign_wall)
-    for t in world.trees:
-        add(t.position, t.radius, t.height, t.crown_rgb)
-    for f in world.fields:
-        add(f.polygon, f.rgb, f.kind, f.name, len(f.lines), *f.lines)
-    for s in world.signs:
-        add(s.position, s.text, s.bearing, s.width, s.height, s.elevation, s.board_rgb, s.text_rgb)
-    return digest.hexdigest()
+def _points(arrays: list[np.ndarray]) -> np.ndarray:
+    """Every ``(k, 2)`` array in ``arrays`` stacked into one ``(sum k, 2)`` float array."""
+    return np.concatenate([np.asarray(a, dtype=np.float64).reshape(-1, 2) for a in arrays] or [np.zeros((0, 2))])
+
+
+def world_reference(world: World) -> dict[str, np.ndarray]:
+    """
+    Every placed object (buildings, trees, fields, signs) and the road dimensions of ``world`` as named arrays.
+
+    Keys under ``exact/`` hold what must not change at all (counts, vertex counts, names, kinds, colours, landmark
+    nodes); keys under ``metres/`` hold positions, sizes, shares and bearings, compared to :data:`WORLD_ATOL`.
+    """
+    b, t, f, s = world.buildings, world.trees, world.fields, world.signs
+    lines = [line for field_ in f for line in field_.lines]
+    return {
+        "exact/counts": np.array([len(b), len(t), len(f), len(s)]),
+        "exact/seed": np.array(world.seed),
+        "exact/building_vertices": np.array([len(x.footprint) for x in b], dtype=np.int64),
+        "exact/building_rgb": _rgb([c for x in b for c in (x.facade_rgb, x.window_rgb, x.roof_rgb)], len(b)),
+        "exact/building_names": np.array([x.name or "" for x in b], dtype=str),
+        "exact/building_nodes": np.array([-1 if x.node is None else x.node for x in b], dtype=np.int64),
+        "exact/building_sign_walls": np.array([-1 if x.sign_wall is None else x.sign_wall for x in b], dtype=np.int64),
+        "exact/tree_rgb": _rgb([x.crown_rgb for x in t], len(t)),
+        "exact/field_vertices": np.array([len(x.polygon) for x in f], dtype=np.int64),
+        "exact/field_rgb": _rgb([x.rgb for x in f], len(f)),
+        "exact/field_kinds": np.array([x.kind for x in f], dtype=str),
+        "exact/field_names": np.array([x.name or "" for x in f], dtype=str),
+        "exact/field_lines": np.array([len(x.lines) for x in f], dtype=np.int64),
+        "exact/line_vertices": np.array([len(line) for line in lines], dtype=np.int64),
+        "exact/sign_texts": np.array([x.text for x in s], dtype=str),
+        "exact/sign_rgb": _rgb([c for x in s for c in (x.board_rgb, x.text_rgb)], len(s)),
+        "metres/road": np.array([world.road_width, world.verge_width, world.sidewalk_width, world.clearance]),
+        "metres/building_footprints": _points([x.footprint for x in b]),
+        # height, storey height, window pitch (m); window width and height (shares of pitch and storey)
+        "metres/building_sizes": np.array(
+            [(x.height, x.floor_height, x.window_spacing, x.window_width, x.window_height) for x in b]
+        ).reshape(len(b), 5),
+        "metres/trees": np.array([(*x.position, x.radius, x.height) for x in t]).reshape(len(t), 4),
+        "metres/field_polygons": _points([x.polygon for x in f]),
+        "metres/field_lines": _points(lines),
+        # position (m), bearing (degrees), width, height, elevation (m)
+        "metres/signs": np.array([(*x.position, x.bearing, x.width, x.height, x.elevation) for x in s]).reshape(
+            len(s), 6
+        ),
+    }
 
 
 def _first_road(graph: RoadGraph, node: int, avoid: int = -1) -> tuple[int, tuple[int, int]]:
@@ -139,25 +174,48 @@ def golden_cases() -> Iterator[tuple[str, Callable[[], np.ndarray]]]:
     yield "generated200/map", lambda: draw_map(generated, size=300, agent=100, labels=False, routes={"a": route})[None]
 
 
-def golden_worlds() -> dict[str, str]:
-    """Placement digest of every golden world."""
-    return {name: placement_digest(world) for name, world in _worlds(_graphs()).items()}
+def golden_worlds() -> dict[str, np.ndarray]:
+    """:func:`world_reference` of every golden world, flattened to ``"<world>/<key>"``."""
+    return {
+        f"{name}/{key}": value
+        for name, world in _worlds(_graphs()).items()
+        for key, value in world_reference(world).items()
+    }
+
+
+def _load(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path) as data:
+        return {key: data[key] for key in data.files}
 
 
 @pytest.fixture(scope="module")
 def golden() -> dict[str, np.ndarray]:
-    with np.load(GOLDEN) as data:
-        return {key: data[key] for key in data.files}
+    return _load(GOLDEN)
 
 
-def test_golden_file_lists_every_case(golden: dict[str, np.ndarray]) -> None:
-    names = {f"view:{name}" for name, _ in golden_cases()} | {f"world:{name}" for name in golden_worlds()}
-    assert set(golden) == names
+@pytest.fixture(scope="module")
+def golden_world_arrays() -> dict[str, np.ndarray]:
+    return _load(GOLDEN_WORLDS)
 
 
-def test_worlds_place_the_same_objects(golden: dict[str, np.ndarray]) -> None:
-    for name, digest in golden_worlds().items():
-        assert digest == str(golden[f"world:{name}"]), f"build_world placed different objects in {name}"
+def test_golden_files_list_every_case(
+    golden: dict[str, np.ndarray], golden_world_arrays: dict[str, np.ndarray]
+) -> None:
+    assert set(golden) == {f"view:{name}" for name, _ in golden_cases()}
+    assert set(golden_world_arrays) == set(golden_worlds())
+
+
+def test_worlds_place_the_same_objects(golden_world_arrays: dict[str, np.ndarray]) -> None:
+    for key, value in golden_worlds().items():
+        expected = golden_world_arrays[key]
+        assert value.shape == expected.shape, (
+            f"build_world placed different objects: {key} {value.shape} != {expected.shape}"
+        )
+        if "/exact/" in key:
+            assert np.array_equal(value, expected), f"build_world placed different objects: {key} differs"
+        else:
+            worst = float(np.abs(value - expected).max(initial=0.0))
+            assert worst <= WORLD_ATOL, f"build_world moved or resized objects: {key} differs by up to {worst:.3g} m"
 
 
 def test_views_and_maps_are_pixel_identical_to_the_golden_ones(golden: dict[str, np.ndarray]) -> None:
@@ -170,15 +228,19 @@ def test_views_and_maps_are_pixel_identical_to_the_golden_ones(golden: dict[str,
         assert float(diff.mean()) <= MAX_MEAN_DIFF, f"{name}: mean difference {diff.mean():.3f}"
 
 
-def _write_golden() -> None:
-    """Render every case with the current code and write the golden file (atomically)."""
-    arrays: dict[str, np.ndarray] = {f"view:{name}": draw() for name, draw in golden_cases()}
-    arrays |= {f"world:{name}": np.array(digest) for name, digest in golden_worlds().items()}
-    GOLDEN.parent.mkdir(exist_ok=True)
-    tmp = GOLDEN.with_suffix(".tmp.npz")
+def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write ``arrays`` to ``path`` atomically."""
+    path.parent.mkdir(exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
     np.savez_compressed(tmp, **arrays)
-    tmp.replace(GOLDEN)
-    print(f"wrote {len(arrays)} entries, {GOLDEN.stat().st_size / 1e6:.2f} MB to {GOLDEN}")
+    tmp.replace(path)
+    print(f"wrote {len(arrays)} entries, {path.stat().st_size / 1e6:.2f} MB to {path}")
+
+
+def _write_golden() -> None:
+    """Render every case and place every world with the current code and write both golden files."""
+    _save(GOLDEN, {f"view:{name}": draw() for name, draw in golden_cases()})
+    _save(GOLDEN_WORLDS, golden_worlds())
 
 
 if __name__ == "__main__":

@@ -241,13 +241,19 @@ def test_the_graph_reads_a_replay_buffer_filled_by_dcqn(env: CampusNavEnv, buffe
     actions = buffer.actions[:, 0].reshape(-1).astype(np.int64)
     pairs = set(zip(states.tolist(), actions.tolist(), strict=True))
     assert graph.n_tried == len(pairs)
-    # Every edge is the world's own outcome
-    table = env.graph.transition_table
-    for state, action, following in zip(graph.states_of(stored), actions, graph.states_of(stored_next), strict=True):
+    # Every stored transition is an edge of the graph
+    graph_states, graph_next = graph.states_of(stored), graph.states_of(stored_next)
+    for state, action, following in zip(graph_states, actions, graph_next, strict=True):
         assert graph.next_state[state, action] == following
-    truth, _ = env.graph.move(states, actions)
-    np.testing.assert_array_equal(truth, next_states)
-    assert table.shape[1] == graph.n_actions
+    # The graph's states are the world's (one per world state seen), and every edge it holds is the world's own move
+    world_of = dict(zip(graph_states.tolist(), states.tolist(), strict=True))
+    world_of |= dict(zip(graph_next.tolist(), next_states.tolist(), strict=True))
+    assert len(world_of) == len(set(states.tolist()) | set(next_states.tolist())) == len(set(world_of.values()))
+    tried_states, tried_actions = np.nonzero(graph.next_state >= 0)
+    assert len(tried_states) == graph.n_tried
+    world_moves, _ = env.graph.move(np.array([world_of[s] for s in tried_states.tolist()]), tried_actions)
+    edges = graph.next_state[tried_states, tried_actions].tolist()
+    np.testing.assert_array_equal(world_moves, [world_of[s] for s in edges])
 
 
 def test_refresh_reads_what_was_added_since_and_agrees_with_a_full_read(env: CampusNavEnv) -> None:
