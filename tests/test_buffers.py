@@ -213,3 +213,24 @@ class DictCartPole(gym.ObservationWrapper):
 
     def observation(self, observation: np.ndarray) -> dict[str, np.ndarray]:
         return {"state": observation}
+
+
+@pytest.mark.parametrize(("ours", "theirs", "space", "make_obs"), [
+    (DCQNReplayBuffer, ReplayBuffer, BOX, box_obs), (DCQNDictReplayBuffer, DictReplayBuffer, DICT, dict_obs),
+])  # fmt: skip
+def test_dcqns_bases_sample_exactly_as_sb3s_buffers(ours, theirs, space, make_obs) -> None:
+    a, b = ours(8, space, ACTIONS, device="cpu"), theirs(8, space, ACTIONS, device="cpu")
+    for node in range(11):  # wraps around
+        for buffer in (a, b):
+            add(buffer, make_obs(node), make_obs(node + 1), node % 4, -0.005 * node, done=node % 5 == 4)
+    for seed in range(3):
+        np.random.seed(seed)
+        mine = a.sample(16)
+        np.random.seed(seed)
+        sb3 = b.sample(16)
+        for x, y in zip(mine[:5], sb3[:5], strict=True):
+            if isinstance(x, dict):
+                for key in x:
+                    np.testing.assert_allclose(x[key].numpy(), y[key].numpy(), rtol=0, atol=0)
+            else:
+                np.testing.assert_allclose(x.numpy(), y.numpy(), rtol=0, atol=0)
