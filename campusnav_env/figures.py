@@ -254,7 +254,14 @@ def route_text(road_graph: RoadGraph | NavigationGraph, route: Route) -> str:
     def place(node: int) -> str:
         return f"{node} ({', '.join(names[node])})" if node in names else str(node)
 
-    outcome = f"reached in {route.steps} steps" if route.success else f"fails (stopped after {route.steps} steps)"
+    moves = sum(u != v for u, v in itertools.pairwise(route.nodes))
+    # A failed route stops at a loop or the step limit and is scored as the limit (RouteReport), blocked moves unlisted
+    outcome = (
+        f"reached in {route.steps} steps"
+        if route.success
+        else f"fails after {moves} move{'' if moves == 1 else 's'} (a loop, blocked or the step limit; scored as "
+        f"{route.steps} steps)"
+    )
     shortest = route.shortest if route.shortest >= 0 else "-"
     lines = [
         f"route from node {place(route.start)} facing {COMPASS[route.heading]} to {route.goal}: {outcome} "

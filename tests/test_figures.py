@@ -248,7 +248,7 @@ def test_a_route_reads_as_its_nodes_and_the_turn_at_each(campus: RoadGraph) -> N
     # A move that stayed put (a closed road) is a blocked step; a failed route says so
     stuck = Route(GOAL, 0, 0, False, 200, len(nodes) - 1, (0, 0, nodes[1]))
     assert route_steps(campus, stuck)[0].action == "blocked"
-    assert "fails (stopped after 200 steps)" in route_text(campus, stuck).splitlines()[0]
+    assert "fails after 1 move (a loop, blocked or the step limit; scored as 200 steps)" in route_text(campus, stuck)
     with pytest.raises(ValueError, match="no action leads from node 0 facing N to node 13"):
         route_steps(campus, Route(GOAL, 0, 0, False, 1, 6, (0, 13)))
     with pytest.raises(ValueError, match="its nodes must start there"):
