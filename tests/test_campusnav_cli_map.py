@@ -11,10 +11,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import networkx as nx
+import numpy as np
 import pytest
 
+from campusnav_env import figures
+from campusnav_env.figures import training_curves
 from campusnav_env.maps.compass import ACTION_NAMES
 from sb3_dcqn.campusnav.cli import CommandError, build_parser, campusnav_env_ids, run
 from sb3_dcqn.campusnav.settings import EnvSettings, load_map
@@ -81,8 +85,19 @@ def cli(*argv: str) -> dict:
 
 
 def test_train_on_a_graphml_map_and_evaluate_and_draw_it_with_the_route_as_text(
-    tmp_path: Path, grid_map: Path, tiny_conf: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path,
+    grid_map: Path,
+    tiny_conf: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
+    notes = []
+
+    def curves(*args: Any, **kwargs: Any) -> np.ndarray:
+        notes.append(kwargs.get("note"))
+        return training_curves(*args, **kwargs)
+
+    monkeypatch.setattr(figures, "training_curves", curves)
     out = tmp_path / "grid"
     summary = cli(
         "train", "--map", str(grid_map), "--goals", "Library", "--conf", str(tiny_conf), *FAST, "--no-progress",
@@ -94,6 +109,7 @@ def test_train_on_a_graphml_map_and_evaluate_and_draw_it_with_the_route_as_text(
     assert graph.n_nodes == 22 and sorted(graph.landmarks) == ["Cinema", "Library"]
     assert summary["trained"]["n_routes"] == 21 * 4  # every other intersection, every heading
     assert "CampusNav-v0 on grid.graphml" in capsys.readouterr().out
+    assert notes == [None]  # no start curriculum: every episode starts anywhere, as the route evaluations do
     saved = EnvSettings.from_json(summary["settings"])
     assert saved.map_path == str(grid_map.resolve()) and load_map(saved.map_path) is graph  # read once
 

@@ -929,7 +929,8 @@ def _map_flags(group: argparse._ArgumentGroup) -> None:
     group.add_argument(
         "--map",
         metavar="FILE.graphml",
-        help="a road network (GraphML, e.g. from osmnx.save_graphml) instead of the env's map (default: the model's)",
+        help="a road network (GraphML, e.g. from osmnx.save_graphml) instead of the env's map (default: the "
+        "model's, if any)",
     )
 
 
