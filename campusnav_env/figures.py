@@ -8,7 +8,13 @@ Figures of the dynamic-routing experiments, as RGB images: route panels per clos
   panel shows, as data.
 - :func:`training_curves` (the paper's Fig. 8): episode reward and episode length against training episodes, smoothed,
   with a vertical line per closure, and optionally the route evaluations' success rate and SPL.
-- :func:`write_figure` writes either image as a PNG, atomically.
+- :func:`pick_route` chooses the route a picture shows (for these panels and for the command line's pictures), and
+  :func:`route_steps` / :func:`route_text` give a route as text: its nodes and the turn taken at each (forward,
+  right, back, left), with the intersections' names.
+- :func:`tile_panels` lays pictures out in a grid; :func:`write_figure` writes an image as a PNG, atomically.
+
+Colours mean the same in every picture: orange is the learned route (the greedy policy's; before the closure in the
+closure panels), purple the route after a closure, cyan the shortest path, red a closed road (drawn over the routes).
 
 The inputs are what :class:`~campusnav_env.callbacks.RoadClosureCallback` and
 :class:`~campusnav_env.callbacks.RouteEvaluationCallback` produce (``records``, ``recoveries``, ``evaluations``) and
@@ -27,7 +33,8 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+import textwrap
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -36,19 +43,46 @@ import cv2
 import numpy as np
 
 from campusnav_env.atomic_files import write_png
+from campusnav_env.maps.compass import ACTION_NAMES, COMPASS
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph, road_key
 from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation
 from campusnav_env.rendering.map_view import draw_map, title_band
-from campusnav_env.rendering.palette import BORDER_RGB, CLOSED_RGB, PAGE_RGB, RECOVERED_RGB, TEXT_RGB
+from campusnav_env.rendering.palette import (
+    BORDER_RGB,
+    CLOSED_RGB,
+    LEARNED_ROUTE_RGB,
+    PAGE_RGB,
+    RECOVERED_RGB,
+    REROUTED_RGB,
+    TEXT_RGB,
+)
 from campusnav_env.route_evaluation import Route
 
 if TYPE_CHECKING:
     import matplotlib.figure
 
-__all__ = ["ClosurePanel", "closure_panels", "closure_route_panels", "panel_title", "training_curves", "write_figure"]
+__all__ = [
+    "CURRICULUM_NOTE",
+    "ClosurePanel",
+    "RouteStep",
+    "closure_panels",
+    "closure_route_panels",
+    "panel_title",
+    "pick_route",
+    "route_steps",
+    "route_text",
+    "tile_panels",
+    "training_curves",
+    "write_figure",
+]
 
-COMPASS_LETTERS = ("N", "E", "S", "W")
+COMPASS_LETTERS = COMPASS
+# The training curves' note when a start curriculum runs: its episodes start near the goal, the evaluations anywhere
+CURRICULUM_NOTE = (
+    "episode reward and length: training episodes, from the start curriculum's starts (near the goal first); "
+    "route evaluation: from every start"
+)
 _SHADE = {True: "tab:green", False: "tab:red"}  # training span after a closure: recovered or not
 Road = tuple[int, int]
 
@@ -107,12 +141,140 @@ def _uses(route: Route, roads: set[Road]) -> bool:
     return any(u != v and road_key(u, v) in roads for u, v in itertools.pairwise(route.nodes))
 
 
-def _pick_route(routes: list[Route], roads: set[Road]) -> Route:
-    """A route that travels one of ``roads`` (the longest), else the one from the farthest start."""
-    using = [r for r in routes if _uses(r, roads)]
+def pick_route(
+    routes: Iterable[Route],
+    *,
+    goal: str | None = None,
+    start: int | None = None,
+    heading: int | None = None,
+    roads: Collection[Road] = (),
+) -> Route | None:
+    """
+    The route a picture shows, among those to ``goal`` from ``start`` at ``heading`` (each: any, when ``None``).
+
+    In order of preference: the longest route that travels one of ``roads`` (the roads a closure is about to close,
+    so that the picture shows what the closure changes), a failed route from the farthest start (what went wrong),
+    the route from the farthest start. Ties go to the longer route, then the lower start and heading.
+
+    :param routes: Evaluated routes (``RouteReport.routes``)
+    :param goal: Goal name of the route
+    :param start: Its start node
+    :param heading: Its start heading (0 N, 1 E, 2 S, 3 W)
+    :param roads: Roads ``(u, v)`` that a route travelling them is preferred for (either order)
+    :return: the route, or ``None`` if none matches
+    """
+    matching = [
+        r
+        for r in routes
+        if (goal is None or r.goal == goal)
+        and (start is None or r.start == start)
+        and (heading is None or r.heading == heading)
+    ]
+    if not matching:
+        return None
+    using = [r for r in matching if _uses(r, {road_key(u, v) for u, v in roads})] if roads else []
     if using:
         return max(using, key=lambda r: (len(r.nodes), -r.start, -r.heading))
-    return max(routes, key=lambda r: (r.shortest, len(r.nodes), -r.start, -r.heading))
+    failed = [r for r in matching if not r.success]
+    return max(failed or matching, key=lambda r: (r.shortest, len(r.nodes), -r.start, -r.heading))
+
+
+@dataclass(frozen=True)
+class RouteStep:
+    """
+    One step of a route, as :func:`route_steps` reads it from the nodes.
+
+    :param node: Where the step starts
+    :param heading: The heading there (0 N, 1 E, 2 S, 3 W)
+    :param action: ``"forward"``, ``"right"``, ``"back"`` or ``"left"``; ``"blocked"`` for a move that stayed put
+        (a closed road, or no road that way: which action it was, the nodes do not say)
+    :param to: Where it ends
+    :param to_heading: The heading there
+    """
+
+    node: int
+    heading: int
+    action: str
+    to: int
+    to_heading: int
+
+
+def route_steps(road_graph: RoadGraph | NavigationGraph, route: Route) -> list[RouteStep]:
+    """
+    The turns of a route: from its start and heading, the action that takes each node to the next (the map's move
+    rule, :attr:`RoadGraph.transitions`, on the open map: a closed road only blocks).
+
+    :param road_graph: The map the route was driven on
+    :param route: The route (``Route.nodes`` starts at ``Route.start``)
+    :return: one step per move
+    :raises ValueError: a route whose start is not its first node, or with a move no action makes
+    """
+    graph = road_graph.map if isinstance(road_graph, NavigationGraph) else road_graph
+    nodes = [int(n) for n in route.nodes]
+    if not nodes or nodes[0] != route.start:
+        raise ValueError(f"route from node {route.start}: its nodes must start there, got {nodes[:3]}")
+    state = graph.state_index(route.start, route.heading)
+    steps = []
+    for u, v in itertools.pairwise(nodes):
+        heading = int(graph.state_headings[state])
+        if u == v:
+            steps.append(RouteStep(u, heading, "blocked", v, heading))
+            continue
+        targets = graph.transitions[state]
+        actions = [a for a in range(graph.n_actions) if targets[a] >= 0 and graph.state_nodes[targets[a]] == v]
+        if not actions:
+            raise ValueError(
+                f"route from node {route.start}: no action leads from node {u} facing {COMPASS[heading]} to node {v}"
+            )
+        state = int(targets[actions[0]])
+        name = ACTION_NAMES[actions[0]] if actions[0] < len(ACTION_NAMES) else f"action {actions[0]}"
+        steps.append(RouteStep(u, heading, name, v, int(graph.state_headings[state])))
+    return steps
+
+
+def route_text(road_graph: RoadGraph | NavigationGraph, route: Route) -> str:
+    """
+    A route as text: a headline, its nodes, and one line per step with the turn taken, e.g.::
+
+        route from node 21 facing N to Dreese Lab: reached in 3 steps (shortest 3)
+        nodes: 21 15 16 81
+          1. 21 facing N: forward -> 15 facing N
+          2. 15 facing N: right -> 16 (Library) facing E
+          3. 16 (Library) facing E: left -> 81 (Dreese Lab) facing N
+
+    :param road_graph: The map the route was driven on
+    :param route: The route
+    :return: the text, lines ending in newlines
+    """
+    graph = road_graph.map if isinstance(road_graph, NavigationGraph) else road_graph
+    names: dict[int, list[str]] = {}
+    for name, node in sorted(graph.landmarks.items()):
+        names.setdefault(node, []).append(name)
+
+    def place(node: int) -> str:
+        return f"{node} ({', '.join(names[node])})" if node in names else str(node)
+
+    moves = sum(u != v for u, v in itertools.pairwise(route.nodes))
+    # A failed route stops at a loop or the step limit and is scored as the limit (RouteReport), blocked moves unlisted
+    outcome = (
+        f"reached in {route.steps} steps"
+        if route.success
+        else f"fails after {moves} move{'' if moves == 1 else 's'} (a loop, blocked or the step limit; scored as "
+        f"{route.steps} steps)"
+    )
+    shortest = route.shortest if route.shortest >= 0 else "-"
+    lines = [
+        f"route from node {place(route.start)} facing {COMPASS[route.heading]} to {route.goal}: {outcome} "
+        f"(shortest {shortest})",
+        "nodes: " + " ".join(str(int(n)) for n in route.nodes),
+    ]
+    width = len(str(len(route.nodes)))
+    for k, step in enumerate(route_steps(graph, route), start=1):
+        lines.append(
+            f"  {k:>{width}}. {place(step.node)} facing {COMPASS[step.heading]}: {step.action} -> "
+            f"{place(step.to)} facing {COMPASS[step.to_heading]}"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def _route_steps(route: Route | None) -> str:
@@ -226,13 +388,8 @@ def closure_panels(
     if start is None or heading is None:
         first = recoveries[0].closure
         learned = _before(evaluations, first)
-        candidates = [
-            r
-            for r in (learned.report.routes if learned else [])
-            if r.goal == goal and (start is None or r.start == start)
-        ]
-        if candidates:
-            chosen = _pick_route(candidates, set(first.closed))
+        chosen = pick_route(learned.report.routes if learned else [], goal=goal, start=start, roads=first.closed)
+        if chosen is not None:
             start = chosen.start if start is None else start
             heading = chosen.heading if heading is None else heading
         else:
@@ -283,10 +440,11 @@ def closure_route_panels(
     """
     One map per closure with the route before it and the route after recovery, tiled in a grid.
 
-    Every panel shows the routes from one fixed start (and heading): the *learned route* (from the last evaluation
-    before the closure, ``evaluations[closure.evaluation_index - 1]``), drawn wide underneath so that it shows where
-    the other follows it, and the route at recovery (or, if the agent never recovered, at the last evaluation of the
-    closure's window), the roads closed so far (all closures up to this one, minus reopened roads) in red with an X,
+    Every panel shows the routes from one fixed start (and heading): the *learned route* in orange (from the last
+    evaluation before the closure, ``evaluations[closure.evaluation_index - 1]``), drawn wide underneath so that it
+    shows where the other follows it, and in purple the route at recovery (or, if the agent never recovered, at the
+    last evaluation of the closure's window), the roads closed so far (all closures up to this one, minus reopened
+    roads) in red with an X, drawn over the routes,
     the start (a triangle facing the heading) and the goal (a star), with a legend below. Its three title lines
     (:attr:`ClosurePanel.title`) name the change and the recovery, the start, goal and closed roads, and the steps and
     score.
@@ -294,8 +452,9 @@ def closure_route_panels(
     :param road_graph: The map (a ``NavigationGraph``'s own closures are ignored: they come from the records)
     :param evaluations: All route evaluations in the order they were made (``RouteEvaluationCallback.evaluations``)
     :param recoveries: One per closure, in order (``RoadClosureCallback.recoveries``); one panel each
-    :param start: Start node of the routes shown. Default: the start of the longest learned route that travelled a
-        road of the first closure, else the start farthest from the goal
+    :param start: Start node of the routes shown. Default: that of the learned route :func:`pick_route` picks with the
+        first closure's roads (the longest that travelled one, else a failed one, else the one from the farthest
+        start); without learned routes, the start farthest from the goal
     :param heading: Start heading (0 N, 1 E, 2 S, 3 W). Default: that of the learned route chosen as above (among the
         routes from ``start`` when it is given)
     :param goal: Goal name of the routes (default: the goal of the first route in the evaluations)
@@ -311,14 +470,16 @@ def closure_route_panels(
     if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 1:
         raise ValueError(f"columns must be a positive int, got {columns!r}")
     graph = road_graph.map if isinstance(road_graph, NavigationGraph) else road_graph
-    scale = max(0.4, size / 1200)
+    scale = min(0.75, max(0.4, size / 1200))  # the title's font: grows with the panel, but not to a headline
     images = []
     for panel in closure_panels(road_graph, evaluations, recoveries, start, heading, goal=goal):
         # Both always in the legend, so that every panel has the same colours
         learned, after = panel.learned, panel.after
+        learned_name = "learned route (before)" if learned else "learned route: none"
+        after_name = panel.after_name if after else f"{panel.after_name}: none"
         routes = {
-            "learned route (before)" if learned else "learned route: none": list(learned.nodes) if learned else [],
-            panel.after_name if after else f"{panel.after_name}: none": list(after.nodes) if after else [],
+            learned_name: list(learned.nodes) if learned else [],
+            after_name: list(after.nodes) if after else [],
         }
         image = draw_map(
             NavigationGraph(graph, panel.closed),
@@ -328,20 +489,45 @@ def closure_route_panels(
             goal=panel.goal_node,
             routes=routes,
             labels=labels,
+            colours={learned_name: LEARNED_ROUTE_RGB, after_name: REROUTED_RGB},
         )
         first, *details = panel.title
         colour = RECOVERED_RGB if panel.recovery.recovered else CLOSED_RGB
         header = title_band(image.shape[1], [(first, colour), *((d, TEXT_RGB) for d in details)], scale)
         images.append(np.concatenate([header, image]))
-    page = _tile(images, int(columns), gap=max(8, size // 40))
+    page = tile_panels(images, int(columns), gap=max(8, size // 40))
     if title is None:
         return page
     return np.concatenate([title_band(page.shape[1], [(str(title), TEXT_RGB)], scale * 1.2), page])
 
 
-def _tile(panels: Sequence[np.ndarray], columns: int, gap: int) -> np.ndarray:
-    """Panels (same width, heights may differ) in rows of ``columns``, each framed, on a white page."""
-    columns = min(columns, len(panels))
+def tile_panels(
+    panels: Sequence[np.ndarray], columns: int | None = None, gap: int = 12, frame: bool = True
+) -> np.ndarray:
+    """
+    Pictures in a grid of rows, each framed, on a white page; cells are as large as the largest picture.
+
+    :param panels: ``(H, W, 3)`` uint8 RGB pictures, in reading order
+    :param columns: Pictures per row at most; ``None``: the count that makes the page closest to square (four
+        pictures of a map wider than tall: 2 x 2; four wide rows: one column)
+    :param gap: Pixels between pictures and around the page
+    :param frame: Frame each picture (pictures that are pages of framed panels already need none)
+    :return: ``(H, W, 3)`` uint8 RGB image
+    :raises ValueError: no pictures, or a bad column count
+    """
+    if not panels:
+        raise ValueError("tile_panels needs at least one picture")
+    if columns is None:
+        width = max(p.shape[1] for p in panels)
+        height = max(p.shape[0] for p in panels)
+
+        def squareness(c: int) -> float:
+            return abs(math.log((c * width) / (math.ceil(len(panels) / c) * height)))
+
+        columns = min(range(1, len(panels) + 1), key=squareness)
+    if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 1:
+        raise ValueError(f"columns must be a positive int or None, got {columns!r}")
+    columns = min(int(columns), len(panels))
     rows = math.ceil(len(panels) / columns)
     width = max(p.shape[1] for p in panels)
     height = max(p.shape[0] for p in panels)
@@ -349,7 +535,8 @@ def _tile(panels: Sequence[np.ndarray], columns: int, gap: int) -> np.ndarray:
     for k, panel in enumerate(panels):
         y, x = gap + (k // columns) * (height + gap), gap + (k % columns) * (width + gap)
         page[y : y + panel.shape[0], x : x + panel.shape[1]] = panel
-        cv2.rectangle(page, (x - 1, y - 1), (x + panel.shape[1], y + panel.shape[0]), BORDER_RGB, 1)
+        if frame:
+            cv2.rectangle(page, (x - 1, y - 1), (x + panel.shape[1], y + panel.shape[0]), BORDER_RGB, 1)
     return page
 
 
@@ -380,6 +567,7 @@ def training_curves(
     window: int = 50,
     size: tuple[int, int] | None = None,
     title: str | None = None,
+    note: str | None = None,
 ) -> np.ndarray:
     """
     Episode reward and length against training episodes, with the closures marked (the paper's Fig. 8).
@@ -400,6 +588,8 @@ def training_curves(
     :param window: Episodes in the moving average
     :param size: ``(width, height)`` in pixels (default: 1100 wide, 560 high, 780 with evaluations)
     :param title: Title above the panels
+    :param note: A line under the panels, e.g. :data:`CURRICULUM_NOTE` when training episodes start elsewhere
+        than the route evaluations (a start curriculum: episode reward then runs ahead of route success)
     :return: ``(H, W, 3)`` uint8 RGB image of exactly ``size``
     :raises ValueError: rewards and lengths of different lengths, non-finite values, a bad window or size
     """
@@ -511,6 +701,8 @@ def training_curves(
     axes[-1].set_xlim(0, last * 1.01 + 1)
     if title:
         figure.suptitle(title, fontsize=11)
+    if note:  # under the panels, where neither the closures' key (upper right) nor the closure numbers are
+        figure.supxlabel(textwrap.fill(str(note), width=max(40, width // 7)), fontsize=9, color="0.25")
 
     image = figure_image(figure)
     if image.shape[:2] != (height, width):  # rounding of the figure size: pad or crop to the size asked for

@@ -238,19 +238,20 @@ def test_pictures_are_titled_with_start_goal_closures_and_score(
 
 def test_route_title_names_the_route_and_its_score() -> None:
     from campusnav_env import CampusNavEnv
+    from campusnav_env.figures import pick_route
     from campusnav_env.rendering.street_view import RenderSettings
     from campusnav_env.route_evaluation import evaluate_routes
 
     nav = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(width=64, height=48), progress=False)
     nav.close_road(14, 15)
     report = evaluate_routes(nav, lambda observations: np.zeros(len(observations["heading"]), dtype=np.int64))
-    route = pictures.pick_route(report, "Dreese Lab", 3, 0)
+    route = pick_route(report.routes, goal="Dreese Lab", start=3, heading=0)
     assert route is not None
     title = pictures.route_title(nav, "Dreese Lab", route, 3, report)
     outcome = f"{route.steps} steps" if route.success else "fails"
     score = report.for_goal("Dreese Lab")
     assert title == (
-        f"from node 3 facing N to Dreese Lab (node 81); closed: 14-15; greedy route: {outcome} (shortest "
+        f"from node 3 facing N to Dreese Lab (node 81); closed: 14-15; learned route: {outcome} (shortest "
         f"{route.shortest}); all routes to Dreese Lab: success {score.success_rate:.3f}, SPL {score.spl:.3f}"
     )
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -10,11 +11,24 @@ import numpy as np
 import pytest
 
 from campusnav_env import generate_campus
-from campusnav_env.figures import closure_panels, closure_route_panels, panel_title, training_curves, write_figure
+from campusnav_env.figures import (
+    CURRICULUM_NOTE,
+    closure_panels,
+    closure_route_panels,
+    panel_title,
+    pick_route,
+    route_steps,
+    route_text,
+    tile_panels,
+    training_curves,
+    write_figure,
+)
+from campusnav_env.maps.compass import ACTION_NAMES
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.recovery import ClosureRecord, Recovery, RouteEvaluation, measure_recoveries
-from campusnav_env.rendering.map_view import CLOSED_RGB, ROUTE_COLOURS
+from campusnav_env.rendering.map_view import CLOSED_RGB
+from campusnav_env.rendering.palette import LEARNED_ROUTE_RGB, REROUTED_RGB
 from campusnav_env.route_evaluation import Route, RouteReport
 
 GOAL = "Dreese Lab"
@@ -87,8 +101,8 @@ def test_one_panel_per_closure_with_both_routes_closures_start_and_goal(campus: 
     # Side by side up to `columns` panels, then a new row
     assert two.shape[0] == one.shape[0] and two.shape[1] > 1.8 * one.shape[1]
     assert three.shape[1] == two.shape[1] and three.shape[0] > 1.8 * one.shape[0]
-    # The learned route and the re-routed one in the first two route colours, the closed road in red
-    for colour in (*ROUTE_COLOURS[:2], CLOSED_RGB):
+    # The learned route in orange and the re-routed one in purple, the closed road in red
+    for colour in (LEARNED_ROUTE_RGB, REROUTED_RGB, CLOSED_RGB):
         assert _share(one, colour) > 0.001
     # The start is the one whose learned route used the closed road (the longest such: node 0), heading 0
     explicit = closure_route_panels(campus, evaluations, recoveries[:1], start=0, heading=0, size=300)
@@ -176,7 +190,7 @@ def test_without_evaluations_before_the_closure_the_farthest_start_is_taken(camp
     np.testing.assert_array_equal(
         image, closure_route_panels(campus, evaluations, recoveries, start=farthest, heading=0, size=300)
     )
-    assert _share(image, ROUTE_COLOURS[1]) > 0.001  # only the route after the closure exists
+    assert _share(image, REROUTED_RGB) > 0.001  # only the route after the closure exists
 
 
 def test_route_panels_reject_bad_input(campus: RoadGraph) -> None:
@@ -197,6 +211,63 @@ def test_route_panels_reject_bad_input(campus: RoadGraph) -> None:
         closure_route_panels("map", evaluations, recoveries)  # type: ignore[arg-type]
 
 
+def test_pick_route_prefers_a_road_about_to_close_then_a_failure_then_the_farthest_start() -> None:
+    far = Route(GOAL, 1, 0, True, 9, 9, (1, 2, 3))
+    failed_near = Route(GOAL, 2, 1, False, 200, 3, (2, 3))
+    failed_far = Route(GOAL, 3, 2, False, 200, 5, (3, 4))
+    over_road = Route(GOAL, 4, 3, True, 4, 4, (4, 5, 6, 7))
+    other_goal = Route("Cinema", 5, 0, False, 200, 12, (5, 6))
+    routes = [far, failed_near, failed_far, over_road, other_goal]
+    assert pick_route(routes, goal=GOAL, roads=[(6, 5)]) == over_road  # either order of the road's ends
+    assert pick_route(routes, goal=GOAL) == failed_far
+    assert pick_route([far, over_road], goal=GOAL) == far
+    assert pick_route(routes, goal=GOAL, start=2) == failed_near and pick_route(routes, start=5) == other_goal
+    assert pick_route(routes, goal=GOAL, heading=3) == over_road
+    assert pick_route(routes, goal="Library") is None and pick_route([]) is None
+
+
+def test_a_route_reads_as_its_nodes_and_the_turn_at_each(campus: RoadGraph) -> None:
+    navigation = NavigationGraph(campus)
+    nodes = navigation.shortest_path(0, campus.landmarks[GOAL])
+    route = Route(GOAL, 0, 0, True, len(nodes) - 1, len(nodes) - 1, tuple(nodes))
+    steps = route_steps(campus, route)
+    assert [(s.node, s.to) for s in steps] == list(itertools.pairwise(nodes))
+    # Each turn, taken by the env's move rule from where the last one left the agent, gives the next node
+    state = campus.state_index(0, 0)
+    for step in steps:
+        assert (campus.state_nodes[state], campus.state_headings[state]) == (step.node, step.heading)
+        state = int(navigation.move(state, ACTION_NAMES.index(step.action))[0])
+        assert (campus.state_nodes[state], campus.state_headings[state]) == (step.to, step.to_heading)
+    text = route_text(navigation, route)
+    lines = text.splitlines()
+    assert lines[0] == f"route from node 0 (Chapel) facing N to {GOAL}: reached in 6 steps (shortest 6)"
+    assert lines[1] == "nodes: " + " ".join(map(str, nodes))
+    assert lines[-1].endswith(f"-> 13 ({GOAL}) facing {'NESW'[steps[-1].to_heading]}")  # names where it has one
+    assert [line.split(": ")[1].split(" -> ")[0] for line in lines[2:]] == [s.action for s in steps]
+
+    # A move that stayed put (a closed road) is a blocked step; a failed route says so
+    stuck = Route(GOAL, 0, 0, False, 200, len(nodes) - 1, (0, 0, nodes[1]))
+    assert route_steps(campus, stuck)[0].action == "blocked"
+    assert "fails after 1 move (a loop, blocked or the step limit; scored as 200 steps)" in route_text(campus, stuck)
+    with pytest.raises(ValueError, match="no action leads from node 0 facing N to node 13"):
+        route_steps(campus, Route(GOAL, 0, 0, False, 1, 6, (0, 13)))
+    with pytest.raises(ValueError, match="its nodes must start there"):
+        route_steps(campus, Route(GOAL, 0, 0, False, 1, 6, (3, 4)))
+
+
+def test_tiles_are_as_close_to_square_as_the_pictures_allow() -> None:
+    panel = np.zeros((562, 630, 3), dtype=np.uint8)
+    grid = tile_panels([panel] * 4, gap=10)
+    assert grid.shape == (2 * 562 + 3 * 10, 2 * 630 + 3 * 10, 3)  # 2 x 2, not a 4-high column
+    row = np.zeros((562, 3 * 630, 3), dtype=np.uint8)
+    assert tile_panels([row] * 4, gap=10).shape[:2] == (4 * 562 + 5 * 10, 3 * 630 + 2 * 10)  # wide rows: a column
+    assert tile_panels([panel] * 3, columns=3, gap=0).shape[:2] == (562, 3 * 630)
+    with pytest.raises(ValueError, match="at least one picture"):
+        tile_panels([])
+    with pytest.raises(ValueError, match="columns"):
+        tile_panels([panel], columns=0)
+
+
 def _episodes(n: int = 400) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(0)
     lengths = np.round(8 + 60 * np.exp(-np.arange(n) / 80) + rng.gamma(2.0, 4.0, n))
@@ -214,6 +285,16 @@ def test_training_curves_mark_the_closures(campus: RoadGraph) -> None:
     assert _share(marked, tab_red, tol=30) > _share(plain, tab_red, tol=30) + 0.001
     with_evaluations = training_curves(rewards, lengths, measure_recoveries(closures, evaluations), evaluations)
     assert with_evaluations.shape == (780, 1100, 3)  # the default size with an evaluation panel
+
+
+def test_training_curves_can_say_why_episode_reward_runs_ahead_of_route_success() -> None:
+    rewards, lengths = _episodes()
+    plain = training_curves(rewards, lengths, size=(900, 500))
+    noted = training_curves(rewards, lengths, size=(900, 500), note=CURRICULUM_NOTE)
+    assert noted.shape == plain.shape
+    dark = [(image[-40:] < 128).any(axis=-1).mean() for image in (plain, noted)]  # the note goes under the panels
+    assert dark[1] > dark[0] + 0.005
+    assert "curriculum" in CURRICULUM_NOTE and "every start" in CURRICULUM_NOTE
 
 
 def test_training_curves_reject_bad_input() -> None:

@@ -6,18 +6,21 @@ import cv2
 import numpy as np
 import pytest
 
-from campusnav_env.maps.campus import default_campus
+from campusnav_env.maps.campus import default_campus, generate_city
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.rendering.contact_sheet import default_nodes, main, write_contact_sheet
 from campusnav_env.rendering.map_view import (
     AGENT_RGB,
     CLOSED_RGB,
+    DENSITY_NODES,
     GOAL_RGB,
     PATH_RGB,
     ROUTE_COLOURS,
     draw_map,
     map_layout,
+    map_size,
 )
+from campusnav_env.rendering.palette import ROAD_RGB
 from campusnav_env.rendering.street_view import RenderSettings
 
 
@@ -303,3 +306,49 @@ def test_agent_arrow_points_where_its_forward_view_looks(graph):
     image = draw_map(graph, agent=dead_end, heading=empty, labels=False)
     off = abs(_arrow_bearing(image) - 90.0 * empty) % 360.0
     assert min(off, 360.0 - off) < 10.0
+
+
+def test_routes_take_the_colours_given_by_name(graph):
+    path = graph.shortest_path(0, graph.landmarks["Dreese Lab"])
+    teal, orange = (23, 190, 207), ROUTE_COLOURS[0]
+    routes = {"shortest path": path, "learned route": path}
+    image = draw_map(graph, routes=routes, labels=False, colours={"shortest path": teal, "learned route": orange})
+    layout = map_layout(graph, routes=routes, labels=False, colours={"shortest path": teal, "learned route": orange})
+    assert [(e.text, e.rgb) for e in layout.legend[:2]] == [("shortest path", teal), ("learned route", orange)]
+    assert _share(image, teal, tol=6) > 0.001 and _share(image, orange, tol=6) > 0.001
+    # A route without a colour takes the first of ROUTE_COLOURS that no other route was given
+    only = map_layout(graph, routes={"a": path, "b": path}, labels=False, colours={"b": orange})
+    assert [e.rgb for e in only.legend[:2]] == [ROUTE_COLOURS[1], orange]
+    with pytest.raises(ValueError, match=r"colours given for routes that are not drawn: \['c'\]"):
+        draw_map(graph, routes={"a": path}, colours={"c": orange})
+
+
+def test_a_closed_road_is_drawn_over_the_route_that_travels_it(graph):
+    path = graph.shortest_path(0, graph.landmarks["Dreese Lab"])
+    u, v = path[len(path) // 2], path[len(path) // 2 + 1]
+    graph.close_road(u, v, force=True)
+    layout = map_layout(graph, routes={"learned route": path}, labels=False)
+    image = draw_map(graph, routes={"learned route": path}, labels=False)
+    geometry = graph.map.geometries[graph.map.road_id(u, v)]
+    # Along the road (its middle 60%), the closed road's red shows through the wide orange route drawn under it
+    points = layout.nodes[[u, v]]
+    along = [points[0] + (points[1] - points[0]) * t for t in np.linspace(0.2, 0.8, 9)]
+    assert len(geometry) == 2  # a straight road: its pixels are on the line between the nodes
+    windows = [image[round(y) - 3 : round(y) + 4, round(x) - 3 : round(x) + 4] for x, y in along]
+    assert all(_share(w[2:5, 2:5], CLOSED_RGB, 30) > 0 for w in windows)
+    # ... in a light casing: the route's orange does not show along the closed road
+    assert max(_share(w, ROUTE_COLOURS[0], 40) for w in windows) == 0.0
+
+
+def test_dense_maps_are_drawn_larger_and_with_thinner_lines():
+    assert map_size(DENSITY_NODES) == map_size(16) == 600
+    assert map_size(1000) == 1600 and map_size(10_000) == 1600  # at most the cap
+    assert 600 < map_size(300) < 1600
+    with pytest.raises(ValueError, match="n_nodes must be a positive int"):
+        map_size(0)
+    city = generate_city(1000, seed=0)
+    campus = default_campus()
+    # Roads cover about as much of a 1,000-intersection city drawn at its size as of the campus at 600 pixels
+    # (lines a fixed share of the canvas would cover several times more and merge)
+    shares = [_share(draw_map(g, size=map_size(g.n_nodes), labels=False), ROAD_RGB, 20) for g in (campus, city)]
+    assert shares[1] < 1.4 * shares[0]

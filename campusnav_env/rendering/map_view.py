@@ -43,8 +43,21 @@ from campusnav_env.rendering.palette import (
 if TYPE_CHECKING:
     from campusnav_env.maps.road_graph import RoadGraph
 
-__all__ = ["ROUTE_COLOURS", "LegendEntry", "MapLabel", "MapLayout", "draw_map", "map_layout", "title_band"]
+__all__ = [
+    "DENSITY_NODES",
+    "ROUTE_COLOURS",
+    "LegendEntry",
+    "MapLabel",
+    "MapLayout",
+    "draw_map",
+    "map_layout",
+    "map_size",
+    "title_band",
+]
 
+# Intersections of the built-in campus: a map of more is denser on the same canvas, so its lines are drawn thinner
+# (:class:`_Canvas`) and its pictures are drawn larger (:func:`map_size`)
+DENSITY_NODES = 101
 _SHIFT = 4  # fractional bits of the drawing coordinates (sub-pixel accuracy)
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 RGB = tuple[int, int, int]
@@ -129,7 +142,12 @@ class _Canvas:
         self.width = round(span[0] * self.scale) + 2 * self.margin
         self.height = round(span[1] * self.scale) + 2 * self.margin
         self.lo, self.hi = lo, hi
-        self.unit = max(1.0, size / 400.0)  # line width unit in pixels
+        # Line width unit in pixels: a fixed share of the canvas on the campus, thinner on denser maps (the street
+        # spacing on screen shrinks with the square root of the node count), so that roads do not merge
+        density = math.sqrt(max(1.0, graph.n_nodes / DENSITY_NODES))
+        self.unit = max(1.0, size / 400.0 / density)
+        # Text and markers thin out more slowly: a few names among many streets stay readable
+        self.text_unit = max(1.0, size / 400.0 / math.sqrt(density))
         self.image = np.empty((self.height, self.width, 3), dtype=np.uint8)
         self.image[...] = BACKGROUND_RGB
         # Text must not cover `hard` pixels (routes, closed roads, markers) and had better not cover `soft` ones
@@ -339,10 +357,42 @@ def _triangle(center: np.ndarray, ahead: np.ndarray, radius: float) -> np.ndarra
     )
 
 
+_CLOSED_WIDTH = 3.0  # closed road's line width, in units
+_CROSS_ARM = 6.0  # half the span of its X, in units
+
+
+def _route_colours(names: Sequence[str], given: Mapping[str, RGB]) -> list[RGB]:
+    """The colour of each route: the one given for its name, else the next of ``ROUTE_COLOURS`` not given."""
+    unknown = sorted(set(given) - set(names))
+    if unknown:
+        raise ValueError(f"colours given for routes that are not drawn: {unknown} (routes: {list(names)})")
+    free = [rgb for rgb in ROUTE_COLOURS if rgb not in given.values()] or list(ROUTE_COLOURS)
+    others = itertools.cycle(free)
+    return [tuple(int(c) for c in given[name]) if name in given else next(others) for name in names]  # type: ignore[misc]
+
+
 def _route_widths(n_routes: int, unit: float) -> list[float]:
     """Earlier routes are drawn wider, underneath, so that each shows on both sides of the later ones it shares a
     road with."""
     return [(3.0 + 2.75 * min(n_routes - 1 - i, 3)) * unit for i in range(n_routes)]
+
+
+def map_size(n_nodes: int, base: int = 600, cap: int = 1600) -> int:
+    """
+    Longer side of a map picture that keeps the campus's street spacing on screen: ``base`` pixels for a map of up
+    to :data:`DENSITY_NODES` intersections, growing with the square root of the node count beyond, at most ``cap``.
+
+    :param n_nodes: Intersections of the map
+    :param base: Size at the campus's density
+    :param cap: Largest size returned
+    :return: the size for :func:`draw_map` (e.g. 600 on the campus, 1600 at 1,000 intersections)
+    :raises ValueError: a node count below 1, or a cap below the base
+    """
+    if isinstance(n_nodes, bool) or not isinstance(n_nodes, (int, np.integer)) or n_nodes < 1:
+        raise ValueError(f"n_nodes must be a positive int, got {n_nodes!r}")
+    if cap < base:
+        raise ValueError(f"cap ({cap}) must be at least base ({base})")
+    return min(int(cap), round(base * math.sqrt(max(1.0, int(n_nodes) / DENSITY_NODES))))
 
 
 def title_band(width: int, lines: Sequence[tuple[str, RGB]], scale: float) -> np.ndarray:
@@ -422,7 +472,7 @@ def _legend_band(width: int, symbols: Sequence[_Symbol], unit: float, scale: flo
             ends = [np.array([centre - half, centre + half])]
             _polylines(band, ends, entry.rgb, entry.width)
             if entry.symbol == "closed":
-                _polylines(band, _cross(centre, np.array([1.0, 0.0]), 4.0 * unit), entry.rgb, 1.5 * unit)
+                _polylines(band, _cross(centre, np.array([1.0, 0.0]), _CROSS_ARM * unit), entry.rgb, 2.5 * unit)
         elif entry.symbol == "start":
             _polygon(band, _triangle(centre + np.array([0.0, unit]), np.array([0.0, -1.0]), 6.0 * unit), entry.rgb)
         elif entry.symbol == "goal":
@@ -452,7 +502,7 @@ def _place_labels(
     Place the texts, most important first: the start and a goal that is no landmark (route pictures only), the
     landmark names (the goal's first), the node ids. Boxes are in map pixels.
     """
-    unit = canvas.unit
+    unit, mark = canvas.unit, canvas.text_unit
     placer = _LabelPlacer(canvas)
     placed: list[MapLabel] = []
     marked = sorted({*goal_nodes, *([] if agent is None else [agent]), *graph.landmarks.values()})
@@ -471,15 +521,15 @@ def _place_labels(
         placed.append(MapLabel(text, kind, node, (float(box[0]), float(box[1]), float(box[2]), float(box[3])), leader))
 
     if route_picture and agent is not None:
-        place(f"start {agent}", "start", agent, text_scale, 7.5 * unit, 6, True)
+        place(f"start {agent}", "start", agent, text_scale, 7.5 * mark, 6, True)
     if route_picture:
         for node in goal_nodes:
             if node not in graph.landmarks.values():
-                place(f"goal {node}", "goal", node, text_scale, 7.5 * unit, 6, True)
+                place(f"goal {node}", "goal", node, text_scale, 7.5 * mark, 6, True)
     if labels:
         for name, node in sorted(graph.landmarks.items(), key=lambda item: (item[1] not in goal_nodes, *item[::-1])):
             big = node in goal_nodes or node == agent
-            place(name, "landmark", node, text_scale, (7.5 if big else 4.5) * unit, 6, True)  # star/arrow > dot
+            place(name, "landmark", node, text_scale, (7.5 if big else 4.5) * mark, 6, True)  # star/arrow > dot
     if node_ids:
         for node in range(graph.n_nodes):
             place(str(node), "node id", node, id_scale, 2.0 * unit, 3, False)
@@ -506,6 +556,7 @@ def draw_map(
     routes: Mapping[str, Sequence[int]] | None = None,
     node_ids: bool = False,
     title: str | None = None,
+    colours: Mapping[str, RGB] | None = None,
 ) -> np.ndarray:
     """
     Draw a road graph from above.
@@ -525,8 +576,10 @@ def draw_map(
     :param node_ids: Write every intersection's id beside it in small print (to find the roads for a closure)
     :param title: Text of a band above the map; one line per line of ``title``, and a line too long for the width is
         broken at its ``" | "`` separators, e.g. ``"start 12 -> Dreese Lab (81) | closed: 69-81 | SPL 0.98"``
+    :param colours: Colour of a route by its name in ``routes`` (e.g. ``LEARNED_ROUTE_RGB``), so that a colour
+        means the same in every picture; the other routes take the ``ROUTE_COLOURS`` not given here, in order
     :return: ``(H, W, 3)`` uint8 RGB image
-    :raises ValueError: on a bad size or heading, or a node out of range
+    :raises ValueError: on a bad size or heading, a node out of range, or a colour for a route not in ``routes``
     """
     return _draw(
         graph,
@@ -539,6 +592,7 @@ def draw_map(
         routes=routes,
         node_ids=node_ids,
         title=title,
+        colours=colours,
     )[0]
 
 
@@ -568,6 +622,7 @@ def _draw(
     routes: Mapping[str, Sequence[int]] | None,
     node_ids: bool,
     title: str | None,
+    colours: Mapping[str, RGB] | None,
 ) -> tuple[np.ndarray, MapLayout]:
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 64:
         raise ValueError(f"size must be an int >= 64 pixels, got {size!r}")
@@ -576,7 +631,7 @@ def _draw(
     closed_roads = graph.closed_roads if isinstance(graph, NavigationGraph) else frozenset()
     graph = graph.map if isinstance(graph, NavigationGraph) else graph
     canvas = _Canvas(graph, int(size))
-    unit = canvas.unit
+    unit, mark = canvas.unit, canvas.text_unit  # lines; markers and text
     goals = [] if goal is None else [goal] if isinstance(goal, (int, np.integer)) else list(goal)
     goal_nodes = [graph.check_node(g, "goal") for g in goals]
     if agent is not None:
@@ -586,14 +641,14 @@ def _draw(
         for name, nodes in (routes or {}).items()
     ]
     path_line = _route_polyline(graph, list(path), "path node")
+    route_colours = _route_colours([name for name, _, _ in route_lines], colours or {})
 
     # Lines, bottom to top: plain roads, routes (widest first), the path, closed roads with their X
     closed = {graph.road_id(u, v) for u, v in closed_roads}
     canvas.lines([g for i, g in enumerate(graph.geometries) if i not in closed], ROAD_RGB, 2.0 * unit, canvas.soft)
     symbols: list[_Symbol] = []
     widths = _route_widths(len(route_lines), unit)
-    for i, ((name, nodes, line), width) in enumerate(zip(route_lines, widths, strict=True)):
-        colour = ROUTE_COLOURS[i % len(ROUTE_COLOURS)]
+    for (name, nodes, line), width, colour in zip(route_lines, widths, route_colours, strict=True):
         if line is not None:
             canvas.lines([line], colour, width, canvas.hard)
         elif nodes:  # nodes, but no line to see (every move blocked): say so, or the legend names an invisible route
@@ -602,22 +657,27 @@ def _draw(
     if path_line is not None:
         canvas.lines([path_line], PATH_RGB, 2.5 * unit, canvas.hard)
         symbols.append(_Symbol("line", "route so far", PATH_RGB, 2.5 * unit))
+    # A closed road goes over the routes that use it, in a light casing and with a large X, so that a route drawn wide
+    # along it (the learned one, before the closure) does not hide it
     for road in sorted(closed):
         geometry = np.asarray(graph.geometries[road], dtype=np.float64)
-        canvas.lines([geometry], CLOSED_RGB, 2.5 * unit, canvas.hard)
+        canvas.lines([geometry], BACKGROUND_RGB, _CLOSED_WIDTH * unit + 2.0 * unit)
+        canvas.lines([geometry], CLOSED_RGB, _CLOSED_WIDTH * unit, canvas.hard)
         mid, direction = _midpoint(canvas.px(geometry))
-        _polylines(canvas.image, _cross(mid, direction, 4.0 * unit), CLOSED_RGB, 1.5 * unit, canvas.hard)
+        cross = _cross(mid, direction, _CROSS_ARM * unit)
+        _polylines(canvas.image, cross, BACKGROUND_RGB, 2.5 * unit + 2.0 * unit)
+        _polylines(canvas.image, cross, CLOSED_RGB, 2.5 * unit, canvas.hard)
 
     nodes_px = canvas.px(graph.positions)
     for p in nodes_px:
         cv2.circle(canvas.image, _point(p), round(1.2 * unit * (1 << _SHIFT)), NODE_RGB, -1, cv2.LINE_AA, _SHIFT)
         canvas.mask_disc(canvas.soft, p, 1.2 * unit, value=8)  # node ids had better not hide other intersections
-    markers = [(n, 7.0 * unit) for n in goal_nodes] + ([] if agent is None else [(agent, 7.0 * unit)])
-    markers += [(n, 3.0 * unit) for n in graph.landmarks.values()]
+    markers = [(n, 7.0 * mark) for n in goal_nodes] + ([] if agent is None else [(agent, 7.0 * mark)])
+    markers += [(n, 3.0 * mark) for n in graph.landmarks.values()]
     for node, radius in markers:
         canvas.mask_disc(canvas.hard, nodes_px[node], radius)
 
-    text_scale = max(0.35, 0.32 * unit)  # OpenCV font scales; smaller than these is unreadable
+    text_scale = max(0.35, 0.32 * canvas.text_unit)  # OpenCV font scales; smaller than these is unreadable
     id_scale = max(0.3, 0.24 * unit)
     route_picture = routes is not None
     placed = _place_labels(
@@ -630,18 +690,18 @@ def _draw(
             x0, y0, x1, y1 = label.leader
             _polylines(canvas.image, [np.array([[x0, y0], [x1, y1]])], NODE_RGB, 1.0)
     for name, node in sorted(graph.landmarks.items(), key=lambda item: (item[1], item[0])):
-        _disc(canvas.image, nodes_px[node], 3.0 * unit, landmark_colour(name), TEXT_RGB)
+        _disc(canvas.image, nodes_px[node], 3.0 * mark, landmark_colour(name), TEXT_RGB)
     for node in goal_nodes:
-        _polygon(canvas.image, _star(nodes_px[node], 7.0 * unit), GOAL_RGB)
+        _polygon(canvas.image, _star(nodes_px[node], 7.0 * mark), GOAL_RGB)
     if agent is not None:
         p = nodes_px[agent]
         if heading is None:
-            _disc(canvas.image, p, 4.5 * unit, AGENT_RGB, TEXT_RGB)
+            _disc(canvas.image, p, 4.5 * mark, AGENT_RGB, TEXT_RGB)
         else:
             # The agent faces where its forward view looks: the road in slot ``heading`` (its compass bearing if empty)
             bearing = math.radians(view_bearings(graph)[agent, heading])
             ahead = np.array([math.sin(bearing), -math.cos(bearing)])  # image y points south
-            _polygon(canvas.image, _triangle(p, ahead, 7.0 * unit), AGENT_RGB)
+            _polygon(canvas.image, _triangle(p, ahead, 7.0 * mark), AGENT_RGB)
     for label in placed:
         small = label.kind == "node id"
         scale, rgb = (id_scale, NODE_ID_RGB) if small else (text_scale, TEXT_RGB)
@@ -652,7 +712,7 @@ def _draw(
     title_lines: list[str] = []
     title_box = None
     if title is not None:
-        title_scale = max(0.4, size / 1200)
+        title_scale = min(0.75, max(0.4, size / 1200))  # grows with the map, but not to a headline
         title_lines = _wrap_title(str(title), canvas.width, title_scale)
         band = title_band(canvas.width, [(line, TEXT_RGB) for line in title_lines], title_scale)
         parts.append(band)
@@ -667,13 +727,13 @@ def _draw(
         if goal_nodes:
             symbols.append(_Symbol("goal", "goal" if len(goal_nodes) == 1 else "goals", GOAL_RGB))
         if closed:
-            symbols.append(_Symbol("closed", "closed road", CLOSED_RGB, 2.5 * unit))
+            symbols.append(_Symbol("closed", "closed road", CLOSED_RGB, _CLOSED_WIDTH * unit))
         if labels:
             if graph.landmarks:
                 symbols.append(_Symbol("landmark", "landmark (named on the map)", PAGE_RGB))
         else:
             symbols += [_Symbol("landmark", name, landmark_colour(name)) for name in sorted(graph.landmarks)]
-        band, boxes = _legend_band(canvas.width, symbols, unit, text_scale)
+        band, boxes = _legend_band(canvas.width, symbols, canvas.text_unit, text_scale)
         below = top + canvas.height
         legend = [
             LegendEntry(s.symbol, s.text, s.rgb, s.width, (b[0], b[1] + below, b[2], b[3] + below))

@@ -31,6 +31,7 @@ __all__ = [
     "GOAL_RGB",
     "GRASS_RGB",
     "LANDMARK_COLOURS",
+    "LEARNED_ROUTE_RGB",
     "LIT_WINDOW_RGB",
     "MARKING_RGB",
     "NODE_ID_RGB",
@@ -39,10 +40,12 @@ __all__ = [
     "PARK_GREEN",
     "PATH_RGB",
     "RECOVERED_RGB",
+    "REROUTED_RGB",
     "RGB",
     "ROAD_RGB",
     "ROOF_PALETTE",
     "ROUTE_COLOURS",
+    "SHORTEST_PATH_RGB",
     "SIDEWALK_RGB",
     "SPORTS_GREEN",
     "TEXT_RGB",
@@ -133,6 +136,11 @@ ROUTE_COLOURS = (
     (188, 189, 34),
     (127, 127, 127),
 )
+# One meaning per colour in every route picture (evaluate, draw, routes.png): orange is the route the agent learned
+# (the greedy policy's; before a closure in routes.png), purple the route after a closure, cyan the shortest path
+LEARNED_ROUTE_RGB = ROUTE_COLOURS[0]
+REROUTED_RGB = ROUTE_COLOURS[1]
+SHORTEST_PATH_RGB = ROUTE_COLOURS[5]
 RECOVERED_RGB = (20, 120, 60)
 BORDER_RGB = (200, 200, 204)
 

@@ -36,13 +36,43 @@ if TYPE_CHECKING:
     from sb3_dcqn.dcqn import DCQN
     from sb3_dcqn.zoo import ZooEntry
 
-__all__ = ["DESCRIPTION", "CommandError", "build_parser", "main", "run"]
+__all__ = ["DESCRIPTION", "CommandError", "build_parser", "campusnav_env_ids", "main", "run"]
 
 PROG = "dcqn-campusnav"
 MODEL_NAME = "dcqn_campusnav"
 TB_NAME = "DCQN"
 COMPASS_LETTERS = ("N", "E", "S", "W")
 _IMAGE_ONLY_TO_TENSORBOARD = ("stdout", "log", "json", "csv")
+
+
+def campusnav_env_ids() -> list[str]:
+    """
+    The registered CampusNav ids, in order: the keys of :data:`campusnav_env.registration.ENV_IDS`, the table
+    ``import campusnav_env`` registers with Gymnasium.
+
+    Read from the module's source, not imported: importing ``campusnav_env`` imports torch, and ``--help`` (which
+    lists these ids) should answer at once. ``tests/test_campusnav_cli_goal_env.py`` checks them against Gymnasium's
+    registry.
+
+    :raises RuntimeError: if the table cannot be found
+    """
+    import ast
+    from importlib.util import find_spec
+
+    spec = find_spec("campusnav_env")  # a top-level package: found without being imported
+    locations = [] if spec is None or spec.submodule_search_locations is None else spec.submodule_search_locations
+    for folder in locations:
+        source = Path(folder) / "registration.py"
+        if source.is_file():
+            for node in ast.walk(ast.parse(source.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.AnnAssign | ast.Assign) and isinstance(node.value, ast.Dict):
+                    targets = [node.target] if isinstance(node, ast.AnnAssign) else node.targets
+                    if any(isinstance(t, ast.Name) and t.id == "ENV_IDS" for t in targets):
+                        return [k.value for k in node.value.keys if isinstance(k, ast.Constant)]
+    raise RuntimeError("cannot find campusnav_env.registration.ENV_IDS (is campusnav_env installed?)")
+
+
+_ENV_IDS = ", ".join(campusnav_env_ids())
 # How to find road ids, for every message about a road
 _ROADS_HINT = f"'{PROG} roads NODE' lists the roads of an intersection, '{PROG} draw --node-ids' draws the ids"
 
@@ -59,6 +89,9 @@ Subcommands ('{PROG} SUBCOMMAND --help' lists the options of each):
     {PROG} readapt runs/multi/dcqn_campusnav.zip --close-random 3 --timesteps 20000
     {PROG} draw --model runs/campusnav/dcqn_campusnav.zip --start 17 --close 81 82 --picture map.png
     {PROG} roads 81                       # the roads of intersection 81, as --close U V takes them
+    {PROG} train --map columbus.graphml --goals Library --out runs/columbus   # your own OSM map (GraphML)
+
+Env ids (--env): {_ENV_IDS}
 
 demo      train on CampusNav-v0 with its entry of the shipped hyperparams/dcqn.yml until the map is solved
           (success rate >= {SOLVED_SUCCESS} and SPL >= {SOLVED_SPL} from every (start, heading); a route evaluation
@@ -83,7 +116,9 @@ readapt   load a model and its replay buffer (when saved next to it), close road
           --close-at right away, one at a time), train on until recovered or --timesteps steps per closure, print
           the recovery table and save the re-adapted model (never over the input unless --in-place).
 draw      the map with its closures, the goal and a route: the greedy route of --model from --start, or the
-          shortest path; --node-ids writes every intersection's id.
+          shortest path; --node-ids writes every intersection's id. evaluate --picture and draw print the route as
+          text (its nodes and the turn at each: forward, right, back, left, with the intersections' names) and
+          write it beside the picture (map.png: map.txt).
 roads     the roads of an intersection: each as 'U V' with its compass direction, open or closed (with --close).
 
 Files written by demo, train and readapt (to --out, each atomically): TensorBoard logs in tb/DCQN_<n>, routes.png
@@ -92,6 +127,13 @@ pictured: every goal of an env with at most four, else the paper's four landmark
 and length with the closures and route scores), the model dcqn_campusnav.zip with dcqn_campusnav.env.json (the env
 it was trained on, which evaluate, readapt and draw take as their defaults), dcqn_campusnav_replay_buffer.pkl (train
 and readapt), summary.md and summary.json.
+
+Colours in every picture: orange the learned (greedy) route, purple the route after a closure, cyan the shortest
+path, red a closed road (drawn over the routes), a green triangle the start, a yellow star the goal.
+
+Your own map: --map FILE.graphml (a road network saved by osmnx.save_graphml or networkx.write_graphml; nodes with
+x/y, simplified to intersections) replaces the env's map, with --goals (landmark names, i.e. named nodes, or node ids)
+where the env's default goals are not on it; the model's .env.json keeps the file's path for evaluate, readapt, draw.
 
 Every subcommand starts from the open map plus the closures it is given. Bad input ends with a message that names
 the flag, file or road, and exit status 2, before anything is trained or written.
@@ -220,7 +262,13 @@ def _env_settings(
         env_kwargs = saved.env_kwargs
     else:
         env_kwargs = _zoo_entry(args.conf, env_id).env_kwargs
+    goals = getattr(args, "goals", None)  # train and demo
+    if goals:
+        env_kwargs = {**env_kwargs, "goals": [int(goal) if goal.isdigit() else goal for goal in goals]}
     _check_env_kwargs(env_id, env_kwargs, f"--conf: entry {env_id!r}" if saved is None else f"{env_id} env_kwargs")
+    map_path = str(Path(args.map).resolve()) if args.map else (saved.map_path if saved else None)
+    if map_path is not None:
+        _check_map(env_id, map_path, env_kwargs, "--map" if args.map else f"{env_id} map", bool(goals))
     encoder = args.encoder or (saved.encoder if saved else DEFAULT_ENCODER)
     weights = args.encoder_weights
     if weights is None and saved is not None and saved.encoder == encoder:
@@ -230,13 +278,63 @@ def _env_settings(
     size = tuple(args.render_size) if args.render_size else (saved.render_size if saved else None)
     if size is not None and min(size) < 16:
         raise CommandError(f"--render-size: width and height must be at least 16 pixels, got {size[0]} {size[1]}")
-    settings = EnvSettings(env_id, dict(env_kwargs), encoder, weights, size)  # type: ignore[arg-type]
+    settings = EnvSettings(env_id, dict(env_kwargs), encoder, weights, size, map_path)  # type: ignore[arg-type]
     if saved is not None and settings != saved:
         print(
             f"{PROG}: warning: the model was trained on {saved.describe()}; now {settings.describe()}",
             file=sys.stderr,
         )
     return settings
+
+
+def _check_map(env_id: str, path: str, env_kwargs: dict[str, Any], flag: str, goals_given: bool) -> None:
+    """
+    A GraphML road network that the env can be built on (``world=``), with the env's goals on it; checked before any
+    work, else the error comes from deep inside ``gym.make``.
+    """
+    from xml.etree.ElementTree import ParseError
+
+    from campusnav_env.maps.road_graph import require_networkx
+    from sb3_dcqn.campusnav.settings import load_map
+
+    if not Path(path).is_file():
+        raise CommandError(f"{flag} {path}: file not found")
+    generating = sorted(key for key in ("world", "n_intersections", "map_seed") if key in env_kwargs)
+    if generating:
+        raise CommandError(
+            f"{flag} {path}: the env_kwargs of {env_id} already choose a map ({', '.join(generating)}); "
+            "drop them from the --conf entry or leave out --map"
+        )
+    nx = require_networkx()
+    try:
+        graph = load_map(path)
+    except (ParseError, nx.NetworkXError, KeyError, ValueError, TypeError) as error:
+        message = error.args[0] if isinstance(error, KeyError) and error.args else error
+        raise CommandError(f"{flag} {path}: not a GraphML road network ({message})") from None
+    if "goals" in env_kwargs:
+        goals, source = env_kwargs["goals"], "--goals" if goals_given else f"the env_kwargs of {env_id}"
+    else:
+        import inspect
+
+        import gymnasium as gym
+
+        creator = _env_creator(env_id)
+        default = inspect.signature(creator).parameters.get("goals")
+        goals = gym.spec(env_id).kwargs.get("goals", None if default is None else default.default)
+        source = f"the default of {env_id}"
+    if goals is None:  # a goal env: every intersection
+        return
+    landmarks = ", ".join(sorted(graph.landmarks)) or "none"
+    for goal in [goals] if isinstance(goals, (str, int)) else goals:
+        if isinstance(goal, str) and goal not in graph.landmarks:
+            raise CommandError(
+                f"{flag} {path}: goal {goal!r} ({source}) is not a landmark of the map (its named nodes: {landmarks}); "
+                f"pass --goals with landmark names or node ids 0..{graph.n_nodes - 1}"
+            )
+        if not isinstance(goal, str) and not 0 <= int(goal) < graph.n_nodes:
+            raise CommandError(
+                f"{flag} {path}: goal node {goal} ({source}) is not on the map (node ids 0..{graph.n_nodes - 1})"
+            )
 
 
 def _campus(env: gym.Env, env_id: str) -> CampusNavEnv:
@@ -476,8 +574,13 @@ def _finish_training(
     model_path: Path,
     replay_buffer: bool,
     title: str,
+    curves_note: str | None = None,
 ) -> dict[str, Any]:
-    """Figures (files and TensorBoard images), model, summary; print the tables and where the files are."""
+    """
+    Figures (files and TensorBoard images), model, summary; print the tables and where the files are.
+
+    :param curves_note: A line under the training curves' title (why episode reward and route success differ)
+    """
     from stable_baselines3.common.logger import Image
 
     from campusnav_env.atomic_files import write_text_atomic
@@ -499,6 +602,7 @@ def _finish_training(
         recoveries or outcome.closures.records,
         evaluations,
         title=f"DCQN on {settings.describe()}",
+        note=curves_note,
     )
     for name, image in figures.items():
         files[name] = str(write_figure(out / f"{name}.png", image))
@@ -544,6 +648,8 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     recovery_budget = max(1, budget // 2) if args.recovery_budget is None else args.recovery_budget
     n_envs = entry.n_envs if getattr(args, "n_envs", None) is None else args.n_envs
 
+    from campusnav_env.callbacks import StartCurriculumCallback
+    from campusnav_env.figures import CURRICULUM_NOTE
     from sb3_dcqn.campusnav.experiments import train_with_closures
     from sb3_dcqn.dcqn import DCQN
 
@@ -560,6 +666,7 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     if args.levers:
         title += f" (re-adaptation levers: {', '.join(args.levers)})"
     print(f"training DCQN on {settings.describe()}: up to {budget} steps, {n_envs} env(s){levers}", file=sys.stderr)
+    callbacks = [*lever_callbacks(args.levers), *entry.make_callbacks()]
     outcome = train_with_closures(
         model,
         plan,
@@ -569,12 +676,16 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
         recovery_eval_freq=args.recovery_eval_freq,
         stop_when_solved=not args.keep_training,
         stop_when_recovered=not args.keep_training,
-        callbacks=[*lever_callbacks(args.levers), *entry.make_callbacks()],
+        callbacks=callbacks,
         verbose=args.verbose,
         progress=not args.no_progress,
     )
     model_path = out / f"{MODEL_NAME}.zip"
-    return _finish_training(args, model, outcome, nav, settings, out, tb_folder, model_path, replay_buffer, title)
+    # A start curriculum's episodes start near the goal: their reward runs ahead of the route success from every start
+    note = CURRICULUM_NOTE if any(isinstance(c, StartCurriculumCallback) for c in callbacks) else None
+    return _finish_training(
+        args, model, outcome, nav, settings, out, tb_folder, model_path, replay_buffer, title, curves_note=note
+    )
 
 
 # ------------------------------------------------------------------------------------------------ subcommands
@@ -599,8 +710,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
     settings = _env_settings(args, _saved(path)[0])
 
     from campusnav_env import RouteReport, evaluate_routes
-    from campusnav_env.figures import write_figure
-    from sb3_dcqn.campusnav.pictures import pick_route, picture_goals, route_picture
+    from campusnav_env.figures import pick_route, write_figure
+    from sb3_dcqn.campusnav.pictures import picture_goals, route_picture
     from sb3_dcqn.campusnav.summaries import finite, goal_groups, routes_to, score_table
 
     nav = _make_env(settings)
@@ -634,12 +745,32 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
         "goals": {name: scores(by_goal.get(name, RouteReport())) for name in nav.goal_names},
     }
     if args.picture is not None:
-        route = pick_route(report, goal, args.start, args.heading)
+        route = pick_route(report.routes, goal=goal, start=args.start, heading=args.heading)
         image = route_picture(nav, goal, route, args.start, args.size, score=report, node_ids=args.node_ids)
         picture = write_figure(args.picture, image)
         summary["picture"] = str(picture)
         print(f"\npicture: {picture}")
+        if route is not None:
+            summary["route"] = _route_as_text(nav, route, picture)
     return summary
+
+
+def _route_as_text(nav: CampusNavEnv, route: Any, picture: Path) -> dict[str, Any]:
+    """Print a pictured route as text (nodes and turns) and write it beside the picture (``map.png``: ``map.txt``)."""
+    from campusnav_env.atomic_files import write_text_atomic
+    from campusnav_env.figures import route_steps, route_text
+
+    text = route_text(nav.graph, route)
+    written = picture.with_suffix(".txt")
+    write_text_atomic(written, text)
+    print(f"\n{text}(as text: {written})")
+    return {
+        "start": route.start,
+        "heading": route.heading,
+        "nodes": list(route.nodes),
+        "turns": [step.action for step in route_steps(nav.graph, route)],
+        "text": str(written),
+    }
 
 
 def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
@@ -704,11 +835,13 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
 def _cmd_draw(args: argparse.Namespace) -> dict[str, Any]:
     path = None if args.model is None else _find_model(args.model)
     _check_picture(args.picture)
+    if path is None and args.map and args.goal:  # a map of one's own: the goal drawn is the env's goal
+        args.goals = [args.goal]
     settings = _env_settings(args, None if path is None else _saved(path)[0])
 
     from campusnav_env import evaluate_routes
-    from campusnav_env.figures import write_figure
-    from sb3_dcqn.campusnav.pictures import pick_route, route_picture
+    from campusnav_env.figures import pick_route, write_figure
+    from sb3_dcqn.campusnav.pictures import route_picture
 
     nav = _make_env(settings)
     _close_roads(nav, args.close or [])
@@ -718,18 +851,23 @@ def _cmd_draw(args: argparse.Namespace) -> dict[str, Any]:
     if path is not None:
         model = _load_model(path, settings, nav)
         report = evaluate_routes(nav, _greedy_policy(model), goals=[goal])
-        route = pick_route(report, goal, args.start, args.heading)
+        route = pick_route(report.routes, goal=goal, start=args.start, heading=args.heading)
     image = route_picture(nav, goal, route, args.start, args.size, score=report, node_ids=args.node_ids)
     picture = write_figure(args.picture, image)
     described = "" if route is None else f"; route from node {route.start} facing {COMPASS_LETTERS[route.heading]}"
     print(f"map of {settings.env_id} (goal {goal}){described}: {picture}")
+    if route is None and args.start is not None:  # _check_start: the goal can be reached from it
+        nodes = nav.graph.shortest_path(args.start, nav.goal_nodes[nav.goal_names.index(goal)])
+        print(f"shortest path from node {args.start} to {goal}: {' '.join(map(str, nodes))}")
     return {
         "picture": str(picture),
-        "route": None if route is None else {"start": route.start, "heading": route.heading, "nodes": route.nodes},
+        "route": None if route is None else _route_as_text(nav, route, picture),
     }
 
 
 def _cmd_roads(args: argparse.Namespace) -> dict[str, Any]:
+    if args.map:  # the env needs a goal on the map; which one does not change the roads
+        args.goals = ["0"]
     settings = _env_settings(args)
     nav = _make_env(settings)
     _close_roads(nav, args.close or [])
@@ -784,11 +922,22 @@ ENCODER_HELP = (
 )
 
 
+def _map_flags(group: argparse._ArgumentGroup) -> None:
+    """``--env``, ``--conf`` and ``--map``: the env and its map (every subcommand)."""
+    group.add_argument("--env", help=f"env id: {_ENV_IDS} (default: {DEFAULT_ENV}, or the model's)")
+    group.add_argument("--conf", help="zoo-format hyperparameter YAML (default: the shipped hyperparams/dcqn.yml)")
+    group.add_argument(
+        "--map",
+        metavar="FILE.graphml",
+        help="a road network (GraphML, e.g. from osmnx.save_graphml) instead of the env's map (default: the "
+        "model's, if any)",
+    )
+
+
 def _common_flags() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(add_help=False)
     group = parser.add_argument_group("env and machine")
-    group.add_argument("--env", help=f"env id (default: {DEFAULT_ENV}, or the model's)")
-    group.add_argument("--conf", help="zoo-format hyperparameter YAML (default: the shipped hyperparams/dcqn.yml)")
+    _map_flags(group)
     group.add_argument("--encoder", type=_encoder, metavar="NAME", help=ENCODER_HELP)
     group.add_argument("--encoder-weights", help="weights file of the encoder (resnet50: torchvision's ResNet-50)")
     group.add_argument("--render-size", type=_positive, nargs=2, metavar=("W", "H"), help="street-view size (640 480)")
@@ -863,6 +1012,16 @@ def _picture_flags(parser: argparse.ArgumentParser, default: str | None) -> None
     group.add_argument("--node-ids", action="store_true", help="write every intersection's id on the picture")
 
 
+def _goals_flag(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--goals",
+        nargs="+",
+        metavar="GOAL",
+        help="the env's goals: landmark names (named nodes of the map) or node ids (default: the env's, e.g. "
+        "CampusNav-v0: Dreese Lab); for --map, whose nodes the env's default goals may not name",
+    )
+
+
 def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str]) -> None:
     parser.add_argument(
         "--levers",
@@ -911,6 +1070,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--recovery-budget", type=_positive, help="most steps after each closure (default: half)")
     demo.add_argument("--n-closures", type=int, default=2, help="closures, one at a time (default: %(default)s)")
     demo.add_argument("--out", default="runs/campusnav", help="output folder (default: %(default)s)")
+    _goals_flag(demo)
     _lever_flag(demo, DEMO_LEVERS)
     demo.set_defaults(func=_cmd_demo)
 
@@ -925,6 +1085,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--n-envs", type=_positive, help="training envs (default: the YAML's n_envs, else 1)")
     train.add_argument("--no-replay-buffer", action="store_true", help="do not save the replay buffer")
     train.add_argument("--out", default="runs/campusnav", help="output folder (default: %(default)s)")
+    _goals_flag(train)
     _lever_flag(train, ())
     train.set_defaults(func=_cmd_train)
 
@@ -967,16 +1128,19 @@ def build_parser() -> argparse.ArgumentParser:
     _picture_flags(draw, "campusnav_map.png")
     draw.set_defaults(func=_cmd_draw)
 
+    roads_env = argparse.ArgumentParser(add_help=False)
+    _map_flags(roads_env.add_argument_group("env"))
     roads = commands.add_parser(
         "roads",
-        parents=[common],
+        parents=[roads_env],
         help="list an intersection's roads (the ids that --close U V takes)",
         description="List the roads of an intersection: each as 'U V' (what --close takes) with its compass "
         "direction, open or closed (after the --close roads). Node ids: draw --node-ids writes them on the map.",
     )
     roads.add_argument("node", type=int, metavar="NODE", help="the intersection's id")
     roads.add_argument("--close", type=int, nargs=2, action="append", metavar=("U", "V"), help="close road U-V first")
-    roads.set_defaults(func=_cmd_roads)
+    # The roads are the same whatever the views: the env is built with the cheapest ones (never looked at)
+    roads.set_defaults(func=_cmd_roads, encoder="pixels", encoder_weights=None, render_size=(16, 16), threads=1)
     return parser
 
 

@@ -5,7 +5,9 @@ Importing this module is cheap (no torch, no CampusNav): the command line reads 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -13,8 +15,17 @@ if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from campusnav_env import CampusNavEnv
+    from campusnav_env.maps.road_graph import RoadGraph
 
-__all__ = ["DEFAULT_ENCODER", "DEFAULT_ENV", "EnvSettings", "campus_of", "make_env", "make_training_envs"]
+__all__ = [
+    "DEFAULT_ENCODER",
+    "DEFAULT_ENV",
+    "EnvSettings",
+    "campus_of",
+    "load_map",
+    "make_env",
+    "make_training_envs",
+]
 
 DEFAULT_ENV = "CampusNav-v0"
 DEFAULT_ENCODER = "efficientnet-lite0"
@@ -30,6 +41,7 @@ class EnvSettings:
     :param encoder: View encoder name
     :param encoder_weights: Weights file of the encoder (ResNet-50), if any
     :param render_size: Street-view size ``(width, height)``; ``None``: the renderer's default (640 x 480)
+    :param map_path: A GraphML road network the env is built on (``world=``, :func:`load_map`) instead of its own map
     """
 
     env_id: str
@@ -37,12 +49,15 @@ class EnvSettings:
     encoder: str = DEFAULT_ENCODER
     encoder_weights: str | None = None
     render_size: tuple[int, int] | None = None
+    map_path: str | None = None
 
     def make_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``gym.make``."""
         from campusnav_env.rendering.street_view import RenderSettings
 
         kwargs: dict[str, Any] = {**self.env_kwargs, "encoder": self.encoder}
+        if self.map_path is not None:
+            kwargs["world"] = load_map(self.map_path)
         if self.encoder_weights is not None:
             kwargs["encoder_kwargs"] = {"weights_path": self.encoder_weights}
         if self.render_size is not None:
@@ -56,6 +71,7 @@ class EnvSettings:
             "encoder": self.encoder,
             "encoder_weights": self.encoder_weights,
             "render_size": None if self.render_size is None else list(self.render_size),
+            "map": self.map_path,
         }
 
     @classmethod
@@ -67,12 +83,37 @@ class EnvSettings:
             encoder=str(document.get("encoder", DEFAULT_ENCODER)),
             encoder_weights=document.get("encoder_weights"),
             render_size=None if size is None else (int(size[0]), int(size[1])),
+            map_path=document.get("map"),
         )
 
     def describe(self) -> str:
-        """E.g. ``"CampusNav-v0, encoder pixels, views 64x48"``."""
+        """E.g. ``"CampusNav-v0, encoder pixels, views 64x48"`` (``"CampusNav-v0 on columbus.graphml, ..."``)."""
         size = "640x480" if self.render_size is None else f"{self.render_size[0]}x{self.render_size[1]}"
-        return f"{self.env_id}, encoder {self.encoder}, views {size}"
+        where = "" if self.map_path is None else f" on {Path(self.map_path).name}"
+        return f"{self.env_id}{where}, encoder {self.encoder}, views {size}"
+
+
+def load_map(path: str) -> RoadGraph:
+    """
+    The road network of a GraphML file (:func:`campusnav_env.maps.osm.load_graphml`), read once per process for each
+    version of the file (every training env shares it; each env keeps its own closures).
+
+    :param path: The GraphML file
+    :raises FileNotFoundError: no such file
+    :raises ValueError, KeyError: not a road network (see :func:`~campusnav_env.maps.osm.import_networkx`)
+    """
+    file = Path(path).resolve()
+    stat = file.stat() if file.is_file() else None
+    return _load_map(str(file), None if stat is None else (stat.st_mtime_ns, stat.st_size))
+
+
+@functools.lru_cache(maxsize=4)
+def _load_map(path: str, version: tuple[int, int] | None) -> RoadGraph:
+    from campusnav_env.maps.osm import load_graphml
+
+    graph = load_graphml(path)
+    assert not isinstance(graph, tuple)  # no return_mapping
+    return graph
 
 
 def campus_of(env: gym.Env) -> CampusNavEnv:
