@@ -185,14 +185,3 @@ def quick_env_kwargs() -> dict[str, Any]:
     from campusnav_env.rendering.street_view import RenderSettings
 
     return {"encoder": "pixels", "render_settings": RenderSettings(width=64, height=48)}
-
-
-def machine_line(runs: str = "runs one after another in one process") -> str:
-    """The Markdown line describing the machine a results file was measured on."""
-    import os
-    import platform
-
-    return (
-        f"Machine: {platform.platform()}, {platform.machine()}, {os.cpu_count()} cores (shared: another benchmark may "
-        f"run on the other core), 1 torch thread; {runs}."
-    )

@@ -15,17 +15,19 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import os
-import platform
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from report import append_run, publish, read_runs  # benchmarks/report.py, beside this script
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
+import numpy as np
+
+from benchmarks.report import RESULTS_DIR, append_run, machine_line, publish, read_runs
+
 HYPERPARAMS = Path(__file__).resolve().parents[1] / "sb3_dcqn" / "hyperparams" / "dcqn.yml"
 ALGOS = ("DQN", "DCQN")
 # RL Zoo's published DQN scores (rl-baselines3-zoo benchmark table), for reference
@@ -120,8 +122,8 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         "# Classic control: DCQN vs DQN with the RL Zoo's DQN hyperparameters",
         "",
-        f"Machine: {platform.machine()}, {os.cpu_count()} cores (shared), 1 torch thread per run, "
-        f"{args.workers} runs in parallel. Final evaluation: 20 deterministic episodes after training.",
+        machine_line(f"{args.workers} runs in parallel", torch_threads="1 torch thread per run")
+        + " Final evaluation: 20 deterministic episodes after training.",
         "Hyperparameters: `hyperparams/dcqn.yml` (identical to rl_zoo3's `dqn.yml` entries) for both algorithms.",
         "",
         *summarise(read_runs(args.runs_file), args.envs),

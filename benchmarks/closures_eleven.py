@@ -28,15 +28,20 @@ Usage::
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
 import torch as th
-from campusnav_runs import LEVER_SETS, TASKS, lever_entry, machine_line, quick_env_kwargs
-from closures_one_at_a_time import (
+
+from benchmarks.campusnav_runs import LEVER_SETS, TASKS, lever_entry, quick_env_kwargs
+from benchmarks.closures_one_at_a_time import (
     QUICK_LEVERS,
     closure_benchmark_parser,
     end_of_window,
@@ -50,21 +55,21 @@ from closures_one_at_a_time import (
     solve_text,
     train_then_close,
 )
-from report import (  # benchmarks/report.py, beside this script
+from benchmarks.report import (
+    RESULTS_DIR,
     append_run,
     command_line,
+    machine_line,
     markdown_table,
     measured_on,
     read_runs,
     write_results,
 )
-
 from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD
 from sb3_dcqn.campusnav.solved import solved_bar
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "closures_eleven.py"
 N_ROADS = 11
 # The goal, and the paper's result

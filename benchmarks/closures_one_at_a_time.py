@@ -32,24 +32,30 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
 import torch as th
-from campusnav_runs import LEVER_SETS, TASKS, VARIANTS, Task, lever_entry, machine_line, quick_env_kwargs
-from report import (  # benchmarks/report.py, beside this script
+
+from benchmarks.campusnav_runs import LEVER_SETS, TASKS, VARIANTS, Task, lever_entry, quick_env_kwargs
+from benchmarks.report import (
+    RESULTS_DIR,
     append_run,
     command_line,
+    machine_line,
     markdown_table,
     measured_on,
     read_runs,
     write_results,
 )
-
 from campusnav_env.closures import ClosureEvent, busiest_road
 from campusnav_env.figures import closure_route_panels, figure_image, training_curves, write_figure
 from campusnav_env.maps.navigation import NavigationGraph
@@ -58,7 +64,6 @@ from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingOutcome, train_w
 from sb3_dcqn.campusnav.levers import LeverSet, lever_callbacks
 from sb3_dcqn.campusnav.solved import solved_bar
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "closures_one_at_a_time.py"
 DEFAULT_LEVERS = (
     "baseline",

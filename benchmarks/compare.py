@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 import zlib
 from collections.abc import Callable, Sequence
@@ -47,18 +48,21 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
 import torch as th
-from campusnav_runs import TASKS, VARIANTS, Task, machine_line  # beside this script
 from matplotlib.figure import Figure
-from report import append_run, publish, read_runs
 from sb3_contrib import QRDQN
 from stable_baselines3 import A2C, DQN, PPO
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
-from workers import run_in_workers, workers_argument
 
+from benchmarks.campusnav_runs import TASKS, VARIANTS, Task
+from benchmarks.report import RESULTS_DIR, append_run, machine_line, publish, read_runs
+from benchmarks.workers import run_in_workers, workers_argument
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.maps.campus import GOALS
@@ -68,7 +72,6 @@ from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 N_GOALS = 14
 TEST_EPISODES = 100
 TEST_STEP_CAP = 200

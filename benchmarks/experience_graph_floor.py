@@ -32,23 +32,25 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from campusnav_runs import machine_line  # beside this script
-from report import append_run, markdown_table, measured_on, publish, read_runs
-from scale_common import GOAL, PIXELS, env_kwargs_for, fmt, make_graph
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
+import numpy as np
+
+from benchmarks.report import RESULTS_DIR, append_run, machine_line, markdown_table, measured_on, publish, read_runs
+from benchmarks.scale_common import GOAL, PIXELS, env_kwargs_for, fmt, make_graph
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.recovery import RouteEvaluation
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 from sb3_dcqn.campusnav.solved import is_solved, solved_bar
 from sb3_dcqn.replay_graph import ExperienceGraph
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 FIXED_ACTION = 0  # forward: what the agent does where it knows nothing
 RUNS_LINE = "runs one after another in one process, evaluations included in the wall time"
 

@@ -26,24 +26,25 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
 import torch as th
-from campusnav_runs import TASKS, VARIANTS  # beside this script
 from matplotlib.figure import Figure
-from report import append_run, publish, read_runs, write_results
 
+from benchmarks.campusnav_runs import TASKS, VARIANTS
+from benchmarks.report import RESULTS_DIR, append_run, machine_line, publish, read_runs, write_results
 from campusnav_env.figures import figure_image, write_figure
 from sb3_dcqn.campusnav.experiments import train_until_solved
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 DEFAULT_VARIANTS = ("DCQN", "DCQN, no heading_key", "DQN")
 
 
@@ -267,8 +268,7 @@ def main(argv: list[str] | None = None) -> None:
         "A miss counts as infinitely slow in the median. Features: EfficientNet-Lite0 (1280-d), projected to 64 per "
         "view (shipped `env_kwargs`), except the paper-settings variant (full 1280-d).",
         "",
-        f"Machine: {platform.machine()} ({platform.processor() or 'cpu'}), {os.cpu_count()} cores, shared with other "
-        "work (timings are noisy), 1 torch thread, one run at a time, no GPU.",
+        machine_line("one run at a time, no GPU (the timings are noisy)"),
         "",
         *summary_table(runs, all_tasks, all_variants),
         "",

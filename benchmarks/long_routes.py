@@ -29,18 +29,20 @@ from __future__ import annotations
 
 import argparse
 import copy
-import platform
 import statistics
+import sys
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from report import append_run, markdown_table, measured_on, publish, read_runs
-from scale_common import buffer_arrays, peak_memory
-from workers import run_in_workers, workers_argument
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
+from benchmarks.report import RESULTS_DIR, append_run, machine_line, markdown_table, measured_on, publish, read_runs
+from benchmarks.scale_common import buffer_arrays, peak_memory
+from benchmarks.workers import run_in_workers, workers_argument
+
 GOAL = "Dreese Lab"
 PIXELS = "pixels"
 CURRICULUM = "campusnav_env.callbacks.StartCurriculumCallback"
@@ -282,10 +284,7 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
 
 
 def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None) -> None:
-    machine = (
-        f"Machine: {platform.platform()}, {platform.machine()}, 2 cores (shared: other runs and engineers' jobs used "
-        "the other core), 1 torch thread per run"
-    )
+    machine = machine_line("runs one after another, each in one process", torch_threads="1 torch thread per run")
     floors = sorted({r["size"] for r in runs if floor_steps(r["size"])})
     lines = [
         "# Long routes: what each lever buys on a city",

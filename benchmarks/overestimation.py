@@ -38,30 +38,33 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
 import torch as th
-from campusnav_runs import TASKS, VARIANTS, Variant, machine_line, quick_env_kwargs  # beside this script
-from closures_one_at_a_time import busiest_closures
 from matplotlib.figure import Figure
-from report import append_run, publish, read_runs
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
-from workers import run_in_workers, workers_argument
 
+from benchmarks.campusnav_runs import TASKS, VARIANTS, Variant, quick_env_kwargs
+from benchmarks.closures_one_at_a_time import busiest_closures
+from benchmarks.report import RESULTS_DIR, append_run, machine_line, publish, read_runs
+from benchmarks.workers import run_in_workers, workers_argument
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.optimal_values import optimal_q_values
 from campusnav_env.route_evaluation import evaluate_routes
 from sb3_dcqn.zoo import ZooEntry
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "overestimation.py"
 Road = tuple[int, int]
 

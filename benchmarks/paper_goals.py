@@ -31,17 +31,21 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
 import torch as th
-from campusnav_runs import TASKS, VARIANTS, Task, machine_line, quick_env_kwargs
-from report import append_run, command_line, read_runs, write_results  # benchmarks/report.py, beside this script
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from benchmarks.campusnav_runs import TASKS, VARIANTS, Task, quick_env_kwargs
+from benchmarks.report import RESULTS_DIR, append_run, command_line, machine_line, read_runs, write_results
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.figures import figure_image, training_curves, write_figure
 from campusnav_env.maps.campus import GOALS
@@ -49,7 +53,6 @@ from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 from sb3_dcqn.campusnav.experiments import train_until_solved
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 SCRIPT = "paper_goals.py"
 MULTI = "multi-goal"
 STEP_CAP = 200

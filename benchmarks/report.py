@@ -1,9 +1,11 @@
-"""What every benchmark script does with its results: Markdown tables, the command that made them, atomic writes,
-and the JSON-lines files of finished runs."""
+"""What every benchmark script does with its results: the results folder, the machine they were measured on, Markdown
+tables, the command that made them, atomic writes, and the JSON-lines files of finished runs."""
 
 from __future__ import annotations
 
 import json
+import os
+import platform
 import shlex
 import sys
 from collections.abc import Iterable, Sequence
@@ -11,6 +13,50 @@ from pathlib import Path
 from typing import Any
 
 from campusnav_env.atomic_files import write_text_atomic
+
+# Every script's results files (and their runs files) go here unless --out / --runs-file say otherwise
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+CPUINFO = Path("/proc/cpuinfo")
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo`` on Linux, else what :mod:`platform` knows) and its architecture."""
+    model = ""
+    try:
+        for line in CPUINFO.read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and value.strip():
+                model = " ".join(value.split())
+                break
+    except OSError:  # no /proc (macOS, Windows)
+        pass
+    model = model or platform.processor()
+    return f"{model} ({platform.machine()})" if model and model != platform.machine() else platform.machine()
+
+
+def core_count() -> str:
+    """The cores this process may run on, and the machine's when that is fewer (a CPU affinity mask, a container)."""
+    machine = os.cpu_count() or 1
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else machine
+    return f"{usable} cores" if usable == machine else f"{usable} of {machine} cores"
+
+
+def machine_line(
+    runs: str = "runs one after another in one process", *, torch_threads: int | str = 1, shared: bool = True
+) -> str:
+    """
+    The ``Machine:`` line of a results file, read from the machine: OS, CPU model, cores, torch threads, and how the
+    runs used them.
+
+    :param runs: How the runs were laid out (one after another, in N workers, ...), the end of the line
+    :param torch_threads: Torch threads of a run: a number, or words (``"1 torch thread per run"``)
+    :param shared: Whether other jobs ran on the same cores (the timings are then noisier and pessimistic)
+    :return: the line, ``"Machine: ..."``
+    """
+    threads = torch_threads if isinstance(torch_threads, str) else f"{torch_threads} torch thread"
+    threads += "s" if isinstance(torch_threads, int) and torch_threads != 1 else ""
+    sharing = " (shared with other jobs)" if shared else ""
+    return f"Machine: {platform.platform()}, {cpu_model()}, {core_count()}{sharing}, {threads}; {runs}."
 
 
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:

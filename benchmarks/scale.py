@@ -35,23 +35,22 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import scale_feature_transform
-import scale_replay
-import scale_training
-import scale_vec_env
-import scale_world_build
-from report import append_run, markdown_table, publish, read_runs
-from scale_common import EFFNET, GAMMA, MB, PIXELS, Plan, fmt, records_by_size
-from scale_world_build import build_peak_mb
-from workers import run_in_fresh_process
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
+from benchmarks import scale_feature_transform, scale_replay, scale_training, scale_vec_env, scale_world_build
+from benchmarks.report import RESULTS_DIR, append_run, markdown_table, publish, read_runs
+from benchmarks.scale_common import EFFNET, GAMMA, MB, PIXELS, Plan, fmt, records_by_size
+from benchmarks.scale_world_build import build_peak_mb
+from benchmarks.workers import run_in_fresh_process
+
 STAGES = (
     scale_replay.STAGE,
     scale_world_build.STAGE,
@@ -256,7 +255,7 @@ def plot(
 
 def write_report(plan: Plan, runs: list[dict[str, Any]], out: Path, argv: list[str] | None) -> None:
     """Write the results file (and its picture beside it) from every stage in ``runs``."""
-    from campusnav_runs import machine_line
+    from benchmarks.report import machine_line
 
     builds, trains = records_by_size(runs, scale_world_build.STAGE), records_by_size(runs, scale_training.STAGE)
     fits = records_by_size(runs, scale_feature_transform.STAGE)

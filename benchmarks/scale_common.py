@@ -10,6 +10,8 @@ from __future__ import annotations
 import gc
 import math
 import resource
+import runpy
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -182,3 +184,18 @@ def fmt(value: float | None, digits: int = 1) -> str:
 def records_by_size(runs: list[dict[str, Any]], stage: str) -> dict[int, dict[str, Any]]:
     """One stage's records, by map size."""
     return {run["size"]: run for run in runs if run["stage"] == stage}
+
+
+def run_scale(argv: list[str]) -> None:
+    """
+    Run ``scale.py``'s command line with ``argv``: how a stage script (``scale_replay.py``, ...) runs its stage alone.
+    By module name, not by import: ``scale.py`` imports the stage scripts, which never import it back.
+
+    :param argv: The arguments after the script's name (``["--stages", STAGE, ...]``)
+    """
+    saved = sys.argv
+    sys.argv = ["benchmarks/scale.py", *argv]
+    try:
+        runpy.run_module("benchmarks.scale", run_name="__main__", alter_sys=True)
+    finally:
+        sys.argv = saved

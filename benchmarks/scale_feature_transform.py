@@ -12,11 +12,16 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
-from report import markdown_table
-from scale_common import EFFNET_DIM, MB, VIEW_DIM, Plan, peak_memory
+
+from benchmarks.report import markdown_table
+from benchmarks.scale_common import EFFNET_DIM, MB, VIEW_DIM, Plan, peak_memory, run_scale
 
 STAGE = "fit"
 # The fix of the PCA fit (large fits from the scatter matrix, chunked transform) and the run that measured the code
@@ -107,6 +112,4 @@ def feature_transform_section(fits: dict[int, dict[str, Any]]) -> list[str]:
 
 
 if __name__ == "__main__":
-    from scale import main
-
-    main(["--stages", STAGE, *sys.argv[1:]])
+    run_scale(["--stages", STAGE, *sys.argv[1:]])

@@ -15,11 +15,25 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
-from report import markdown_table, table_row
-from scale_common import BUFFER_SIZE, EFFNET_DIM, MB, VIEW_DIM, Plan, buffer_arrays, seconds_per_call
+
+from benchmarks.report import markdown_table, table_row
+from benchmarks.scale_common import (
+    BUFFER_SIZE,
+    EFFNET_DIM,
+    MB,
+    VIEW_DIM,
+    Plan,
+    buffer_arrays,
+    run_scale,
+    seconds_per_call,
+)
 
 STAGE = "buffer"
 BATCHES = (64, 256)
@@ -225,6 +239,4 @@ def replay_section(record: dict[str, Any], sizes: list[int]) -> list[str]:
 
 
 if __name__ == "__main__":
-    from scale import main
-
-    main(["--stages", STAGE, *sys.argv[1:]])
+    run_scale(["--stages", STAGE, *sys.argv[1:]])

@@ -19,9 +19,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
-from report import markdown_table
-from scale_common import (
+
+from benchmarks.report import markdown_table
+from benchmarks.scale_common import (
     GOAL,
     MB,
     VIEW_DIM,
@@ -31,6 +35,7 @@ from scale_common import (
     make_graph,
     peak_memory,
     rss_mb,
+    run_scale,
     seconds_per_call,
 )
 
@@ -70,8 +75,7 @@ def measure_training(n_nodes: int, plan: Plan) -> dict[str, Any]:
     :param plan: The run (budget, evaluation frequency and step cap of this size)
     :return: the stage's record for this size
     """
-    from campusnav_runs import TASKS, VARIANTS
-
+    from benchmarks.campusnav_runs import TASKS, VARIANTS
     from campusnav_env.env import CampusNavEnv
     from campusnav_env.route_evaluation import evaluate_routes
     from sb3_dcqn.campusnav.experiments import train_until_solved
@@ -213,6 +217,4 @@ def training_section(trains: dict[int, dict[str, Any]]) -> list[str]:
 
 
 if __name__ == "__main__":
-    from scale import main
-
-    main(["--stages", STAGE, *sys.argv[1:]])
+    run_scale(["--stages", STAGE, *sys.argv[1:]])

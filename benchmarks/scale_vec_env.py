@@ -11,11 +11,16 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
-from report import markdown_table
-from scale_common import GOAL, VIEW_DIM, Plan, env_kwargs_for, make_graph, seconds_per_call
+
+from benchmarks.report import markdown_table
+from benchmarks.scale_common import GOAL, VIEW_DIM, Plan, env_kwargs_for, make_graph, run_scale, seconds_per_call
 
 STAGE = "vecenv"
 WARM_UP_STEPS = 50
@@ -132,6 +137,4 @@ def vec_env_section(vec: dict[str, Any]) -> list[str]:
 
 
 if __name__ == "__main__":
-    from scale import main
-
-    main(["--stages", STAGE, *sys.argv[1:]])
+    run_scale(["--stages", STAGE, *sys.argv[1:]])

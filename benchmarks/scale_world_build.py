@@ -4,6 +4,11 @@ Per size: map, 3D world, render + encode of every view into a cold cache, the ca
 from the warm cache, peak RSS. EfficientNet-Lite0 (640x480 views, the default) up to ``--effnet-max-nodes``; above,
 its cost is measured on ``--effnet-sample`` nodes and extrapolated, and the map is built with the cheap ``"pixels"``
 encoder on 64x48 views (every size gets a pixel build, for a like-for-like line).
+import sys
+from pathlib import Path
+
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 The EfficientNet build runs the way the env builds (``"workers"``: views rendered at the size the CNN consumes, 299x224
 for 640x480, by one worker process per core, :mod:`campusnav_env.features.parallel_build`) and, with
@@ -32,8 +37,9 @@ import time
 from typing import Any
 
 import numpy as np
-from report import markdown_table
-from scale_common import (
+
+from benchmarks.report import markdown_table
+from benchmarks.scale_common import (
     EFFNET,
     GOAL,
     MB,
@@ -46,6 +52,7 @@ from scale_common import (
     make_graph,
     peak_memory,
     rss_mb,
+    run_scale,
 )
 
 STAGE = "build"
@@ -394,8 +401,6 @@ def world_build_section(builds: dict[int, dict[str, Any]]) -> list[str]:
 
 def main(argv: list[str]) -> None:
     """This stage alone, through ``scale.py``'s command line, plus ``--full-effnet`` and ``--paths``."""
-    from scale import main as scale_main
-
     parser = argparse.ArgumentParser(add_help=False)
     parser.add_argument("--full-effnet", action="store_true", help="build every size in full with EfficientNet")
     parser.add_argument("--paths", nargs="+", choices=PATHS, default=["workers"], help="EfficientNet builds to run")
@@ -403,7 +408,7 @@ def main(argv: list[str]) -> None:
     os.environ[PATHS_ENV] = ",".join(known.paths)  # the stage processes inherit it
     if known.full_effnet:
         rest += ["--effnet-max-nodes", str(sys.maxsize)]
-    scale_main(["--stages", STAGE, *rest])
+    run_scale(["--stages", STAGE, *rest])
 
 
 if __name__ == "__main__":

@@ -14,26 +14,27 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import platform
 import statistics
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import gymnasium as gym
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from report import command_line, markdown_table, table_row, write_results  # benchmarks/report.py, beside this script
 from stable_baselines3 import DQN
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
+from benchmarks.report import RESULTS_DIR, command_line, machine_line, markdown_table, table_row, write_results
 from sb3_dcqn import DCQN
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
 from sb3_dcqn.replay import RevisionPrioritizedReplayBuffer
-
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 
 class RandomObservationEnv(gym.Env):
@@ -207,10 +208,12 @@ def write_markdown(rows: list[dict[str, float | str]], path: Path, args: argpars
     lines = [
         "# Throughput: DCQN vs SB3 DQN (same process, same layer sizes)",
         "",
-        f"Machine: {platform.processor() or platform.machine()}, {th.get_num_threads()} torch thread(s), "
-        f"torch {th.__version__}; medians of {args.repeats} alternating repeats, "
-        f"{args.grad_steps} gradient steps and {args.env_steps} env steps each. "
-        "Ratios > 1 mean DCQN is slower. Each algorithm runs with its defaults (DCQN's Adam is fused where torch "
+        machine_line(
+            f"torch {th.__version__}; medians of {args.repeats} alternating repeats, {args.grad_steps} gradient steps "
+            f"and {args.env_steps} env steps each",
+            torch_threads=th.get_num_threads(),
+        )
+        + " Ratios > 1 mean DCQN is slower. Each algorithm runs with its defaults (DCQN's Adam is fused where torch "
         "supports it, SB3 DQN's is not) unless the row says otherwise.",
         "",
         *markdown_table(COLUMNS, [[format_cell(c, row[c]) for c in COLUMNS] for row in rows]),

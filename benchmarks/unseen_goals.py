@@ -44,17 +44,21 @@ from __future__ import annotations
 import argparse
 import copy
 import statistics
+import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
 import numpy as np
 import torch as th
-from campusnav_runs import VARIANTS, Task, machine_line, quick_env_kwargs  # beside this script
-from report import append_run, markdown_table, measured_on, publish, read_runs
-from workers import run_in_workers, workers_argument
 
+from benchmarks.campusnav_runs import VARIANTS, Task, quick_env_kwargs
+from benchmarks.report import RESULTS_DIR, append_run, machine_line, markdown_table, measured_on, publish, read_runs
+from benchmarks.workers import run_in_workers, workers_argument
 from campusnav_env.callbacks import RouteEvaluationCallback
 from campusnav_env.closures import ClosureEvent
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
@@ -67,7 +71,6 @@ from sb3_dcqn.campusnav.settings import campus_of
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 from sb3_dcqn.replay import RevisionHerReplayBuffer
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 HELD_OUT_FRACTION = 0.2
 ALL_GOALS_SPL = 0.97  # the bar for every intersection as the goal (success SOLVED_SUCCESS)
 STRICT_SUCCESS, STRICT_SPL = 0.95, 0.90  # the bar for goals never trained on (strict)

@@ -21,18 +21,19 @@ Job = TypeVar("Job")
 Result = TypeVar("Result")
 
 
-def _init_worker(script_dir: str) -> None:
+def _init_worker(repository_root: str) -> None:
     import torch
 
     torch.set_num_threads(1)
-    # The benchmark scripts import their neighbours (campusnav_runs, report) from benchmarks/
-    if script_dir not in sys.path:
-        sys.path.insert(0, script_dir)
+    # The jobs' functions unpickle from the benchmarks package (a spawned child has its parent's sys.path; this
+    # covers a parent that imported the package some other way)
+    if repository_root not in sys.path:
+        sys.path.insert(0, repository_root)
 
 
 def default_workers() -> int:
-    """One worker per core (at least one)."""
-    return max(1, os.cpu_count() or 1)
+    """One worker per core this process may run on (at least one)."""
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
 
 
 def run_in_workers(function: Callable[[Job], Result], jobs: Sequence[Job], workers: int = 1) -> Iterator[Result]:
@@ -47,16 +48,16 @@ def run_in_workers(function: Callable[[Job], Result], jobs: Sequence[Job], worke
     """
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")
-    script_dir = str(Path(__file__).resolve().parent)
+    repository_root = str(Path(__file__).resolve().parents[1])
     if workers == 1 or len(jobs) <= 1:
-        _init_worker(script_dir)
+        _init_worker(repository_root)
         for job in jobs:
             yield function(job)
         return
     # spawn: a fresh interpreter per worker (fork would copy this process's torch thread pool and open files)
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(
-        max_workers=min(workers, len(jobs)), mp_context=context, initializer=_init_worker, initargs=(script_dir,)
+        max_workers=min(workers, len(jobs)), mp_context=context, initializer=_init_worker, initargs=(repository_root,)
     ) as pool:
         futures = [pool.submit(function, job) for job in jobs]
         for future in as_completed(futures):
@@ -69,8 +70,8 @@ def run_in_fresh_process(function: Callable[..., Result], *args: Any) -> Result:
     (its peak memory included) is its own, and nothing of it stays in this process.
     """
     context = multiprocessing.get_context("spawn")
-    script_dir = str(Path(__file__).resolve().parent)
-    with ProcessPoolExecutor(1, mp_context=context, initializer=_init_worker, initargs=(script_dir,)) as pool:
+    repository_root = str(Path(__file__).resolve().parents[1])
+    with ProcessPoolExecutor(1, mp_context=context, initializer=_init_worker, initargs=(repository_root,)) as pool:
         return pool.submit(function, *args).result()
 
 

@@ -163,7 +163,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         build_workers: int | None = None,
         fit_views_to_encoder: bool = False,
     ) -> None:
-        graph = _resolve_world(world)
+        graph = resolve_world(world)
         _check_observation_mode(observation_mode)
         # How views are built (kept for the views a subclass builds too, e.g. the goal env's goal pictures)
         self._view_build = {"workers": build_workers, "fit_views_to_encoder": fit_views_to_encoder}
@@ -263,7 +263,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         self.graph = graph
         self.observation_mode = observation_mode
         self.render_mode = render_mode
-        self.goal_names, self.goal_nodes = _resolve_goals(graph.map, goals)
+        self.goal_names, self.goal_nodes = resolve_goals(graph.map, goals)
         self.action_space = spaces.Discrete(len(ACTION_NAMES))
 
         # Fit once on the open map's views; views re-rendered later (visible closures) get the same transform
@@ -628,8 +628,15 @@ def _check_observation_mode(observation_mode: str) -> None:
         raise ValueError(f"observation_mode must be one of {OBSERVATION_MODES}, got {observation_mode!r}")
 
 
-def _resolve_world(world: str | RoadGraph | NavigationGraph) -> NavigationGraph:
-    """This env's own navigation graph: closures made here never reach the caller's (or another env's) graph."""
+def resolve_world(world: str | RoadGraph | NavigationGraph) -> NavigationGraph:
+    """
+    An env's own navigation graph of its ``world`` argument: a copy, so that closures made in the env never reach the
+    caller's (or another env's) graph.
+
+    :param world: ``"campus"`` (the built-in campus), a road graph, or a navigation graph (its closures are kept)
+    :return: a navigation graph of the env's own
+    :raises ValueError: if ``world`` is none of these
+    """
     if isinstance(world, NavigationGraph):
         return world.copy()
     if isinstance(world, RoadGraph):
@@ -639,7 +646,16 @@ def _resolve_world(world: str | RoadGraph | NavigationGraph) -> NavigationGraph:
     raise ValueError(f"world must be 'campus', a RoadGraph or a NavigationGraph, got {world!r}")
 
 
-def _resolve_goals(graph: RoadGraph, goals: str | int | Sequence[str | int]) -> tuple[list[str], list[int]]:
+def resolve_goals(graph: RoadGraph, goals: str | int | Sequence[str | int]) -> tuple[list[str], list[int]]:
+    """
+    The names and node ids of goals given as landmark names or node ids.
+
+    :param graph: The map whose landmarks and intersections the goals name
+    :param goals: One goal or a sequence of them: landmark names (``"Dreese Lab"``) or node ids
+    :return: ``(names, nodes)`` in the order given; a node without a landmark is named ``"node k"``
+    :raises ValueError: if no goal is given, a node id is out of range, or a goal is given twice
+    :raises KeyError: if a name is no landmark of the map
+    """
     items = [goals] if isinstance(goals, (str, int, np.integer)) else list(goals)
     if not items:
         raise ValueError("goals must name at least one goal")

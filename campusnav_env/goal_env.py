@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from campusnav_env.env import CampusNavEnv, _resolve_goals, _resolve_world
+from campusnav_env.env import CampusNavEnv, auto_max_steps, resolve_goals, resolve_world
 from campusnav_env.features.encoders import ViewEncoder, make_encoder
 from campusnav_env.features.view_source import ViewSource
 from campusnav_env.maps.navigation import NavigationGraph
@@ -55,7 +55,10 @@ class CampusNavGoalEnv(CampusNavEnv):
     included: that is how a policy is evaluated on goals it never trained on.
 
     ## Episode End
-    Terminated on reaching the goal; truncated after ``max_steps`` steps (default 200).
+    Terminated on reaching the goal; truncated after ``max_steps`` steps (default 200). ``max_steps="auto"``
+    (:func:`~campusnav_env.env.auto_max_steps`) follows the goals episodes draw (``goals``), not every intersection a
+    goal may be asked for or relabelled to: on the seed-0 city of 1,000 intersections with ``goals=["Dreese Lab"]``,
+    200, as CampusNavCity's own cap (every intersection's longest route would make it 240).
 
     ## Goals never trained on
     ``held_out_goals`` are never drawn as an episode's goal and :meth:`relabelling_allowed` is false for them, which
@@ -98,7 +101,7 @@ class CampusNavGoalEnv(CampusNavEnv):
         encoder_kwargs: Mapping[str, Any] | None = None,
         render_settings: RenderSettings | None = None,
         world_seed: int = 0,
-        max_steps: int = 200,
+        max_steps: int | str = 200,
         goal_reward: float = 1.0,
         step_penalty: float = -0.005,
         collision_penalty: float = -0.01,
@@ -116,18 +119,20 @@ class CampusNavGoalEnv(CampusNavEnv):
                 f"CampusNavGoal needs observation_mode='features' (goals are compared as feature vectors), "
                 f"got {observation_mode!r}"
             )
-        graph = _resolve_world(world)
+        graph = resolve_world(world)
         every_node = list(range(graph.n_nodes))
-        _, held_out = _resolve_goals(graph.map, list(held_out_goals)) if len(held_out_goals) else ([], [])
+        _, held_out = resolve_goals(graph.map, list(held_out_goals)) if len(held_out_goals) else ([], [])
         if goals is None:
             training = [node for node in every_node if node not in set(held_out)]
         else:
-            _, training = _resolve_goals(graph.map, goals)
+            _, training = resolve_goals(graph.map, goals)
         overlap = sorted(set(training) & set(held_out))
         if overlap:
             raise ValueError(f"goals and held_out_goals share intersections {overlap}: a held-out goal is never drawn")
         if not training:
             raise ValueError("CampusNavGoal: no goal left to draw (every intersection is held out)")
+        if max_steps == "auto":  # the routes to the goals episodes draw: the parent is given every intersection
+            max_steps = auto_max_steps(graph, training)
         conditions = _as_conditions(goal_render_settings)
         if isinstance(encoder, str) and any(settings is not None for settings in conditions):
             encoder = make_encoder(encoder, **dict(encoder_kwargs or {}))  # one CNN for the views and every condition

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-sys.path.insert(0, str(BENCHMARKS))
+ROOT = Path(__file__).resolve().parents[1]
+BENCHMARKS = ROOT / "benchmarks"
+sys.path.insert(0, str(ROOT))  # the benchmarks package, as `python -m benchmarks.NAME` imports it
 
-from compare import AGENTS, BudgetHarness, campus_goals, episode_starts  # noqa: E402
-
+from benchmarks.compare import AGENTS, BudgetHarness, campus_goals, episode_starts  # noqa: E402
 from campusnav_env import GOALS, CampusNavEnv  # noqa: E402
 from campusnav_env.rendering.street_view import RenderSettings  # noqa: E402
 

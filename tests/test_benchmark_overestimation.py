@@ -15,9 +15,10 @@ from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.optimal_values import optimal_q_values
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-sys.path.insert(0, str(BENCHMARKS))
-from overestimation import milestones, value_errors  # noqa: E402  (a script beside the benchmarks, not a package)
+ROOT = Path(__file__).resolve().parents[1]
+BENCHMARKS = ROOT / "benchmarks"
+sys.path.insert(0, str(ROOT))  # the benchmarks package, as `python -m benchmarks.NAME` imports it
+from benchmarks.overestimation import milestones, value_errors  # noqa: E402
 
 
 @pytest.fixture()

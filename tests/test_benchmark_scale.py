@@ -47,15 +47,15 @@ def test_scale_quick_run_writes_its_tables_and_picture(tmp_path: Path) -> None:
 
 
 def test_each_question_script_runs_only_its_own_stages(monkeypatch) -> None:
-    monkeypatch.syspath_prepend(str(BENCHMARKS))
-    import scale
-    from scale_common import Plan
+    monkeypatch.syspath_prepend(str(BENCHMARKS.parent))
+    from benchmarks import scale
+    from benchmarks.scale_common import Plan
 
     plan = Plan(sizes=(101, 300), budgets={}, eval_freq={}, max_steps={})
     everything = [(stage, size) for stage, size, _, _ in scale.planned_stages(plan)]
     assert everything == [("buffer", 0), ("build", 101), ("build", 300), ("fit", 101), ("fit", 300),
                           ("vecenv", 101), ("train", 101), ("train", 300)]  # fmt: skip
     for question in ("scale_replay", "scale_world_build", "scale_feature_transform", "scale_vec_env", "scale_training"):
-        stage = importlib.import_module(question).STAGE
+        stage = importlib.import_module(f"benchmarks.{question}").STAGE
         picked = scale.planned_stages(plan, (stage,))
         assert picked and {name for name, _, _, _ in picked} == {stage}

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-sys.path.insert(0, str(BENCHMARKS))
+ROOT = Path(__file__).resolve().parents[1]
+BENCHMARKS = ROOT / "benchmarks"
+sys.path.insert(0, str(ROOT))  # the benchmarks package, as `python -m benchmarks.NAME` imports it
 
-from experience_graph_floor import FloorAgent, floor_steps, make_env  # noqa: E402
-
+from benchmarks.experience_graph_floor import FloorAgent, floor_steps, make_env  # noqa: E402
 from campusnav_env import CampusNavEnv  # noqa: E402
 from sb3_dcqn.replay_graph import ExperienceGraph  # noqa: E402
 
