@@ -18,24 +18,24 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import os
-import platform
+import sys
 import time
 from pathlib import Path
+
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 import gymnasium as gym
 import numpy as np
 import torch as th
-from report import command_line, write_results  # benchmarks/report.py, beside this script
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import campusnav_env  # noqa: F401  (registers the ids)
+from benchmarks.report import RESULTS_DIR, command_line, machine_line, write_results
 from campusnav_env.features.encoders import PixelProjectionEncoder, make_encoder
 from campusnav_env.maps.campus import generate_campus
 from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
 from campusnav_env.rendering.world import build_world
-
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
 
 def single_env_steps_per_second(env: gym.Env, n_steps: int, seed: int = 0) -> float:
@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         "# CampusNav speed",
         "",
-        f"Machine: {platform.machine()}, {os.cpu_count()} cores (shared), {th.get_num_threads()} torch thread(s).",
+        machine_line(torch_threads=th.get_num_threads()),
         "",
         "| env | steps/s |",
         "|---|---|",
