@@ -167,6 +167,9 @@ def test_readapt_goes_on_with_the_saved_closures_levers_and_entry_callbacks(
     (new_road,) = summary["closures"][0]["closed"]
     assert sorted(again) == sorted([list(ROAD), new_road])
 
+    with pytest.raises(CommandError, match=r"road \(14, 15\) is already closed.*closed when the model was saved"):
+        cli("readapt", str(model), "--close", *map(str, ROAD), "--out", str(tmp_path / "x"))
+
     # --open-map: only the new closure; --levers adds a callback lever, not one a model is built with
     summary = cli(
         "readapt", str(model), *FAST[-1:], "--open-map", "--close-random", "1", "--timesteps", "100",

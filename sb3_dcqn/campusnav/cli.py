@@ -680,8 +680,8 @@ def _learn_or_save(
         write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
         raise Interrupted(
             f"interrupted at step {model.num_timesteps}: saved {saved[0]} with its replay buffer and the closures in "
-            f"force; go on with '{PROG} readapt {saved[0]} --in-place --close ...' or, in Python, "
-            f"DCQN.load(...).load_replay_buffer(...) and learn(..., reset_num_timesteps=False)"
+            f"force; go on with '{PROG} readapt {saved[0]} --in-place --close ...', or in Python with "
+            f"DCQN.load('{saved[0]}', env), load_replay_buffer('{saved[1]}') and learn(N, reset_num_timesteps=False)"
         ) from None
 
 
@@ -842,8 +842,13 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
         raise CommandError(f"--replay-buffer: file not found: {buffer_path}")
     venv = _make_vec_env(settings, n_envs, args.seed)
     nav = _campus(venv.envs[0], settings.env_id)
-    _restore_closures([_campus(env, settings.env_id) for env in venv.envs], path, saved, args.open_map)
-    _check_plan(plan, nav, _plan_source(args))
+    restored = _restore_closures([_campus(env, settings.env_id) for env in venv.envs], path, saved, args.open_map)
+    try:
+        _check_plan(plan, nav, _plan_source(args))
+    except CommandError as error:
+        if restored and "already closed" in str(error):
+            raise CommandError(f"{error}; closed when the model was saved (--open-map: the open map)") from None
+        raise
     model = _load_model(path, settings, nav, venv)
     _check_readapt_levers(args.levers, model)
     model.set_random_seed(args.seed)
