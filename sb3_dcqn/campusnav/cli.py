@@ -667,7 +667,8 @@ def _learn_or_save(
         return learn()
     except KeyboardInterrupt:
         print(file=sys.stderr)  # past the progress bar
-        levers = list(getattr(args, "levers", None) or [])
+    levers = list(getattr(args, "levers", None) or [])
+    try:
         saved = save_model(model, model_path, settings, sorted(nav.closed_roads), True, levers, callbacks)
         model.logger.close()
         summary = {
@@ -678,11 +679,16 @@ def _learn_or_save(
             "files": {"model": str(saved[0]), "replay_buffer": str(saved[1]), "env_settings": str(saved[2])},
         }
         write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    except KeyboardInterrupt:
         raise Interrupted(
-            f"interrupted at step {model.num_timesteps}: saved {saved[0]} with its replay buffer and the closures in "
-            f"force; go on with '{PROG} readapt {saved[0]} --in-place --close ...', or in Python with "
-            f"DCQN.load('{saved[0]}', env), load_replay_buffer('{saved[1]}') and learn(N, reset_num_timesteps=False)"
+            f"interrupted again while saving to {out}: the files written are whole (each is written atomically), "
+            "the others not written"
         ) from None
+    raise Interrupted(
+        f"interrupted at step {model.num_timesteps}: saved {saved[0]} with its replay buffer and the closures in "
+        f"force; go on with '{PROG} readapt {saved[0]} --in-place --close ...', or in Python with "
+        f"DCQN.load('{saved[0]}', env), load_replay_buffer('{saved[1]}') and learn(N, reset_num_timesteps=False)"
+    ) from None
 
 
 def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, title: str) -> dict[str, Any]:
@@ -1139,7 +1145,7 @@ def _open_map_flag(parser: argparse.ArgumentParser | argparse._ArgumentGroup) ->
     )
 
 
-def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str]) -> None:
+def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str], default_text: str | None = None) -> None:
     not_with_her = [name for name, lever in LEVERS.items() if lever.needs_own_replay_buffer and not lever.runs_with_her]
     parser.add_argument(
         "--levers",
@@ -1147,7 +1153,8 @@ def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str]) -> None
         choices=sorted(LEVERS),
         help="re-adaptation levers: "
         + ", ".join(f"{name} ({lever.name})" for name, lever in LEVERS.items())
-        + f"; default: {' '.join(default) or 'none'}; --levers alone: none. {', '.join(not_with_her)} cannot run with "
+        + f"; default: {default_text or ' '.join(default) or 'none'}; --levers alone: none. {', '.join(not_with_her)} "
+        "cannot run with "
         "HerReplayBuffer (CampusNavGoal-v0), where the default leaves them out",
     )
     parser.set_defaults(default_levers=tuple(default))
@@ -1231,7 +1238,7 @@ def build_parser() -> argparse.ArgumentParser:
     readapt.add_argument("--out", help="output folder (default: readapt/ next to the model)")
     readapt.add_argument("--in-place", action="store_true", help="save the re-adapted model over the input model")
     _open_map_flag(readapt)
-    _lever_flag(readapt, ())
+    _lever_flag(readapt, (), "the model's own (a lever DCQN or the env is built with must be one of them)")
     readapt.set_defaults(func=_cmd_readapt)
 
     draw = commands.add_parser(
@@ -1284,7 +1291,7 @@ def main(argv: list[str] | None = None) -> None:
     except Interrupted as interrupted:
         parser.exit(INTERRUPTED_STATUS, f"{PROG} {args.command}: {interrupted}\n")
     except KeyboardInterrupt:  # before training began: nothing to save
-        parser.exit(INTERRUPTED_STATUS, f"\n{PROG} {args.command}: interrupted before training; nothing written\n")
+        parser.exit(INTERRUPTED_STATUS, f"\n{PROG} {args.command}: interrupted; nothing was saved (no training yet)\n")
 
 
 if __name__ == "__main__":
