@@ -2,8 +2,9 @@
 
 :func:`build_parser` and :func:`run` are the in-process API (``run(build_parser().parse_args([...]))``); bad input
 raises :class:`CommandError`, whose message names the flag, file or road, and :func:`main` prints it and exits with
-status 2. The subcommands themselves are described in :data:`DESCRIPTION` (``dcqn-campusnav --help``). The experiment
-loop, the levers, the solved bar and the summaries are the glue's other modules; this one reads flags and files.
+status 2; Ctrl-C while training saves the run's model and raises :class:`Interrupted` (exit status 130). The
+subcommands themselves are described in :data:`DESCRIPTION` (``dcqn-campusnav --help``). The experiment loop, the
+levers, the solved bar and the summaries are the glue's other modules; this one reads flags and files.
 
 Importing this module imports neither torch nor SB3 nor CampusNav (each subcommand imports what it needs), so that
 ``--help`` answers at once.
