@@ -61,7 +61,7 @@ from campusnav_env.recovery import (
 )
 from campusnav_env.route_evaluation import Policy, RouteReport, evaluate_routes
 
-__all__ = ["RoadClosureCallback", "RouteEvaluationCallback", "StartCurriculumCallback"]
+__all__ = ["RoadClosureCallback", "RouteEvaluationCallback", "StartCurriculumCallback", "campus_env"]
 
 _SUMMARY_KEYS = ("success_rate", "spl", "coverage", "mean_steps", "optimality_gap")
 # Goal sets up to this size are also logged goal by goal
@@ -105,10 +105,18 @@ class _TrainingProgress(BaseCallback):
         return True
 
 
-def _campus_env(env: gym.Env | CampusNavEnv) -> CampusNavEnv:
+def campus_env(env: gym.Env | CampusNavEnv, needed_by: str = "") -> CampusNavEnv:
+    """
+    The ``CampusNavEnv`` inside ``env`` (its wrappers removed): the one unwrapping of the package and its users.
+
+    :param env: A ``CampusNavEnv`` or a wrapper of one
+    :param needed_by: What needs it, for the message (e.g. ``"route evaluation"``)
+    :raises TypeError: if it is another env
+    """
     nav = env.unwrapped if isinstance(env, gym.Env) else env
     if not isinstance(nav, CampusNavEnv):
-        raise TypeError(f"route evaluation needs a CampusNavEnv (or a wrapper of one), got {type(env).__name__}")
+        needs = f"{needed_by} needs a CampusNavEnv (or a wrapper of one), got" if needed_by else "not a CampusNav env:"
+        raise TypeError(f"{needs} {type(nav).__name__}")
     return nav
 
 
@@ -160,7 +168,7 @@ class RouteEvaluationCallback(_TrainingProgress):
             raise ValueError(f"unit must be 'step' or 'episode', got {unit!r}")
         if eval_freq < 1:
             raise ValueError(f"eval_freq must be at least 1, got {eval_freq}")
-        self.eval_env = None if eval_env is None else _campus_env(eval_env)
+        self.eval_env = None if eval_env is None else campus_env(eval_env, "route evaluation")
         self.eval_freq = eval_freq
         self.unit = unit
         self.goals = goals
@@ -189,7 +197,7 @@ class RouteEvaluationCallback(_TrainingProgress):
                     "RouteEvaluationCallback: with a SubprocVecEnv (or another VecEnv than DummyVecEnv) pass "
                     "eval_env=gym.make(...) with the same map; closures are applied to it as well"
                 )
-            self.eval_env = _campus_env(env.envs[0])
+            self.eval_env = campus_env(env.envs[0], "route evaluation")
             self.shares_training_env = True
 
     @property

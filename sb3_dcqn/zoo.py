@@ -38,6 +38,8 @@ from __future__ import annotations
 import difflib
 import importlib
 import inspect
+import math
+import re
 import runpy
 import sys
 import types
@@ -197,6 +199,7 @@ def check_hyperparams(hyperparams: dict[str, Any], algo: type, where: str) -> No
     :raises ValueError: naming ``where``, the key and the closest known name
     """
     check_keywords(hyperparams, algo, where, f"{algo.__name__} hyperparameter", skip=("env",))
+    check_values(hyperparams, algo, where)
     policy = hyperparams.get("policy")
     aliases = getattr(algo, "policy_aliases", {})
     if isinstance(policy, str) and policy not in aliases:
@@ -207,6 +210,167 @@ def check_hyperparams(hyperparams: dict[str, Any], algo: type, where: str) -> No
         skip = ("observation_space", "action_space", "lr_schedule")
         check_keywords(policy_kwargs, policy_class, where, "policy_kwargs key", skip=skip)
     _check_replay_buffer(hyperparams, algo, where)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _number_hint(value: Any) -> str:
+    """Why a value is not a number, in YAML's words: PyYAML reads ``1e-3`` (no dot) as a string."""
+    if isinstance(value, str):
+        try:
+            number = float(value)
+        except ValueError:
+            return ""
+        return f" (YAML reads {value} as a string: write {number!r} or !!float {value})"
+    if isinstance(value, bool):
+        return " (a boolean)"
+    return ""
+
+
+def _positive_int(value: Any) -> str | None:
+    if _is_int(value) and value >= 1:
+        return None
+    if isinstance(value, float) and value.is_integer() and value >= 1:
+        return f"expected a positive integer, got {value!r} (write {int(value)})"
+    return f"expected a positive integer, got {value!r}{_number_hint(value)}"
+
+
+def _non_negative_int(value: Any) -> str | None:
+    if _is_int(value) and value >= 0:
+        return None
+    return f"expected an integer >= 0, got {value!r}{_number_hint(value)}"
+
+
+def _fraction(value: Any) -> str | None:
+    if _is_number(value) and 0 <= value <= 1:
+        return None
+    return f"expected a number in [0, 1], got {value!r}{_number_hint(value)}"
+
+
+def _positive_number(value: Any) -> str | None:
+    if _is_number(value) and value > 0:
+        return None
+    return f"expected a positive number, got {value!r}{_number_hint(value)}"
+
+
+def _learning_rate(value: Any) -> str | None:
+    if callable(value) or (_is_number(value) and value > 0):
+        return None
+    return f"expected a positive number or a schedule (a callable of the remaining progress), got {value!r}" + (
+        _number_hint(value)
+    )
+
+
+def _gradient_steps(value: Any) -> str | None:
+    if _is_int(value) and (value >= 1 or value == -1):
+        return None
+    return f"expected a positive integer, or -1 (as many as env steps), got {value!r}{_number_hint(value)}"
+
+
+_TRAIN_FREQ_UNITS = ("step", "episode")
+
+
+def _train_freq(value: Any) -> str | None:
+    if _is_int(value) and value >= 1:
+        return None
+    if isinstance(value, list):
+        return (
+            f"expected a positive integer or a (frequency, unit) tuple, got the list {value!r} (SB3 reads a list as "
+            "one frequency); give the frequency in steps as an integer"
+        )
+    if isinstance(value, tuple) and len(value) == 2:
+        frequency, unit = value
+        if not (_is_int(frequency) and frequency >= 1):
+            return f"expected a positive frequency, got {frequency!r} in {value!r}"
+        if unit not in _TRAIN_FREQ_UNITS:
+            close = difflib.get_close_matches(str(unit), _TRAIN_FREQ_UNITS, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            return f"unknown unit {unit!r} in {value!r} (units: {', '.join(_TRAIN_FREQ_UNITS)}{hint})"
+        return None
+    return f"expected a positive integer or a (frequency, unit) tuple, got {value!r}{_number_hint(value)}"
+
+
+_DEVICES = ("auto", "cpu", "cuda", "mps")
+
+
+def _device(value: Any) -> str | None:
+    import torch as th
+
+    if not isinstance(value, str):
+        return None if isinstance(value, th.device) else f"expected a device name, got {value!r}"
+    if value in _DEVICES or re.fullmatch(r"cuda:\d+", value):
+        return None
+    close = difflib.get_close_matches(value, _DEVICES, n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return f"unknown device {value!r} (devices: {', '.join(_DEVICES)} or cuda:N{hint})"
+
+
+def _seed(value: Any) -> str | None:
+    return None if value is None or _is_int(value) else f"expected an integer or null, got {value!r}"
+
+
+# What the off-policy constructors (SB3's DQN, DCQN) need of each value; booleans are checked by their defaults
+_VALUE_CHECKS: dict[str, Callable[[Any], str | None]] = {
+    "learning_rate": _learning_rate,
+    "buffer_size": _positive_int,
+    "learning_starts": _non_negative_int,
+    "batch_size": _positive_int,
+    "tau": _fraction,
+    "gamma": _fraction,
+    "train_freq": _train_freq,
+    "gradient_steps": _gradient_steps,
+    "n_steps": _positive_int,
+    "target_update_interval": _positive_int,
+    "exploration_fraction": _fraction,
+    "exploration_initial_eps": _fraction,
+    "exploration_final_eps": _fraction,
+    "max_grad_norm": _positive_number,
+    "stats_window_size": _positive_int,
+    "verbose": _non_negative_int,
+    "seed": _seed,
+    "device": _device,
+}
+_BOOLEAN_WORDS = {"true": True, "yes": True, "on": True, "false": False, "no": False, "off": False}
+
+
+def check_values(hyperparams: dict[str, Any], algo: type, where: str) -> None:
+    """
+    Check an entry's values against what the algorithm's constructor needs, before anything is built (a bad value
+    would otherwise be an ``AssertionError`` from SB3, or fail only once training reaches it: ``batch_size: -64``
+    after ``learning_starts`` steps).
+
+    Checked: the ranges and types of SB3's off-policy hyperparameters (``learning_rate`` a positive number or a
+    schedule, ``buffer_size`` and ``batch_size`` positive integers, ``gamma`` and ``tau`` in [0, 1], ``train_freq`` an
+    integer or a ``(frequency, "step" | "episode")`` tuple, ...) and every argument of ``algo`` whose default is a
+    boolean.
+
+    :param hyperparams: ``ZooEntry.hyperparams``
+    :param algo: The algorithm class (its arguments with boolean defaults must be booleans)
+    :param where: What to name in the message, e.g. ``"dcqn.yml: entry 'CampusNav-v0'"``
+    :raises ValueError: naming ``where``, the key, the value and what it should be (with "did you mean" for a string
+        close to a valid one)
+    """
+    booleans = {
+        name
+        for name, parameter in inspect.signature(algo.__init__).parameters.items()
+        if isinstance(parameter.default, bool)
+    }
+    for key, value in hyperparams.items():
+        problem = None
+        if key in _VALUE_CHECKS:
+            problem = _VALUE_CHECKS[key](value)
+        elif key in booleans and not isinstance(value, bool):
+            word = _BOOLEAN_WORDS.get(str(value).lower()) if isinstance(value, str) else None
+            hint = f" (write {str(word).lower()}, without quotes)" if word is not None else ""
+            problem = f"expected true or false, got {value!r}{hint}"
+        if problem is not None:
+            raise ValueError(f"{where}: {key}: {problem}")
 
 
 def _check_replay_buffer(hyperparams: dict[str, Any], algo: type, where: str) -> None:

@@ -168,13 +168,21 @@ def test_train_readapt_evaluate_and_draw(tmp_path: Path, tiny_conf: Path, capsys
     cli("readapt", str(model), "--close-on-route", "busiest", "--timesteps", "100", "--in-place", "--no-progress")
     assert model.read_bytes() != before
 
-    # evaluate under a closure, with a picture
+    # evaluate under a closure of the open map, with a picture
     picture = tmp_path / "eval.png"
-    scores = cli("evaluate", str(model), "--close", *ROAD, "--picture", str(picture))
+    scores = cli("evaluate", str(model), "--open-map", "--close", *ROAD, "--picture", str(picture))
     printed = capsys.readouterr().out
     assert "| all |" in printed and "| Dreese Lab |" in printed and f"roads closed: {ROAD[0]}-{ROAD[1]}" in printed
     assert picture.is_file() and scores["closed_roads"] == [[int(ROAD[0]), int(ROAD[1])]]
     assert set(scores["all"]) >= {"success_rate", "spl", "coverage", "mean_steps"}
+    # without --open-map: the roads closed when the model was saved, which include ROAD (train's schedule closed it)
+    at_save = json.loads((out / "dcqn_campusnav.env.json").read_text())["closed_roads_at_save"]
+    # train's two closures, restored by the in-place readapt, which closed one more road (the busiest)
+    assert [int(ROAD[0]), int(ROAD[1])] in at_save and len(at_save) == 3
+    scores = cli("evaluate", str(model), "--close", *ROAD)  # closed already: a note, not an error
+    printed = capsys.readouterr()
+    assert sorted(scores["closed_roads"]) == sorted(at_save) == sorted(scores["restored_closures"])
+    assert "closed again: " in printed.err and "closed already (saved with the model)" in printed.err
 
     # draw a model's route from a start, and the bare map
     drawn = cli("draw", "--model", str(model), "--start", "3", "--picture", str(tmp_path / "route.png"))

@@ -8,6 +8,7 @@ can be found from the command line (``roads NODE``, ``draw --node-ids``).
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -106,7 +107,111 @@ def test_invalid_yaml_names_the_file_and_the_line(tmp_path: Path, capsys: pytest
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ('learning_rate: "fast"', 'learning_rate: expected a positive number or a schedule (a callable of the '
+         "remaining progress), got 'fast'"),
+        ("learning_rate: 1e-3", "learning_rate: expected a positive number or a schedule (a callable of the "
+         "remaining progress), got '1e-3' (YAML reads 1e-3 as a string: write 0.001 or !!float 1e-3)"),
+        ("batch_size: -64", "batch_size: expected a positive integer, got -64"),
+        ("buffer_size: 5.0e+2", "buffer_size: expected a positive integer, got 500.0 (write 500)"),
+        ("gamma: 1.5", "gamma: expected a number in [0, 1], got 1.5"),
+        ("gradient_steps: 0", "gradient_steps: expected a positive integer, or -1 (as many as env steps), got 0"),
+        ('blocked_action_target: "yes"', "blocked_action_target: expected true or false, got 'yes' (write true, "
+         "without quotes)"),
+        ("device: cuad", "device: unknown device 'cuad' (devices: auto, cpu, cuda, mps or cuda:N; did you mean "
+         "'cuda'?)"),
+    ],
+)  # fmt: skip
+def test_a_bad_hyperparameter_value_names_the_file_entry_and_key_before_any_work(
+    tmp_path: Path, line: str, message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    conf = tmp_path / "mine.yml"
+    key = line.split(":")[0]
+    # The good entry with this key's line replaced by (or added as) the bad one
+    lines = [text for text in GOOD_CONF.splitlines() if not text.strip().startswith(f"{key}:")]
+    conf.write_text("\n".join([*lines, f"  {line}"]) + "\n")
+    out = tmp_path / "out"
+    _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(out)], capsys)
+    assert error == f"dcqn-campusnav train: error: --conf: {conf}: entry 'CampusNav-v0': {message}\n"
+    assert not out.exists()  # not even tb/: refused before any training
+
+
+def test_a_non_positive_n_timesteps_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    conf = tmp_path / "mine.yml"
+    conf.write_text(GOOD_CONF.replace("n_timesteps: 200", "n_timesteps: 0"))
+    _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(tmp_path / "out")], capsys)
+    assert "--conf: entry 'CampusNav-v0': n_timesteps: expected a positive integer, got 0" in error
+
+
 # ------------------------------------------------------------------------------------------------ output paths
+def test_a_feature_cache_that_is_a_file_is_refused_before_any_work(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    a_file = tmp_path / "cache.txt"
+    a_file.write_text("mine\n")
+    monkeypatch.setenv("CAMPUSNAV_CACHE", str(a_file))
+    out = tmp_path / "out"
+    for argv in (["train", *FAST, "--out", str(out)], ["draw", *FAST, "--picture", str(tmp_path / "map.png")]):
+        _, error = fails(argv, capsys)
+        assert error.endswith(f": error: $CAMPUSNAV_CACHE {a_file}: is a file, not a folder\n")
+    assert not out.exists() and not (tmp_path / "map.png").exists() and a_file.read_text() == "mine\n"
+
+
+def test_an_output_folder_that_cannot_be_made_is_refused_before_any_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import tempfile
+
+    try:  # /proc refuses new folders, even to root (whom os.access lets write anywhere)
+        os.rmdir(tempfile.mkdtemp(dir="/proc"))
+        pytest.skip("this system lets /proc hold new folders")
+    except OSError:
+        pass
+    _, error = fails(["train", *FAST, "--out", "/proc/nope"], capsys)
+    assert error.startswith("dcqn-campusnav train: error: --out /proc/nope: cannot write in /proc (")
+    assert error.count("\n") == 1
+
+
+@pytest.mark.parametrize("name", ["map.jpg", "map.PDF", "map"])
+def test_a_picture_that_is_not_png_is_refused_naming_the_suffix(
+    tmp_path: Path, name: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    picture = tmp_path / name
+    _, error = fails(["draw", *FAST, "--picture", str(picture)], capsys)
+    assert f"--picture {picture}: pictures are written as PNG; give a name ending in .png" in error
+    assert not picture.exists()
+
+
+def test_resnet50_without_weights_is_refused_unless_random_features_are_asked_for(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    _, error = fails(["train", "--encoder", "resnet50", "--out", str(out)], capsys)
+    assert "--encoder resnet50: needs --encoder-weights FILE" in error and "--encoder-random-init" in error
+    _, error = fails(["train", *FAST, "--encoder-random-init", "--out", str(out)], capsys)
+    assert "--encoder-random-init: only for --encoder resnet50 (the encoder is pixels)" in error
+    assert not out.exists()
+
+
+def test_random_resnet50_features_asked_for_are_built_quietly_and_saved_with_the_settings() -> None:
+    import warnings
+
+    from campusnav_env.features.encoders import ResNet50Encoder
+    from sb3_dcqn.campusnav.settings import EnvSettings
+
+    settings = EnvSettings("CampusNav-v0", encoder="resnet50", encoder_random_init=True)
+    assert settings.make_kwargs()["encoder_kwargs"] == {"random_init": True}
+    assert EnvSettings.from_json(settings.to_json()) == settings and "(random init)" in settings.describe()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # asked for: no "features are not pretrained" warning
+        encoder = ResNet50Encoder(**settings.make_kwargs()["encoder_kwargs"])
+    assert "random-seed0" in encoder.name
+    with pytest.raises(ValueError, match="random_init=True and a weights_path"):
+        ResNet50Encoder("resnet50.pth", random_init=True)
+
+
 def test_an_output_folder_under_a_file_is_refused_before_training(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

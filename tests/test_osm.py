@@ -240,6 +240,21 @@ def test_missing_file_raises_file_not_found_naming_the_path(tmp_path: Path) -> N
         load_graphml(missing)
 
 
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ("", "the file is empty"),
+        ("not xml at all\n", "not valid XML: syntax error: line 1"),
+        ('<?xml version="1.0"?>\n<html><body/></html>\n', "file not successfully read as graphml"),
+    ],
+)
+def test_a_file_that_is_not_graphml_is_named_with_what_it_is(tmp_path: Path, text: str, why: str) -> None:
+    path = tmp_path / "streets.graphml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=rf"^{re.escape(str(path))}: not a GraphML file \({re.escape(why)}"):
+        load_graphml(path)
+
+
 def test_missing_coordinates_raise_key_error_naming_the_node() -> None:
     graph = nx.Graph()
     graph.add_node("a", x=0.0, y=0.0)

@@ -326,6 +326,8 @@ class ResNet50Encoder(_TorchEncoder):
 
     :param weights_path: torchvision ResNet-50 state dict (``fc`` weights are loaded and ignored). None builds a
         randomly initialised network from ``seed`` and warns that its features are not pretrained.
+    :param random_init: Random features asked for (no ``weights_path``): no warning. The command line refuses
+        ``--encoder resnet50`` without weights unless it is asked for so (``--encoder-random-init``)
     :param seed: Seed of the random initialisation (only used when ``weights_path`` is None)
     :param device: Torch device to run on; None: ``"cuda"`` where ``torch.cuda.is_available()``, else ``"cpu"``
     :param batch_size: Images per forward pass; None: 2 on CPU, 64 on accelerators
@@ -338,24 +340,28 @@ class ResNet50Encoder(_TorchEncoder):
         self,
         weights_path: str | Path | None = None,
         *,
+        random_init: bool = False,
         seed: int = 0,
         device: str | torch.device | None = None,
         batch_size: int | None = None,
         precision: str = "float32",
     ) -> None:
+        if random_init and weights_path is not None:
+            raise ValueError(f"ResNet50Encoder: random_init=True and a weights_path ({weights_path}): give one")
         if weights_path is not None and not Path(weights_path).is_file():
             raise FileNotFoundError(f"ResNet-50 weights file not found: {weights_path}")
         # Seed a forked RNG so that building the encoder neither depends on nor disturbs the global torch RNG.
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
             model = ResNet50()
-        if weights_path is None:
+        if weights_path is None and not random_init:
             warnings.warn(
                 f"ResNet50Encoder without weights_path: random initialisation (seed {seed}), features are not "
                 "pretrained; pass a torchvision resnet50-*.pth file for ImageNet features",
                 UserWarning,
                 stacklevel=2,
             )
+        if weights_path is None:
             self.weights_path: Path | None = None
             identity = f"random-seed{seed}"
         else:

@@ -124,12 +124,22 @@ def load_graphml(path: str | PathLike[str], **kwargs: Any) -> RoadGraph | tuple[
     :param path: The GraphML file
     :param kwargs: Passed to :func:`graph_from_networkx`; ``name`` defaults to the file's stem
     :raises FileNotFoundError: if the file does not exist
+    :raises ValueError: if it is not a GraphML file (empty, not XML, or XML of another kind), naming it
     """
+    from xml.etree.ElementTree import ParseError
+
     nx = require_networkx()
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"GraphML file not found: {path}")
-    graph = nx.read_graphml(path)
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: not a GraphML file (the file is empty)")
+    try:
+        graph = nx.read_graphml(path)
+    except ParseError as error:
+        raise ValueError(f"{path}: not a GraphML file (not valid XML: {error})") from None
+    except nx.NetworkXError as error:  # XML, but no <graphml> document (or a malformed one)
+        raise ValueError(f"{path}: not a GraphML file ({error})") from None
     nodes = list(graph.nodes)
     if nodes and all(isinstance(n, str) and re.fullmatch(r"-?\d+", n) for n in nodes):
         graph = nx.relabel_nodes(graph, {n: int(n) for n in nodes}, copy=True)

@@ -2,8 +2,9 @@
 
 :func:`build_parser` and :func:`run` are the in-process API (``run(build_parser().parse_args([...]))``); bad input
 raises :class:`CommandError`, whose message names the flag, file or road, and :func:`main` prints it and exits with
-status 2. The subcommands themselves are described in :data:`DESCRIPTION` (``dcqn-campusnav --help``). The experiment
-loop, the levers, the solved bar and the summaries are the glue's other modules; this one reads flags and files.
+status 2; Ctrl-C while training saves the run's model and raises :class:`Interrupted` (exit status 130). The
+subcommands themselves are described in :data:`DESCRIPTION` (``dcqn-campusnav --help``). The experiment loop, the
+levers, the solved bar and the summaries are the glue's other modules; this one reads flags and files.
 
 Importing this module imports neither torch nor SB3 nor CampusNav (each subcommand imports what it needs), so that
 ``--help`` answers at once.
@@ -15,6 +16,7 @@ import argparse
 import json
 import os
 import sys
+import tempfile
 import time
 import warnings
 import zipfile
@@ -29,14 +31,16 @@ from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 if TYPE_CHECKING:
     import gymnasium as gym
     import numpy as np
+    from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from campusnav_env import CampusNavEnv
     from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingOutcome
+    from sb3_dcqn.campusnav.model_files import SavedRun
     from sb3_dcqn.dcqn import DCQN
     from sb3_dcqn.zoo import ZooEntry
 
-__all__ = ["DESCRIPTION", "CommandError", "build_parser", "campusnav_env_ids", "main", "run"]
+__all__ = ["DESCRIPTION", "CommandError", "Interrupted", "build_parser", "campusnav_env_ids", "main", "run"]
 
 PROG = "dcqn-campusnav"
 MODEL_NAME = "dcqn_campusnav"
@@ -73,6 +77,11 @@ def campusnav_env_ids() -> list[str]:
 
 
 _ENV_IDS = ", ".join(campusnav_env_ids())
+# Each training subcommand's own output folder, so that one never replaces another's results
+DEFAULT_OUT = {"demo": "runs/campusnav-demo", "train": "runs/campusnav-train"}
+PICTURE_SUFFIXES = (".png",)  # what campusnav_env.figures.write_figure writes
+# Exit status after Ctrl-C (128 + SIGINT), as shells report it
+INTERRUPTED_STATUS = 130
 # How to find road ids, for every message about a road
 _ROADS_HINT = f"'{PROG} roads NODE' lists the roads of an intersection, '{PROG} draw --node-ids' draws the ids"
 
@@ -82,12 +91,12 @@ Train DCQN on CampusNav, close roads, measure how fast it re-routes.
 Subcommands ('{PROG} SUBCOMMAND --help' lists the options of each):
 
     {PROG}                          # = {PROG} demo
-    {PROG} demo --out runs/campusnav
+    {PROG} demo --out runs/campusnav-demo
     {PROG} train --env CampusNavMulti-v0 --close-on-route busiest --out runs/multi
     {PROG} train --env CampusNavGoal-v0 --close-on-route busiest --out runs/goal    # any intersection a goal (HER)
-    {PROG} evaluate runs/campusnav/dcqn_campusnav.zip --close 81 82 --picture routes.png
+    {PROG} evaluate runs/campusnav-demo/dcqn_campusnav.zip --close 81 82 --picture routes.png
     {PROG} readapt runs/multi/dcqn_campusnav.zip --close-random 3 --timesteps 20000
-    {PROG} draw --model runs/campusnav/dcqn_campusnav.zip --start 17 --close 81 82 --picture map.png
+    {PROG} draw --model runs/campusnav-demo/dcqn_campusnav.zip --start 17 --close 81 82 --picture map.png
     {PROG} roads 81                       # the roads of intersection 81, as --close U V takes them
     {PROG} train --map columbus.graphml --goals Library --out runs/columbus   # your own OSM map (GraphML)
 
@@ -121,7 +130,9 @@ draw      the map with its closures, the goal and a route: the greedy route of -
           write it beside the picture (map.png: map.txt).
 roads     the roads of an intersection: each as 'U V' with its compass direction, open or closed (with --close).
 
-Files written by demo, train and readapt (to --out, each atomically): TensorBoard logs in tb/DCQN_<n>, routes.png
+Files written by demo, train and readapt (to --out, each atomically; demo's default runs/campusnav-demo, train's
+runs/campusnav-train, readapt's readapt/ next to the model; a folder holding another subcommand's results is refused
+without --force): TensorBoard logs in tb/DCQN_<n>, routes.png
 (a row per pictured goal, one panel per closure: the route learned before it and the route after recovery; the goals
 pictured: every goal of an env with at most four, else the paper's four landmark goals), curves.png (episode reward
 and length with the closures and route scores), the model dcqn_campusnav.zip with dcqn_campusnav.env.json (the env
@@ -135,13 +146,20 @@ Your own map: --map FILE.graphml (a road network saved by osmnx.save_graphml or 
 x/y, simplified to intersections) replaces the env's map, with --goals (landmark names, i.e. named nodes, or node ids)
 where the env's default goals are not on it; the model's .env.json keeps the file's path for evaluate, readapt, draw.
 
-Every subcommand starts from the open map plus the closures it is given. Bad input ends with a message that names
-the flag, file or road, and exit status 2, before anything is trained or written.
+evaluate, readapt and draw --model start from the roads closed when the model was saved (its env.json's
+closed_roads_at_save; --open-map: the open map) plus the closures they are given; demo and train from the open map.
+readapt goes on with the model's levers and its entry's callbacks (a start curriculum; --levers adds the boost).
+Bad input ends with a message that names the flag, file, key or road, and exit status 2, before anything is trained
+or written. Ctrl-C while training saves the model, its replay buffer and the closures in force (exit status 130).
 """
 
 
 class CommandError(Exception):
     """Bad input to the command line (a flag, a file, a road); the message names it."""
+
+
+class Interrupted(Exception):
+    """Training stopped by Ctrl-C; the message says what was saved and how to go on (:func:`main` exits 130)."""
 
 
 # ------------------------------------------------------------------------------------------------ paths
@@ -159,6 +177,10 @@ def _check_folder(folder: Path, flag: str, given: Path | None = None) -> None:
                 raise CommandError(f"{flag} {given}: {where}, not a folder")
             if not os.access(part, os.W_OK | os.X_OK):
                 raise CommandError(f"{flag} {given}: cannot write in {part}")
+            try:  # access() says yes to root everywhere, /proc included: try it
+                os.rmdir(tempfile.mkdtemp(prefix=".dcqn-campusnav-", dir=part))
+            except OSError as error:
+                raise CommandError(f"{flag} {given}: cannot write in {part} ({error.strerror or error})") from None
             return
 
 
@@ -169,7 +191,41 @@ def _check_picture(path: str | None, flag: str = "--picture") -> None:
     picture = Path(path)
     if picture.is_dir():
         raise CommandError(f"{flag} {picture}: is a folder; give a file name such as {picture / 'map.png'}")
+    if picture.suffix.lower() not in PICTURE_SUFFIXES:
+        raise CommandError(
+            f"{flag} {picture}: pictures are written as PNG; give a name ending in {', '.join(PICTURE_SUFFIXES)} "
+            f"(e.g. {picture.with_suffix('.png')})"
+        )
     _check_folder(picture.parent, flag, given=picture)
+
+
+def _check_cache() -> None:
+    """The feature cache's folder (``$CAMPUSNAV_CACHE``) can be made and written, before any view is rendered."""
+    from campusnav_env.features.feature_cache import default_cache_dir
+
+    _check_folder(default_cache_dir(), "$CAMPUSNAV_CACHE")
+
+
+def _check_overwrite(out: Path, command: str, force: bool, model_name: str = f"{MODEL_NAME}.zip") -> None:
+    """
+    Refuse to write into a folder that holds another subcommand's results (its ``summary.json`` says which), or a
+    model of unknown origin, unless ``--force``.
+    """
+    if force:
+        return
+    summary, model = out / "summary.json", out / model_name
+    previous = None
+    if summary.is_file():
+        try:
+            previous = json.loads(summary.read_text()).get("command")
+        except (ValueError, AttributeError, OSError):
+            previous = "unknown"
+    elif model.is_file():
+        previous = "unknown"
+    if previous is None or previous == command:
+        return
+    whose = "a model saved by another run" if previous == "unknown" else f"the results of '{PROG} {previous}'"
+    raise CommandError(f"--out {out}: holds {whose}; pass --force to overwrite them, or give another --out")
 
 
 # ------------------------------------------------------------------------------------------------ hyperparameters
@@ -275,10 +331,12 @@ def _env_settings(
         weights = saved.encoder_weights
     if weights is not None and not Path(weights).is_file():
         raise CommandError(f"--encoder-weights: file not found: {weights}")
+    random_init = _random_init(args, saved, encoder, weights)
     size = tuple(args.render_size) if args.render_size else (saved.render_size if saved else None)
     if size is not None and min(size) < 16:
         raise CommandError(f"--render-size: width and height must be at least 16 pixels, got {size[0]} {size[1]}")
-    settings = EnvSettings(env_id, dict(env_kwargs), encoder, weights, size, map_path)  # type: ignore[arg-type]
+    _check_cache()
+    settings = EnvSettings(env_id, dict(env_kwargs), encoder, weights, size, map_path, random_init)  # type: ignore
     if saved is not None and settings != saved:
         print(
             f"{PROG}: warning: the model was trained on {saved.describe()}; now {settings.describe()}",
@@ -337,6 +395,23 @@ def _check_map(env_id: str, path: str, env_kwargs: dict[str, Any], flag: str, go
             )
 
 
+def _random_init(args: argparse.Namespace, saved: EnvSettings | None, encoder: str, weights: str | None) -> bool:
+    """Whether ResNet-50 runs on random features: only when asked for (now, or by the run that saved the model)."""
+    asked = args.encoder_random_init or bool(
+        saved is not None and saved.encoder == encoder and saved.encoder_random_init and weights is None
+    )
+    if asked and encoder != "resnet50":
+        raise CommandError(f"--encoder-random-init: only for --encoder resnet50 (the encoder is {encoder})")
+    if args.encoder_random_init and weights is not None:
+        raise CommandError(f"--encoder-random-init: cannot be combined with --encoder-weights {weights}")
+    if encoder == "resnet50" and weights is None and not asked:
+        raise CommandError(
+            "--encoder resnet50: needs --encoder-weights FILE (torchvision's ImageNet resnet50-*.pth, e.g. "
+            "resnet50-0676ba61.pth); --encoder-random-init runs on random, not pretrained, features instead"
+        )
+    return asked
+
+
 def _campus(env: gym.Env, env_id: str) -> CampusNavEnv:
     from sb3_dcqn.campusnav.settings import campus_of
 
@@ -352,7 +427,7 @@ def _make_env(settings: EnvSettings) -> CampusNavEnv:
 
     try:
         return make_env(settings)
-    except TypeError as error:
+    except (TypeError, ValueError) as error:  # e.g. an env_kwargs value the env refuses
         raise CommandError(f"--env {settings.env_id}: {error}") from None
 
 
@@ -362,7 +437,7 @@ def _make_vec_env(settings: EnvSettings, n_envs: int, seed: int) -> DummyVecEnv:
 
     try:
         return make_training_envs(settings, n_envs, seed)
-    except TypeError as error:
+    except (TypeError, ValueError) as error:  # e.g. an env_kwargs value the env refuses
         raise CommandError(f"--env {settings.env_id}: {error}") from None
 
 
@@ -374,9 +449,13 @@ def _road_error(error: Exception) -> str:
     return f"{message} ({_ROADS_HINT})"
 
 
-def _close_roads(nav: CampusNavEnv, roads: Sequence[Sequence[int]]) -> None:
-    """Close ``--close`` roads in an env (evaluate, draw, roads)."""
+def _close_roads(nav: CampusNavEnv, roads: Sequence[Sequence[int]], restored: Sequence[tuple[int, int]] = ()) -> None:
+    """Close ``--close`` roads in an env (evaluate, draw, roads); those ``restored`` from the model are closed."""
+    already = {frozenset(road) for road in restored}
     for u, v in roads:
+        if frozenset((int(u), int(v))) in already:
+            print(f"{PROG}: note: --close {u} {v}: closed already (saved with the model)", file=sys.stderr)
+            continue
         try:
             nav.close_road(int(u), int(v))
         except (KeyError, ValueError) as error:  # RoadClosureError is a ValueError
@@ -404,14 +483,42 @@ def _find_model(path: str) -> Path:
 _MODEL_FILES = "give a dcqn_campusnav.zip saved by train, demo or readapt (or by DCQN.save)"
 
 
-def _saved(model: Path) -> tuple[EnvSettings | None, int]:
-    """The env settings and number of training envs saved next to a model (``None, 1`` without the file)."""
-    from sb3_dcqn.campusnav.model_files import read_saved_settings
+def _saved(model: Path) -> SavedRun:
+    """What was saved next to a model: env settings, training envs, closures, levers (``SavedRun()`` if nothing)."""
+    from sb3_dcqn.campusnav.model_files import read_saved_run
 
     try:
-        return read_saved_settings(model)
+        return read_saved_run(model)
     except ValueError as error:
         raise CommandError(str(error)) from None
+
+
+def _restore_closures(
+    navs: Sequence[CampusNavEnv], model: Path, saved: SavedRun, open_map: bool
+) -> list[tuple[int, int]]:
+    """
+    Close the roads that were closed when the model was saved (``closed_roads_at_save``) in every env, unless
+    ``--open-map``; say which closures are in force.
+
+    :return: the roads closed
+    """
+    if not saved.closed_roads:
+        return []
+    roads = ", ".join(f"{u}-{v}" for u, v in saved.closed_roads)
+    if open_map:
+        print(f"{PROG}: the open map (--open-map); the model was saved with roads {roads} closed", file=sys.stderr)
+        return []
+    for nav in navs:
+        for u, v in saved.closed_roads:
+            try:
+                nav.close_road(u, v, force=True)  # as they were when it was saved
+            except (KeyError, ValueError) as error:
+                raise CommandError(
+                    f"{model}: closed_roads_at_save {u}-{v}: {_road_error(error)}; pass --open-map to start from the "
+                    "open map"
+                ) from None
+    print(f"{PROG}: roads closed when the model was saved, closed again: {roads} (--open-map: none)", file=sys.stderr)
+    return list(saved.closed_roads)
 
 
 def _load_model(path: Path, settings: EnvSettings, nav: CampusNavEnv, venv: DummyVecEnv | None = None) -> DCQN:
@@ -494,6 +601,8 @@ def _closure_plan(args: argparse.Namespace) -> ClosurePlan:
         events.append({"close_random": args.close_random, "seed": args.seed})
     events += [{"close_on_route": where} for where in args.close_on_route or []]
     if args.close_at is not None:
+        if args.close_at < 0:
+            raise CommandError(f"--close-at: expected a step >= 0, got {args.close_at}")
         if not events:
             raise CommandError("--close-at: give the roads to close (--close, --close-random or --close-on-route)")
         return ClosurePlan(
@@ -563,6 +672,15 @@ def _greedy_policy(model: DCQN) -> Any:
 
 
 # ------------------------------------------------------------------------------------------------ training
+def _curves_note(callbacks: Sequence[BaseCallback]) -> str | None:
+    """The training curves' note: a start curriculum's episodes start near the goal, so their reward runs ahead of
+    the route success from every start."""
+    from campusnav_env.callbacks import StartCurriculumCallback
+    from campusnav_env.figures import CURRICULUM_NOTE
+
+    return CURRICULUM_NOTE if any(isinstance(c, StartCurriculumCallback) for c in callbacks) else None
+
+
 def _finish_training(
     args: argparse.Namespace,
     model: DCQN,
@@ -575,11 +693,13 @@ def _finish_training(
     replay_buffer: bool,
     title: str,
     curves_note: str | None = None,
+    callbacks: Sequence[tuple[str, dict[str, Any]]] = (),
 ) -> dict[str, Any]:
     """
     Figures (files and TensorBoard images), model, summary; print the tables and where the files are.
 
     :param curves_note: A line under the training curves' title (why episode reward and route success differ)
+    :param callbacks: The hyperparameter entry's ``callback`` specs, saved with the model for readapt
     """
     from stable_baselines3.common.logger import Image
 
@@ -610,7 +730,8 @@ def _finish_training(
     model.logger.dump(model.num_timesteps)
     model.logger.close()
 
-    saved = save_model(model, model_path, settings, sorted(nav.closed_roads), replay_buffer)
+    levers = list(getattr(args, "levers", None) or [])
+    saved = save_model(model, model_path, settings, sorted(nav.closed_roads), replay_buffer, levers, callbacks)
     files["model"] = str(saved[0])
     if replay_buffer:
         files["replay_buffer"] = str(saved[1])
@@ -624,7 +745,7 @@ def _finish_training(
         "title": title,
         "settings": settings.to_json(),
         "seed": args.seed,
-        "levers": list(getattr(args, "levers", [])),
+        "levers": levers,
         "num_timesteps": model.num_timesteps,
         **outcome_json(outcome),
         "files": files,
@@ -636,20 +757,68 @@ def _finish_training(
     return summary
 
 
+def _learn_or_save(
+    args: argparse.Namespace,
+    learn: Any,
+    model: DCQN,
+    nav: CampusNavEnv,
+    settings: EnvSettings,
+    out: Path,
+    model_path: Path,
+    callbacks: Sequence[tuple[str, dict[str, Any]]],
+) -> TrainingOutcome:
+    """
+    Run ``learn()``; on Ctrl-C save the model, its replay buffer and the closures in force (each file atomically)
+    and a ``summary.json`` that says the run was interrupted, then raise :class:`Interrupted` saying how to go on.
+    """
+    from campusnav_env.atomic_files import write_text_atomic
+    from sb3_dcqn.campusnav.model_files import save_model
+
+    try:
+        return learn()
+    except KeyboardInterrupt:
+        print(file=sys.stderr)  # past the progress bar
+    levers = list(getattr(args, "levers", None) or [])
+    try:
+        saved = save_model(model, model_path, settings, sorted(nav.closed_roads), True, levers, callbacks)
+        model.logger.close()
+        summary = {
+            "command": args.command,
+            "interrupted": True,
+            "num_timesteps": model.num_timesteps,
+            "settings": settings.to_json(),
+            "files": {"model": str(saved[0]), "replay_buffer": str(saved[1]), "env_settings": str(saved[2])},
+        }
+        write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    except KeyboardInterrupt:
+        raise Interrupted(
+            f"interrupted again while saving to {out}: the files written are whole (each is written atomically), "
+            "the others not written"
+        ) from None
+    raise Interrupted(
+        f"interrupted at step {model.num_timesteps}: saved {saved[0]} with its replay buffer and the closures in "
+        f"force; go on with '{PROG} readapt {saved[0]} --in-place --close ...', or in Python with "
+        f"DCQN.load('{saved[0]}', env), load_replay_buffer('{saved[1]}') and learn(N, reset_num_timesteps=False)"
+    ) from None
+
+
 def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, title: str) -> dict[str, Any]:
     """``train`` and ``demo``: a new model, trained with ``plan``'s closures."""
-    out = Path(args.out)
+    out = Path(args.out if args.out is not None else DEFAULT_OUT[args.command])
     _check_folder(out, "--out")
+    _check_overwrite(out, args.command, args.force)
     env_id = args.env or DEFAULT_ENV
     _env_creator(env_id)
     entry = _training_entry(args.conf, env_id, args)
+    if entry.n_timesteps < 1 and args.timesteps is None:
+        raise CommandError(
+            f"--conf: entry {env_id!r}: n_timesteps: expected a positive integer, got {entry.n_timesteps}"
+        )
     settings = _env_settings(args, entry=entry)
     budget = entry.n_timesteps if args.timesteps is None else args.timesteps
     recovery_budget = max(1, budget // 2) if args.recovery_budget is None else args.recovery_budget
     n_envs = entry.n_envs if getattr(args, "n_envs", None) is None else args.n_envs
 
-    from campusnav_env.callbacks import StartCurriculumCallback
-    from campusnav_env.figures import CURRICULUM_NOTE
     from sb3_dcqn.campusnav.experiments import train_with_closures
     from sb3_dcqn.dcqn import DCQN
 
@@ -658,7 +827,7 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     _check_plan(plan, nav, _plan_source(args) if args.command == "train" else "closures")
     try:
         model = DCQN(env=venv, seed=args.seed, verbose=int(args.verbose >= 2), **entry.hyperparams)
-    except ValueError as error:  # settings DCQN refuses together (e.g. prioritized_replay with HerReplayBuffer)
+    except (ValueError, TypeError, AssertionError) as error:  # settings DCQN refuses together, SB3's asserts
         raise CommandError(f"--conf: entry {env_id!r}: {error}") from None
     out.mkdir(parents=True, exist_ok=True)
     tb_folder = _new_logger(model, out, args.verbose)
@@ -666,25 +835,33 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     if args.levers:
         title += f" (re-adaptation levers: {', '.join(args.levers)})"
     print(f"training DCQN on {settings.describe()}: up to {budget} steps, {n_envs} env(s){levers}", file=sys.stderr)
-    callbacks = [*lever_callbacks(args.levers), *entry.make_callbacks()]
-    outcome = train_with_closures(
-        model,
-        plan,
-        budget=budget,
-        recovery_budget=recovery_budget,
-        eval_freq=args.eval_freq,
-        recovery_eval_freq=args.recovery_eval_freq,
-        stop_when_solved=not args.keep_training,
-        stop_when_recovered=not args.keep_training,
-        callbacks=callbacks,
-        verbose=args.verbose,
-        progress=not args.no_progress,
-    )
     model_path = out / f"{MODEL_NAME}.zip"
-    # A start curriculum's episodes start near the goal: their reward runs ahead of the route success from every start
-    note = CURRICULUM_NOTE if any(isinstance(c, StartCurriculumCallback) for c in callbacks) else None
+    callbacks: list[BaseCallback] = [*lever_callbacks(args.levers), *entry.make_callbacks()]
+    outcome = _learn_or_save(
+        args,
+        lambda: train_with_closures(
+            model,
+            plan,
+            budget=budget,
+            recovery_budget=recovery_budget,
+            eval_freq=args.eval_freq,
+            recovery_eval_freq=args.recovery_eval_freq,
+            stop_when_solved=not args.keep_training,
+            stop_when_recovered=not args.keep_training,
+            callbacks=callbacks,
+            verbose=args.verbose,
+            progress=not args.no_progress,
+        ),
+        model,
+        nav,
+        settings,
+        out,
+        model_path,
+        entry.callbacks,
+    )
+    note = _curves_note(callbacks)
     return _finish_training(
-        args, model, outcome, nav, settings, out, tb_folder, model_path, replay_buffer, title, curves_note=note
+        args, model, outcome, nav, settings, out, tb_folder, model_path, replay_buffer, title, note, entry.callbacks
     )
 
 
@@ -707,7 +884,8 @@ def _cmd_train(args: argparse.Namespace) -> dict[str, Any]:
 def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
     path = _find_model(args.model)
     _check_picture(args.picture)
-    settings = _env_settings(args, _saved(path)[0])
+    saved = _saved(path)
+    settings = _env_settings(args, saved.settings)
 
     from campusnav_env import RouteReport, evaluate_routes
     from campusnav_env.figures import pick_route, write_figure
@@ -715,7 +893,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
     from sb3_dcqn.campusnav.summaries import finite, goal_groups, routes_to, score_table
 
     nav = _make_env(settings)
-    _close_roads(nav, args.close or [])
+    restored = _restore_closures([nav], path, saved, args.open_map)
+    _close_roads(nav, args.close or [], restored)
     goal = _check_goal(nav, args.goal)
     _check_start(nav, args.start, goal)
     model = _load_model(path, settings, nav)
@@ -740,6 +919,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> dict[str, Any]:
         "model": str(path),
         "settings": settings.to_json(),
         "closed_roads": [list(road) for road in sorted(nav.closed_roads)],
+        "restored_closures": [list(road) for road in restored],
         "all": scores(report),
         "groups": {name: scores(routes_to(report, members)) for name, members in groups.items()},
         "goals": {name: scores(by_goal.get(name, RouteReport())) for name in nav.goal_names},
@@ -785,8 +965,12 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
             f"--out {out}: the re-adapted model would overwrite {path}; pass --in-place or another --out"
         )
     _check_folder(out, "--out")
-    saved, n_envs = _saved(path)
-    settings = _env_settings(args, saved)
+    _check_overwrite(out, args.command, args.force, target.name)
+    saved = _saved(path)
+    n_envs = saved.n_envs
+    settings = _env_settings(args, saved.settings)
+    args.levers = _readapt_levers(args, saved)
+    callback_specs = _readapt_callbacks(args, saved, settings.env_id)
 
     from sb3_dcqn.campusnav.experiments import train_with_closures
     from sb3_dcqn.campusnav.model_files import model_paths
@@ -796,8 +980,15 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
         raise CommandError(f"--replay-buffer: file not found: {buffer_path}")
     venv = _make_vec_env(settings, n_envs, args.seed)
     nav = _campus(venv.envs[0], settings.env_id)
-    _check_plan(plan, nav, _plan_source(args))
+    restored = _restore_closures([_campus(env, settings.env_id) for env in venv.envs], path, saved, args.open_map)
+    try:
+        _check_plan(plan, nav, _plan_source(args))
+    except CommandError as error:
+        if restored and "already closed" in str(error):
+            raise CommandError(f"{error}; closed when the model was saved (--open-map: the open map)") from None
+        raise
     model = _load_model(path, settings, nav, venv)
+    _check_readapt_levers(args.levers, model)
     model.set_random_seed(args.seed)
     if buffer_path.is_file():
         with warnings.catch_warnings():
@@ -814,37 +1005,129 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
         print(f"no replay buffer at {buffer_path}: starting with an empty one", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     tb_folder = _new_logger(model, out, args.verbose)
-    outcome = train_with_closures(
+    callbacks = [*lever_callbacks(args.levers), *_make_callbacks(callback_specs)]
+    outcome = _learn_or_save(
+        args,
+        lambda: train_with_closures(
+            model,
+            plan,
+            budget=args.timesteps if plan.scheduled.events else 0,
+            recovery_budget=args.timesteps,
+            eval_freq=args.eval_freq,
+            recovery_eval_freq=args.recovery_eval_freq,
+            stop_when_solved=not args.keep_training,
+            stop_when_recovered=not args.keep_training,
+            callbacks=callbacks,
+            verbose=args.verbose,
+            progress=not args.no_progress,
+        ),
         model,
-        plan,
-        budget=args.timesteps if plan.scheduled.events else 0,
-        recovery_budget=args.timesteps,
-        eval_freq=args.eval_freq,
-        recovery_eval_freq=args.recovery_eval_freq,
-        stop_when_solved=not args.keep_training,
-        stop_when_recovered=not args.keep_training,
-        verbose=args.verbose,
-        progress=not args.no_progress,
+        nav,
+        settings,
+        out,
+        target,
+        callback_specs,
     )
     title = f"DCQN re-adapted: {path}"
+    if args.levers:
+        title += f" (re-adaptation levers: {', '.join(args.levers)})"
+    note = _curves_note(callbacks)
     return _finish_training(
-        args, model, outcome, nav, settings, out, tb_folder, target, not args.no_replay_buffer, title
+        args,
+        model,
+        outcome,
+        nav,
+        settings,
+        out,
+        tb_folder,
+        target,
+        not args.no_replay_buffer,
+        title,
+        note,
+        callback_specs,
     )
+
+
+def _readapt_levers(args: argparse.Namespace, saved: SavedRun) -> tuple[str, ...]:
+    """
+    readapt's levers: those given, else the model's own. A lever that sets DCQN's or the env's options, or a replay
+    variant the model's buffer lacks, must be one the model was trained with (a loaded model keeps what it was built
+    with); callback levers (the boost) can be added.
+    """
+    from sb3_dcqn.campusnav.levers import LEVERS, replay_variants
+
+    trained = tuple(saved.levers or ())
+    if args.levers is None:
+        return trained
+    built_with = set(replay_variants(trained))
+
+    def addable(name: str) -> bool:
+        lever = LEVERS[name]
+        return not (lever.dcqn_options or lever.env_options) and set(lever.replay_variants) <= built_with
+
+    for name in args.levers:
+        if not addable(name) and name not in trained:
+            with_ = ", ".join(trained) or ("none" if saved.levers is not None else "not recorded")
+            raise CommandError(
+                f"--levers {name}: {LEVERS[name].name} is set when a model is built, and this model was trained "
+                f"without it (its levers: {with_}); readapt adds only the callback levers "
+                f"({', '.join(n for n in LEVERS if addable(n))}); train with --levers {name} instead"
+            )
+    return tuple(args.levers)
+
+
+def _check_readapt_levers(levers: Sequence[str], model: DCQN) -> None:
+    """The levers can run with the loaded model's replay buffer (e.g. boost_on_revision needs DCQN's own)."""
+    from sb3_dcqn.campusnav.levers import check_levers
+
+    try:
+        check_levers(levers, {"replay_buffer_class": model.replay_buffer_class})
+    except ValueError as error:
+        raise CommandError(f"--levers: {error}") from None
+
+
+def _readapt_callbacks(
+    args: argparse.Namespace, saved: SavedRun, env_id: str
+) -> tuple[tuple[str, dict[str, Any]], ...]:
+    """
+    The hyperparameter entry's callbacks (e.g. a start curriculum) to go on with: ``--conf``'s entry when given,
+    else those saved with the model, else (a model saved without them) the shipped entry's.
+    """
+    if args.conf is None and saved.callbacks is not None:
+        return saved.callbacks
+    try:
+        return _zoo_entry(args.conf, env_id).callbacks
+    except CommandError:
+        if args.conf is not None:
+            raise
+        return ()  # no shipped entry for this env: no callbacks to restore
+
+
+def _make_callbacks(specs: Sequence[tuple[str, dict[str, Any]]]) -> list[BaseCallback]:
+    """New callbacks from ``(class path, keyword arguments)`` specs, as the zoo builds an entry's ``callback``."""
+    from sb3_dcqn.zoo import ZooEntry
+
+    try:
+        return ZooEntry(n_timesteps=0, hyperparams={}, callbacks=tuple(specs)).make_callbacks()
+    except (ImportError, AttributeError, TypeError, ValueError) as error:
+        raise CommandError(f"callback {specs!r}: cannot be built ({error})") from None
 
 
 def _cmd_draw(args: argparse.Namespace) -> dict[str, Any]:
     path = None if args.model is None else _find_model(args.model)
     _check_picture(args.picture)
+    saved = _saved(path) if path is not None else None
     if path is None and args.map and args.goal:  # a map of one's own: the goal drawn is the env's goal
         args.goals = [args.goal]
-    settings = _env_settings(args, None if path is None else _saved(path)[0])
+    settings = _env_settings(args, None if saved is None else saved.settings)
 
     from campusnav_env import evaluate_routes
     from campusnav_env.figures import pick_route, write_figure
     from sb3_dcqn.campusnav.pictures import route_picture
 
     nav = _make_env(settings)
-    _close_roads(nav, args.close or [])
+    restored = [] if saved is None or path is None else _restore_closures([nav], path, saved, args.open_map)
+    _close_roads(nav, args.close or [], restored)
     goal = _check_goal(nav, args.goal)
     _check_start(nav, args.start, goal)
     route, report = None, None
@@ -940,6 +1223,11 @@ def _common_flags() -> argparse.ArgumentParser:
     _map_flags(group)
     group.add_argument("--encoder", type=_encoder, metavar="NAME", help=ENCODER_HELP)
     group.add_argument("--encoder-weights", help="weights file of the encoder (resnet50: torchvision's ResNet-50)")
+    group.add_argument(
+        "--encoder-random-init",
+        action="store_true",
+        help="resnet50 without --encoder-weights: random, not pretrained, features (refused unless asked for so)",
+    )
     group.add_argument("--render-size", type=_positive, nargs=2, metavar=("W", "H"), help="street-view size (640 480)")
     group.add_argument("--threads", type=_positive, default=1, help="torch threads (default: %(default)s)")
     group.add_argument(
@@ -962,6 +1250,9 @@ def _training_flags() -> argparse.ArgumentParser:
         help="train every budget out (default: stop once solved and recovered from every closure)",
     )
     group.add_argument("--no-progress", action="store_true", help="no progress bar")
+    group.add_argument(
+        "--force", action="store_true", help="write into an --out folder that holds another subcommand's results"
+    )
     return parser
 
 
@@ -1010,6 +1301,7 @@ def _picture_flags(parser: argparse.ArgumentParser, default: str | None) -> None
     )
     group.add_argument("--size", type=_positive, default=1000, help="longer side of the picture in pixels (1000)")
     group.add_argument("--node-ids", action="store_true", help="write every intersection's id on the picture")
+    _open_map_flag(group)
 
 
 def _goals_flag(parser: argparse.ArgumentParser) -> None:
@@ -1022,16 +1314,24 @@ def _goals_flag(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str]) -> None:
+def _open_map_flag(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    parser.add_argument(
+        "--open-map",
+        action="store_true",
+        help="start from the open map (default: the roads closed when the model was saved are closed again)",
+    )
+
+
+def _lever_flag(parser: argparse.ArgumentParser, default: Sequence[str], default_text: str | None = None) -> None:
     parser.add_argument(
         "--levers",
         nargs="*",
         choices=sorted(LEVERS),
         help="re-adaptation levers: "
         + ", ".join(f"{name} ({lever.name})" for name, lever in LEVERS.items())
-        + f"; default: {' '.join(default) or 'none'}; --levers alone: none. A lever that does not combine with the "
-        "entry (prioritized with HerReplayBuffer, CampusNavGoal-v0) is refused with the reason; a default one is "
-        "left out with a note",
+        + f"; default: {default_text or ' '.join(default) or 'none'}; --levers alone: none. A lever that does not "
+        "combine with the entry (prioritized with HerReplayBuffer, CampusNavGoal-v0) is refused with the reason; a "
+        "default one is left out with a note",
     )
     parser.set_defaults(default_levers=tuple(default))
 
@@ -1069,7 +1369,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--timesteps", type=_positive, help="most steps before the closures (default: the YAML's)")
     demo.add_argument("--recovery-budget", type=_positive, help="most steps after each closure (default: half)")
     demo.add_argument("--n-closures", type=int, default=2, help="closures, one at a time (default: %(default)s)")
-    demo.add_argument("--out", default="runs/campusnav", help="output folder (default: %(default)s)")
+    demo.add_argument("--out", help=f"output folder (default: {DEFAULT_OUT['demo']})")
     _goals_flag(demo)
     _lever_flag(demo, DEMO_LEVERS)
     demo.set_defaults(func=_cmd_demo)
@@ -1084,7 +1384,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--recovery-budget", type=_positive, help="most steps after each one-at-a-time closure (half)")
     train.add_argument("--n-envs", type=_positive, help="training envs (default: the YAML's n_envs, else 1)")
     train.add_argument("--no-replay-buffer", action="store_true", help="do not save the replay buffer")
-    train.add_argument("--out", default="runs/campusnav", help="output folder (default: %(default)s)")
+    train.add_argument("--out", help=f"output folder (default: {DEFAULT_OUT['train']})")
     _goals_flag(train)
     _lever_flag(train, ())
     train.set_defaults(func=_cmd_train)
@@ -1115,6 +1415,8 @@ def build_parser() -> argparse.ArgumentParser:
     readapt.add_argument("--no-replay-buffer", action="store_true", help="do not save the replay buffer")
     readapt.add_argument("--out", help="output folder (default: readapt/ next to the model)")
     readapt.add_argument("--in-place", action="store_true", help="save the re-adapted model over the input model")
+    _open_map_flag(readapt)
+    _lever_flag(readapt, (), "the model's own (a lever DCQN or the env is built with must be one of them)")
     readapt.set_defaults(func=_cmd_readapt)
 
     draw = commands.add_parser(
@@ -1167,6 +1469,10 @@ def main(argv: list[str] | None = None) -> None:
         run(args)
     except CommandError as error:
         parser.exit(2, f"{PROG} {args.command}: error: {error}\n")
+    except Interrupted as interrupted:
+        parser.exit(INTERRUPTED_STATUS, f"{PROG} {args.command}: {interrupted}\n")
+    except KeyboardInterrupt:  # before training began: nothing to save
+        parser.exit(INTERRUPTED_STATUS, f"\n{PROG} {args.command}: interrupted; nothing was saved (no training yet)\n")
 
 
 if __name__ == "__main__":

@@ -42,6 +42,7 @@ class EnvSettings:
     :param encoder_weights: Weights file of the encoder (ResNet-50), if any
     :param render_size: Street-view size ``(width, height)``; ``None``: the renderer's default (640 x 480)
     :param map_path: A GraphML road network the env is built on (``world=``, :func:`load_map`) instead of its own map
+    :param encoder_random_init: ResNet-50 without weights, random features asked for (``--encoder-random-init``)
     """
 
     env_id: str
@@ -50,6 +51,7 @@ class EnvSettings:
     encoder_weights: str | None = None
     render_size: tuple[int, int] | None = None
     map_path: str | None = None
+    encoder_random_init: bool = False
 
     def make_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``gym.make``."""
@@ -60,6 +62,8 @@ class EnvSettings:
             kwargs["world"] = load_map(self.map_path)
         if self.encoder_weights is not None:
             kwargs["encoder_kwargs"] = {"weights_path": self.encoder_weights}
+        elif self.encoder_random_init:
+            kwargs["encoder_kwargs"] = {"random_init": True}
         if self.render_size is not None:
             kwargs["render_settings"] = RenderSettings(width=self.render_size[0], height=self.render_size[1])
         return kwargs
@@ -72,6 +76,7 @@ class EnvSettings:
             "encoder_weights": self.encoder_weights,
             "render_size": None if self.render_size is None else list(self.render_size),
             "map": self.map_path,
+            "encoder_random_init": self.encoder_random_init,
         }
 
     @classmethod
@@ -84,13 +89,15 @@ class EnvSettings:
             encoder_weights=document.get("encoder_weights"),
             render_size=None if size is None else (int(size[0]), int(size[1])),
             map_path=document.get("map"),
+            encoder_random_init=bool(document.get("encoder_random_init", False)),
         )
 
     def describe(self) -> str:
         """E.g. ``"CampusNav-v0, encoder pixels, views 64x48"`` (``"CampusNav-v0 on columbus.graphml, ..."``)."""
         size = "640x480" if self.render_size is None else f"{self.render_size[0]}x{self.render_size[1]}"
         where = "" if self.map_path is None else f" on {Path(self.map_path).name}"
-        return f"{self.env_id}{where}, encoder {self.encoder}, views {size}"
+        random = " (random init)" if self.encoder_random_init else ""
+        return f"{self.env_id}{where}, encoder {self.encoder}{random}, views {size}"
 
 
 def load_map(path: str) -> RoadGraph:
@@ -122,12 +129,9 @@ def campus_of(env: gym.Env) -> CampusNavEnv:
 
     :raises TypeError: if it is another env
     """
-    from campusnav_env import CampusNavEnv
+    from campusnav_env.callbacks import campus_env
 
-    nav = env.unwrapped
-    if not isinstance(nav, CampusNavEnv):
-        raise TypeError(f"not a CampusNav env ({type(nav).__name__})")
-    return nav
+    return campus_env(env)
 
 
 def make_env(settings: EnvSettings) -> CampusNavEnv:

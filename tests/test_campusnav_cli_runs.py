@@ -1,0 +1,236 @@
+"""What ``dcqn-campusnav`` keeps of a run: no subcommand replaces another's results, readapt and evaluate go on from
+the model as it was saved (its closures, levers and callbacks), and Ctrl-C saves the run's work.
+
+Each test trains the built-in campus for a few hundred steps with the cheap ``pixels`` encoder on 64 x 48 views (the
+feature cache is built once for the module).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from campusnav_env.callbacks import StartCurriculumCallback
+from sb3_dcqn import DCQN
+from sb3_dcqn.adaptation_boost import AdaptationBoost
+from sb3_dcqn.campusnav import experiments
+from sb3_dcqn.campusnav.cli import CommandError, build_parser, main, run
+
+FAST = ("--encoder", "pixels", "--render-size", "64", "48", "--no-progress")
+# A small entry with a start curriculum (the city entries' callback)
+TINY_CONF = """\
+CampusNav-v0:
+  n_timesteps: 300
+  policy: 'MultiInputPolicy'
+  env_kwargs:
+    view_dim: 16
+    max_steps: 40
+  learning_rate: !!float 1e-3
+  buffer_size: 2000
+  learning_starts: 100
+  batch_size: 32
+  target_update_interval: 100
+  callback:
+    - campusnav_env.callbacks.StartCurriculumCallback:
+        initial: 2
+        window: 5
+  policy_kwargs: "dict(features_extractor_class=EmbeddingFusionExtractor, features_extractor_kwargs=dict(embed_dim=16, \
+features_dim=16), share_features_extractor=True, net_arch=[16], heading_key='heading')"
+"""
+ROAD = (14, 15)  # a road of the built-in campus whose closure keeps every goal reachable
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("cache")
+
+
+@pytest.fixture(autouse=True)
+def _shared_feature_cache(cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    monkeypatch.setenv("CAMPUSNAV_CACHE", str(cache_dir))
+    yield
+
+
+@pytest.fixture
+def conf(tmp_path: Path) -> Path:
+    path = tmp_path / "tiny.yml"
+    path.write_text(TINY_CONF)
+    return path
+
+
+def cli(*argv: str) -> dict:
+    return run(build_parser().parse_args(list(argv)))
+
+
+def files_under(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def scalar_tags(folder: Path) -> set[str]:
+    events = EventAccumulator(str(folder))
+    events.Reload()
+    return set(events.Tags()["scalars"])
+
+
+class _Spy:
+    """Wraps ``train_with_closures``: records the callbacks each run gets, optionally adds one of its own."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, extra: BaseCallback | None = None) -> None:
+        self.callbacks: list[list[BaseCallback]] = []
+        self.extra = extra
+        self._original = experiments.train_with_closures
+        monkeypatch.setattr(experiments, "train_with_closures", self)
+
+    def __call__(self, *args: Any, callbacks: list[BaseCallback], **kwargs: Any) -> Any:
+        self.callbacks.append(list(callbacks))
+        extra = [self.extra] if self.extra is not None else []
+        return self._original(*args, callbacks=[*callbacks, *extra], **kwargs)
+
+
+class _CtrlC(BaseCallback):
+    """Raises ``KeyboardInterrupt`` inside ``learn()`` at an env step, where Ctrl-C's SIGINT would."""
+
+    def __init__(self, at: int) -> None:
+        super().__init__()
+        self.at = at
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self.at:
+            raise KeyboardInterrupt
+        return True
+
+
+# ------------------------------------------------------------------------------------------------ output folders
+def test_demo_and_train_default_to_folders_of_their_own(
+    tmp_path: Path, conf: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    cli("train", *FAST, "--conf", str(conf), "--timesteps", "100", "--eval-freq", "100")
+    train = files_under(tmp_path / "runs" / "campusnav-train")
+    cli("demo", *FAST, "--conf", str(conf), "--timesteps", "100", "--eval-freq", "100", "--n-closures", "0")
+    demo = tmp_path / "runs" / "campusnav-demo"
+    assert json.loads((demo / "summary.json").read_text())["command"] == "demo"
+    assert files_under(tmp_path / "runs" / "campusnav-train") == train  # the demo replaced none of train's files
+    assert json.loads(train["summary.json"])["command"] == "train" and "dcqn_campusnav_replay_buffer.pkl" in train
+
+
+def test_another_subcommands_results_are_not_overwritten_without_force(
+    tmp_path: Path, conf: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    cli("train", *FAST, "--conf", str(conf), "--timesteps", "200", "--eval-freq", "200", "--out", str(out))
+    kept = files_under(out)
+    assert json.loads((out / "summary.json").read_text())["command"] == "train"
+    with pytest.raises(SystemExit) as exit_info:
+        main(["demo", *FAST, "--conf", str(conf), "--out", str(out)])
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert f"--out {out}: holds the results of 'dcqn-campusnav train'; pass --force to overwrite them" in error
+    assert files_under(out) == kept
+    # the same subcommand again writes over its own results; --force lets another one do so
+    cli("train", *FAST, "--conf", str(conf), "--timesteps", "100", "--eval-freq", "100", "--out", str(out))
+    summary = cli(
+        "demo", *FAST, "--conf", str(conf), "--timesteps", "100", "--n-closures", "0", "--out", str(out), "--force"
+    )
+    assert summary["command"] == "demo" and json.loads((out / "summary.json").read_text())["command"] == "demo"
+
+
+# ------------------------------------------------------------------------------------------------ readapt, evaluate
+def test_readapt_goes_on_with_the_saved_closures_levers_and_entry_callbacks(
+    tmp_path: Path, conf: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "train"
+    cli(
+        "train", *FAST, "--conf", str(conf), "--levers", "boost", "--close", *map(str, ROAD), "--close-at", "100",
+        *("--timesteps", "200", "--eval-freq", "100", "--keep-training", "--out", str(out)),
+    )  # fmt: skip
+    model = out / "dcqn_campusnav.zip"
+    saved = json.loads((out / "dcqn_campusnav.env.json").read_text())
+    assert saved["closed_roads_at_save"] == [list(ROAD)] and saved["levers"] == ["boost"]
+    assert saved["callbacks"] == [["campusnav_env.callbacks.StartCurriculumCallback", {"initial": 2, "window": 5}]]
+
+    spy = _Spy(monkeypatch)
+    summary = cli("readapt", str(model), *FAST[-1:], "--close-random", "1", "--timesteps", "150", "--eval-freq", "100")
+    (callbacks,) = spy.callbacks
+    assert sorted(type(c).__name__ for c in callbacks) == ["AdaptationBoost", "StartCurriculumCallback"]
+    assert summary["levers"] == ["boost"]
+    assert "curriculum/start_distance_limit" in scalar_tags(out / "readapt" / "tb" / "DCQN_1")
+    # The saved closure was in force from the start: the new one comes on top of it
+    assert "closed again: 14-15" in capsys.readouterr().err
+    again = json.loads((out / "readapt" / "dcqn_campusnav.env.json").read_text())["closed_roads_at_save"]
+    (new_road,) = summary["closures"][0]["closed"]
+    assert sorted(again) == sorted([list(ROAD), new_road])
+
+    with pytest.raises(CommandError, match=r"road \(14, 15\) is already closed.*closed when the model was saved"):
+        cli("readapt", str(model), "--close", *map(str, ROAD), "--out", str(tmp_path / "x"))
+
+    # --open-map: only the new closure; --levers adds a callback lever, not one a model is built with
+    summary = cli(
+        "readapt", str(model), *FAST[-1:], "--open-map", "--close-random", "1", "--timesteps", "100",
+        *("--levers", "boost", "--out", str(tmp_path / "open")),
+    )  # fmt: skip
+    assert [type(c) for c in spy.callbacks[-1]] == [AdaptationBoost, StartCurriculumCallback]
+    assert len(json.loads((tmp_path / "open" / "dcqn_campusnav.env.json").read_text())["closed_roads_at_save"]) == 1
+    with pytest.raises(CommandError, match=r"--levers revision: experience revision is set when a model is built.*"
+                       r"its levers: boost"):  # fmt: skip
+        cli("readapt", str(model), "--close-random", "1", "--levers", "revision", "--out", str(tmp_path / "x"))
+    # The revision-triggered boost counts revisions in DCQN's own replay buffer, which this model does not have
+    with pytest.raises(CommandError, match=r"--levers: lever 'boost_on_revision' .* not DictReplayBuffer"):
+        cli("readapt", str(model), "--close-random", "1", "--levers", "boost_on_revision", "--out", str(tmp_path / "x"))
+    assert not (tmp_path / "x").exists()
+
+
+def test_evaluate_scores_the_model_on_the_map_it_was_saved_with(
+    tmp_path: Path, conf: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "train"
+    cli(
+        "train", *FAST, "--conf", str(conf), "--close", *map(str, ROAD), "--close-at", "100",
+        *("--timesteps", "200", "--eval-freq", "100", "--keep-training", "--out", str(out)),
+    )  # fmt: skip
+    model = str(out / "dcqn_campusnav.zip")
+    restored = cli("evaluate", model)
+    assert restored["closed_roads"] == [list(ROAD)] and "roads closed: 14-15" in capsys.readouterr().out
+    open_map = cli("evaluate", model, "--open-map")
+    assert open_map["closed_roads"] == [] and "saved with roads 14-15 closed" in capsys.readouterr().err
+    drawn = cli("draw", "--model", model, "--picture", str(tmp_path / "route.png"))
+    assert drawn["picture"] and "closed again: 14-15" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------------ Ctrl-C
+def test_ctrl_c_saves_the_model_replay_buffer_and_closures_and_says_how_to_go_on(
+    tmp_path: Path, conf: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    spy = _Spy(monkeypatch, extra=_CtrlC(at=150))
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", *FAST, "--conf", str(conf), "--close", *map(str, ROAD), "--close-at", "100", "--out", str(out)])
+    assert exit_info.value.code == 130
+    error = capsys.readouterr().err
+    model_path = out / "dcqn_campusnav.zip"
+    (line,) = [text for text in error.splitlines() if "interrupted" in text]
+    assert line.startswith(f"dcqn-campusnav train: interrupted at step 150: saved {model_path} with its replay buffer")
+    assert f"dcqn-campusnav readapt {model_path} --in-place" in line and "Traceback" not in error
+
+    model = DCQN.load(model_path)
+    assert model.num_timesteps == 150
+    model.load_replay_buffer(out / "dcqn_campusnav_replay_buffer.pkl")
+    # SB3 calls the callbacks before it stores a step's transition: the interrupted step's is not in the buffer
+    assert model.replay_buffer is not None and model.replay_buffer.size() == 149
+    saved = json.loads((out / "dcqn_campusnav.env.json").read_text())
+    assert saved["closed_roads_at_save"] == [list(ROAD)] and saved["num_timesteps"] == 150
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["command"] == "train" and summary["interrupted"] is True
+    assert not list(out.glob("*.tmp*"))  # every file written whole
+
+    # The way on that the line names: readapt goes on from step 150 with the saved closure in force
+    spy.extra = None
+    readapted = cli("readapt", str(model_path), *FAST[-1:], "--in-place", "--close-random", "1", "--timesteps", "50")
+    assert readapted["num_timesteps"] > 150
+    assert len(json.loads((out / "dcqn_campusnav.env.json").read_text())["closed_roads_at_save"]) == 2
