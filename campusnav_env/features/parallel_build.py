@@ -286,7 +286,11 @@ class _Worker:
         for thread in self.threads[2:]:  # the stderr reader: wait briefly for the last lines of a worker that exited
             thread.join(timeout=2)
         tail = "".join(self.stderr_tail).strip()
-        return f"; its stderr ended with:\n{tail}" if tail else "; it wrote nothing to stderr"
+        return (
+            f"; the stderr of pid {self.pid} ended with:\n{tail}"
+            if tail
+            else f"; pid {self.pid} wrote nothing to stderr"
+        )
 
     def send_batch(self, nodes: range) -> None:
         assert self.process.stdin is not None
@@ -458,7 +462,7 @@ def encode_views_in_workers(
                     raise ViewBuildError(
                         _unbuilt(todo),
                         f"{len(waiting)} of {len(pool)} view-build workers did not start within {start_timeout:g} s "
-                        f"(pids {', '.join(str(w.pid) for w in waiting)}); the first{worker.stderr_text()}",
+                        f"(pids {', '.join(str(w.pid) for w in waiting)}){worker.stderr_text()}",
                     ) from None
                 if message is None:
                     raise _exited_error(worker, todo)
