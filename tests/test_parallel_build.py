@@ -213,9 +213,10 @@ def test_a_worker_that_does_not_start_in_time_is_stopped_with_its_stderr() -> No
 
 
 def test_objects_of_the_running_script_are_refused() -> None:
-    script_encoder = type("ScriptEncoder", (PixelProjectionEncoder,), {"__module__": "__main__"})
-    with pytest.raises(TypeError, match=r"ScriptEncoder is defined in the script being run \(__main__\)"):
-        encode_views_in_workers(N_NODES, NoiseRenderer(), script_encoder(), workers=1)
+    for script in ("__main__", "__mp_main__"):  # the script run, or re-imported by multiprocessing's spawn
+        script_encoder = type("ScriptEncoder", (PixelProjectionEncoder,), {"__module__": script})
+        with pytest.raises(TypeError, match=rf"ScriptEncoder is defined in the script being run \({script}\)"):
+            encode_views_in_workers(N_NODES, NoiseRenderer(), script_encoder(), workers=1)
     with pytest.raises(TypeError, match="must be picklable"):
         encode_views_in_workers(N_NODES, lambda: NoiseRenderer(), PixelProjectionEncoder(), workers=1)
 

@@ -76,6 +76,8 @@ DEFAULT_START_TIMEOUT = 300.0
 _BATCHES_AHEAD = 2
 # Lines of a worker's stderr kept for the error message when it fails to start or dies
 _STDERR_TAIL = 20
+# The names under which the running script's classes and functions live
+_SCRIPT_MODULES = frozenset({"__main__", "__mp_main__"})
 # Frames on the pipes: an 8-byte little-endian length, then a pickle
 _LENGTH = struct.Struct("<Q")
 
@@ -121,9 +123,10 @@ class _NoMainPickler(pickle.Pickler):
     """A pickler that refuses classes and functions of ``__main__``: a worker does not import the running script."""
 
     def reducer_override(self, obj: Any) -> Any:
-        if isinstance(obj, (type, types.FunctionType)) and getattr(obj, "__module__", None) == "__main__":
+        # __mp_main__: the script as multiprocessing's spawn re-imports it, in a process that calls this one
+        if isinstance(obj, (type, types.FunctionType)) and getattr(obj, "__module__", None) in _SCRIPT_MODULES:
             raise TypeError(
-                f"{obj.__qualname__} is defined in the script being run (__main__), which view-build worker "
+                f"{obj.__qualname__} is defined in the script being run ({obj.__module__}), which view-build worker "
                 "processes do not import: define it in a module of its own and import it from there, or build in "
                 "this process (build_workers=1 / workers=1)"
             )
