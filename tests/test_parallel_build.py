@@ -4,6 +4,8 @@ the encoder consumes (campusnav_env.features.view_source.settings_for_encoder)."
 from __future__ import annotations
 
 import os
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +26,28 @@ SMALL_VIEWS = RenderSettings(width=64, height=48)
 
 
 class NoiseRenderer:
-    """Picklable stand-in renderer (workers import it from this module): node n's views drawn from seed n."""
+    """
+    Picklable stand-in renderer (workers import it from this module): node n's views drawn from seed n.
 
-    def __init__(self, fail_at: int | None = None) -> None:
-        self.fail_at = fail_at
+    :param fail_at: The node whose rendering raises
+    :param exit_at: The node whose rendering ends the worker process at once (as a crash or the OOM killer would)
+    :param slow_from: Nodes from this one on take ``delay`` seconds each
+    :param delay: See ``slow_from``
+    :param chatty: Print each node to stdout, as a careless renderer might
+    :param log: A file to which each rendered node is appended
+    """
+
+    def __init__(
+        self,
+        fail_at: int | None = None,
+        exit_at: int | None = None,
+        slow_from: int | None = None,
+        delay: float = 0.0,
+        chatty: bool = False,
+        log: Path | None = None,
+    ) -> None:
+        self.fail_at, self.exit_at, self.slow_from, self.delay = fail_at, exit_at, slow_from, delay
+        self.chatty, self.log = chatty, log
 
     def __call__(self) -> NoiseRenderer:  # its own factory: the worker calls it once
         return self
@@ -35,7 +55,76 @@ class NoiseRenderer:
     def render_node(self, node: int) -> np.ndarray:
         if node == self.fail_at:
             raise RuntimeError("the renderer crashed")
+        if node == self.exit_at:
+            os._exit(3)
+        if self.slow_from is not None and node >= self.slow_from:
+            time.sleep(self.delay)
+        if self.chatty:
+            print(f"rendering node {node}", flush=True)
+        if self.log is not None:
+            with open(self.log, "a") as f:
+                f.write(f"{node}\n")
         return np.random.default_rng(node).integers(0, 256, (4, 24, 32, 3), dtype=np.uint8)
+
+
+class GatedRenderer(NoiseRenderer):
+    """Node ``GATED_NODE`` renders only once the file ``gate`` exists (at most 60 s, then it fails saying so)."""
+
+    def __init__(self, gate: Path) -> None:
+        super().__init__()
+        self.gate = gate
+
+    def render_node(self, node: int) -> np.ndarray:
+        if node == GATED_NODE:
+            deadline = time.monotonic() + 60
+            while not self.gate.exists():
+                if time.monotonic() > deadline:
+                    raise RuntimeError("the progress bar did not show the earlier batches before the last one ended")
+                time.sleep(0.01)
+        return super().render_node(node)
+
+
+GATED_NODE = 16  # the first node of the last batch
+
+
+class RecordingBar:
+    """Stands in for tqdm: records each update, and opens the gate once a batch has been shown."""
+
+    gate: Path
+    updates: list[int]
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        pass
+
+    def __enter__(self) -> RecordingBar:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def update(self, n: int) -> None:
+        type(self).updates.append(n)
+        self.gate.touch()
+
+
+class SleepingFactory:
+    """A renderer factory that says what it does on stderr, then never returns (a worker stuck starting)."""
+
+    def __call__(self) -> NoiseRenderer:
+        print("loading a very large world", file=sys.stderr, flush=True)
+        time.sleep(3600)
+        return NoiseRenderer()
+
+
+def _refuse_to_load() -> PixelProjectionEncoder:
+    raise RuntimeError("this encoder's weights are not on this machine")
+
+
+class UnloadableEncoder(PixelProjectionEncoder):
+    """Pickles in the parent; unpickling it (in a worker) fails."""
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return _refuse_to_load, ()
 
 
 class WhereEncoder(ViewEncoder):
@@ -76,6 +165,69 @@ def test_a_failing_node_is_named() -> None:
     with pytest.raises(ViewBuildError, match=message) as failure:
         encode_views_in_workers(N_NODES, NoiseRenderer(fail_at=13), PixelProjectionEncoder(), workers=1)
     assert failure.value.nodes == (13,)
+    assert "Traceback" in str(failure.value.__cause__)  # the worker's traceback
+
+
+def test_a_failing_node_stops_the_build_at_once(tmp_path: Path) -> None:
+    log = tmp_path / "rendered.log"
+    # Node 0 fails at once; the other batches (nodes 8-19) take 0.5 s a node, 6 s in all on two workers
+    renderer = NoiseRenderer(fail_at=0, slow_from=8, delay=0.5, log=log)
+    with pytest.raises(ViewBuildError, match="node 0: rendering its views failed"):
+        encode_views_in_workers(N_NODES, renderer, PixelProjectionEncoder(), workers=2, progress=False)
+    rendered = log.read_text().split() if log.exists() else []
+    assert len(rendered) < N_NODES - 8  # the workers were stopped before the other batches were done
+
+
+def test_the_progress_bar_advances_as_each_batch_finishes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The last batch cannot finish before the bar has shown an earlier one: a bar updated only at the end would fail
+    monkeypatch.setattr(RecordingBar, "gate", tmp_path / "gate", raising=False)
+    monkeypatch.setattr(RecordingBar, "updates", [], raising=False)
+    monkeypatch.setattr(parallel_build, "tqdm", RecordingBar)
+    encode_views_in_workers(N_NODES, GatedRenderer(tmp_path / "gate"), PixelProjectionEncoder(), workers=2)
+    assert sorted(RecordingBar.updates) == [4, 8, 8]  # one update per batch of 8 nodes (the last one has 4)
+
+
+def test_a_worker_that_dies_is_reported_with_its_nodes() -> None:
+    with pytest.raises(ViewBuildError, match=r"worker died while building nodes from 8 on .*exited with status 3"):
+        encode_views_in_workers(N_NODES, NoiseRenderer(exit_at=13), PixelProjectionEncoder(), workers=1)
+
+
+def test_a_worker_that_cannot_start_says_why() -> None:
+    with pytest.raises(
+        ViewBuildError,
+        match=r"worker could not start: pid \d+: RuntimeError: this encoder's weights are not on this machine",
+    ) as failure:
+        encode_views_in_workers(N_NODES, NoiseRenderer(), UnloadableEncoder(), workers=1)
+    assert failure.value.nodes == tuple(range(N_NODES))
+
+
+def test_a_worker_that_does_not_start_in_time_is_stopped_with_its_stderr() -> None:
+    start = time.monotonic()
+    with pytest.raises(
+        ViewBuildError,
+        match=r"(?s)1 of 1 view-build workers did not start within 20 s \(pids \d+\); "
+        r"the stderr of pid \d+ ended with:\nloading a very large world",
+    ):
+        encode_views_in_workers(N_NODES, SleepingFactory(), PixelProjectionEncoder(), workers=1, start_timeout=20)
+    assert time.monotonic() - start < 60  # 20 s, then the worker is killed
+
+
+def test_objects_of_the_running_script_are_refused() -> None:
+    for script in ("__main__", "__mp_main__"):  # the script run, or re-imported by multiprocessing's spawn
+        script_encoder = type("ScriptEncoder", (PixelProjectionEncoder,), {"__module__": script})
+        with pytest.raises(TypeError, match=rf"ScriptEncoder is defined in the script being run \({script}\)"):
+            encode_views_in_workers(N_NODES, NoiseRenderer(), script_encoder(), workers=1)
+    with pytest.raises(TypeError, match="must be picklable"):
+        encode_views_in_workers(N_NODES, lambda: NoiseRenderer(), PixelProjectionEncoder(), workers=1)
+
+
+def test_output_of_the_renderer_does_not_disturb_the_workers(capfd: pytest.CaptureFixture[str]) -> None:
+    encoder = PixelProjectionEncoder(dim=16)
+    chatty = encode_views_in_workers(N_NODES, NoiseRenderer(chatty=True), encoder, workers=2, progress=False)
+    np.testing.assert_allclose(
+        chatty, encode_every_node(N_NODES, NoiseRenderer().render_node, encoder, False), atol=1e-6
+    )
+    assert "rendering node 19" in capfd.readouterr().err  # the workers' stdout goes to stderr, not into the protocol
 
 
 def test_the_worker_count_is_checked() -> None:

@@ -9,14 +9,15 @@ written to a temporary file in the same directory and moved into place with :fun
 partial file.
 
 Processes that need the same missing file at the same time (parallel envs, jobs sharing ``$CAMPUSNAV_CACHE``) build it
-once. The builder holds the lock file ``<cache file>.lock``, created with ``O_CREAT | O_EXCL`` (atomic on every OS and
-on NFS v3+) and recording the owner's pid, host name and a random token. The others warn that they wait for it, poll,
-and once they hold the lock find the file valid and load it. The lock is released in a ``finally``, also on
-exceptions and Ctrl-C. A lock whose owner no longer runs on this host (a crashed or killed process) is stale: the next
-process removes it with a warning and carries on. Owners on other hosts cannot be checked, so waiting ends after
+once. The builder holds ``<cache file>.lock`` with the operating system's file lock (:class:`filelock.FileLock`:
+``flock`` on POSIX, ``LockFileEx`` on Windows), which the OS releases when the process ends, however it ends (a
+crash, ``kill -9``): a dead builder never blocks the next one. The others warn that they wait for it, naming the
+builder's pid and host (from ``<cache file>.lock.owner``, which the builder writes while it holds the lock), and once
+they hold the lock find the file valid and load it. The lock is released in a ``finally``, also on exceptions and
+Ctrl-C; the empty lock file may stay behind (the lock is the OS's, not the file's existence). Waiting ends after
 ``lock_timeout`` seconds (default :data:`DEFAULT_LOCK_TIMEOUT`, or ``$CAMPUSNAV_CACHE_LOCK_TIMEOUT``) with a
-:class:`TimeoutError` that names the lock file and says how to proceed. Loading a valid file takes no lock, so a
-read-only cache directory works.
+:class:`TimeoutError` that names the lock file and its owner. Loading a valid file takes no lock, so a read-only cache
+directory works.
 """
 
 from __future__ import annotations
@@ -25,16 +26,19 @@ import contextlib
 import hashlib
 import json
 import os
+import socket
 import tempfile
+import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
+from filelock import FileLock, Timeout
 from tqdm import tqdm
 
+from campusnav_env.atomic_files import write_text_atomic
 from campusnav_env.features.encoders import ViewEncoder
-from campusnav_env.features.file_lock import acquire_lock, release_lock
 
 __all__ = [
     "CACHE_FORMAT_VERSION",
@@ -47,6 +51,7 @@ __all__ = [
     "default_cache_dir",
     "encode_every_node",
     "encode_nodes",
+    "lock_paths",
     "node_batches",
     "render_nodes",
 ]
@@ -264,6 +269,60 @@ def _resolve_lock_timeout(lock_timeout: float | None) -> float:
     return seconds
 
 
+def lock_paths(path: Path) -> tuple[Path, Path]:
+    """The lock file of a cache file, and the file in which its builder records who it is."""
+    return path.with_name(path.name + ".lock"), path.with_name(path.name + ".lock.owner")
+
+
+def _read_owner(owner_file: Path) -> str:
+    """Who holds the lock, as its owner file says (it may be missing for the instant after the lock is taken)."""
+    try:
+        record = json.loads(owner_file.read_text(encoding="utf-8"))
+        started = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(float(record["since"])))
+        return f"pid {int(record['pid'])} on host {record['host']!r} since {started}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "a process that has not recorded itself yet"
+
+
+@contextlib.contextmanager
+def _build_lock(path: Path, timeout: float) -> Iterator[None]:
+    """
+    Hold the lock of the cache file ``path`` (see the module docstring), waiting up to ``timeout`` seconds for it.
+
+    :raises TimeoutError: if another process still holds it after ``timeout`` seconds
+    """
+    lock_file, owner_file = lock_paths(path)
+    lock = FileLock(lock_file)
+    try:
+        lock.acquire(timeout=0)
+    except Timeout:
+        owner = _read_owner(owner_file)
+        warnings.warn(
+            f"waiting for another process ({owner}) that is building the same feature cache {path} "
+            f"(lock file {lock_file}, timeout {timeout:g} s)",
+            RuntimeWarning,
+            stacklevel=4,  # the caller of cached_features, past contextlib's __enter__
+        )
+        try:
+            lock.acquire(timeout=timeout)
+        except Timeout:
+            owner = _read_owner(owner_file)
+            raise TimeoutError(
+                f"gave up after {timeout:g} s waiting for the lock file {lock_file}, held by {owner}, "
+                f"which is building the feature cache {path}. The lock is the operating system's and ends with that "
+                f"process; to wait longer pass lock_timeout or set ${LOCK_TIMEOUT_ENV}"
+            ) from None
+    try:
+        record = {"pid": os.getpid(), "host": socket.gethostname(), "since": time.time()}
+        write_text_atomic(owner_file, json.dumps(record))
+        yield
+    finally:
+        try:
+            owner_file.unlink(missing_ok=True)
+        finally:
+            lock.release()
+
+
 def cached_view_features(
     key_parts: Mapping[str, str],
     n_nodes: int,
@@ -339,9 +398,7 @@ def cached_features(
 
     # Fail before waiting or spending minutes on rendering if the result could not be stored.
     _ensure_writable_dir(path.parent)
-    lock = path.with_name(path.name + ".lock")
-    me = acquire_lock(lock, path, timeout, wait_longer=f"pass lock_timeout or set ${LOCK_TIMEOUT_ENV}")
-    try:
+    with _build_lock(path, timeout):
         # Another process may have built the file while this one waited for the lock.
         if path.exists():
             try:
@@ -354,5 +411,3 @@ def cached_features(
             raise ValueError(f"the feature build returned {got}, expected {shape} {dtype}")
         _save_atomic(path, features, {**document, "key": key, "checksum": _checksum(features)})
         return features
-    finally:
-        release_lock(lock, me)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import pickle
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
@@ -26,7 +25,7 @@ import numpy as np
 
 from campusnav_env.features.encoders import ViewEncoder, make_encoder
 from campusnav_env.features.feature_cache import cached_features, cached_view_features, encode_every_node
-from campusnav_env.features.parallel_build import default_workers, encode_views_in_workers
+from campusnav_env.features.parallel_build import default_workers, encode_views_in_workers, pickle_for_workers
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.barriers import BARRIER_VERSION
 from campusnav_env.rendering.scene import WORLD_VERSION, World
@@ -66,9 +65,10 @@ def settings_for_encoder(settings: RenderSettings, encoder: ViewEncoder) -> Rend
 
 
 def _picklable(obj: object) -> bool:
+    """Whether ``obj`` can reach the worker processes (picklable, and not defined in ``__main__``, which they lack)."""
     try:
-        pickle.dumps(obj)
-    except Exception:
+        pickle_for_workers(obj)
+    except TypeError:
         return False
     return True
 
