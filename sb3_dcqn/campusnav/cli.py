@@ -397,12 +397,13 @@ def _check_map(env_id: str, path: str, env_kwargs: dict[str, Any], flag: str, go
 
 def _random_init(args: argparse.Namespace, saved: EnvSettings | None, encoder: str, weights: str | None) -> bool:
     """Whether ResNet-50 runs on random features: only when asked for (now, or by the run that saved the model)."""
-    asked = args.encoder_random_init or bool(
+    given = getattr(args, "encoder_random_init", False)  # `roads` builds no views: it has no encoder flags
+    asked = given or bool(
         saved is not None and saved.encoder == encoder and saved.encoder_random_init and weights is None
     )
     if asked and encoder != "resnet50":
         raise CommandError(f"--encoder-random-init: only for --encoder resnet50 (the encoder is {encoder})")
-    if args.encoder_random_init and weights is not None:
+    if given and weights is not None:
         raise CommandError(f"--encoder-random-init: cannot be combined with --encoder-weights {weights}")
     if encoder == "resnet50" and weights is None and not asked:
         raise CommandError(
