@@ -45,7 +45,7 @@ class CampusNavGoalEnv(CampusNavEnv):
     As in CampusNav: ``goal_reward`` (+1.0) on reaching the goal, ``collision_penalty`` (-0.01) for an action with no
     open road that way, ``step_penalty`` (-0.005) otherwise. :meth:`compute_reward` gives the same from
     ``(achieved_goal, desired_goal, info)``, vectorised; the collision comes from ``info["collision"]`` (every
-    ``info`` of :meth:`step` carries it; :class:`sb3_dcqn.her_buffer.DCQNHerReplayBuffer` keeps it per transition,
+    ``info`` of :meth:`step` carries it; :class:`sb3_dcqn.replay.DCQNHerReplayBuffer` keeps it per transition,
     SB3's ``HerReplayBuffer`` needs ``copy_info_dict=True``). :meth:`compute_terminated` is true where the goal is
     reached.
 
