@@ -3,8 +3,8 @@
 :mod:`sb3_dcqn.zoo` works with any Gymnasium env and registers none; this entry point imports :mod:`campusnav_env`
 first, so that ``dcqn-zoo train --algo dcqn --env CampusNav-v0`` finds the env (as ``--gym-packages campusnav_env``
 would). ``train`` and ``enjoy`` on a CampusNav id use one torch thread unless ``--num-threads N`` is given: CampusNav's
-networks are small, and more threads only contend for the cores (README's ``train`` command on CampusNav-v0: 80 s
-with torch's default threads against 11 s with one, on 2 shared cores).
+networks are small, and more threads only contend for the cores (README's ``train`` command on CampusNav-v0, 30k
+steps on 2 cores shared with other jobs: 913 s with torch's default two threads, 152 s with one).
 """
 
 from __future__ import annotations
