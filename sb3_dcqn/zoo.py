@@ -22,9 +22,11 @@ saved to FILE with matplotlib's Agg backend. The plot commands need seaborn and 
 shown through gymnasium's ``HumanRendering``); ``record_video`` needs an env with ``rgb_array`` rendering (CartPole's
 needs pygame) and writes MP4 files with moviepy.
 
-Two problems of rl_zoo3 2.9 are worked around here: ``enjoy`` imports ``requests`` (for Hub downloads) without
-declaring it, and ``record_video`` ignores the ``env_kwargs`` saved in the run's ``config.yml`` (CampusNav's
-``view_dim``), so the model's observation space would not match the env's.
+Three problems of rl_zoo3 2.9 are worked around here: ``enjoy`` imports ``requests`` (for Hub downloads) without
+declaring it; ``record_video`` ignores the ``env_kwargs`` saved in the run's ``config.yml`` (CampusNav's
+``view_dim``), so the model's observation space would not match the env's; and ``train`` makes the evaluation envs
+(``--eval-freq``, ``-optimize``'s trials) without the entry's ``env_kwargs``, which now reach them unless
+``--eval-env-kwargs`` is given.
 
 This module works with any Gymnasium env and registers none: the ``dcqn-zoo`` console script
 (:mod:`sb3_dcqn.campusnav.zoo`) registers the CampusNav ids first; for other packages' envs pass the zoo's
