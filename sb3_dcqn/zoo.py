@@ -22,9 +22,11 @@ saved to FILE with matplotlib's Agg backend. The plot commands need seaborn and 
 shown through gymnasium's ``HumanRendering``); ``record_video`` needs an env with ``rgb_array`` rendering (CartPole's
 needs pygame) and writes MP4 files with moviepy.
 
-Two problems of rl_zoo3 2.9 are worked around here: ``enjoy`` imports ``requests`` (for Hub downloads) without
-declaring it, and ``record_video`` ignores the ``env_kwargs`` saved in the run's ``config.yml`` (CampusNav's
-``view_dim``), so the model's observation space would not match the env's.
+Three problems of rl_zoo3 2.9 are worked around here: ``enjoy`` imports ``requests`` (for Hub downloads) without
+declaring it; ``record_video`` ignores the ``env_kwargs`` saved in the run's ``config.yml`` (CampusNav's
+``view_dim``), so the model's observation space would not match the env's; and ``train`` makes the evaluation envs
+(``--eval-freq``, ``-optimize``'s trials) without the entry's ``env_kwargs``, which now reach them unless
+``--eval-env-kwargs`` is given.
 
 This module works with any Gymnasium env and registers none: the ``dcqn-zoo`` console script
 (:mod:`sb3_dcqn.campusnav.zoo`) registers the CampusNav ids first; for other packages' envs pass the zoo's
@@ -43,7 +45,7 @@ import re
 import runpy
 import sys
 import types
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -519,6 +521,8 @@ COMMANDS: dict[str, str] = {
     "all_plots": "plot the evaluations of runs and tabulate them (rl_zoo3.plots.all_plots)",
 }
 _HELP_FLAGS = ("-h", "--help")
+# The zoo's commands that take --env and --num-threads
+_THREADED_COMMANDS = ("train", "enjoy")
 _PLOT_OUTPUT_FLAGS = ("-o", "--output")
 
 
@@ -538,14 +542,17 @@ def usage() -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()) -> None:
     """
     Entry point of ``dcqn-zoo``: registers DCQN, then runs the zoo command named by the first argument.
 
     Without a command word (first argument an option) the command is ``train``, whose ``-conf`` defaults to the
-    shipped ``dcqn.yml``.
+    shipped ``dcqn.yml``. ``train`` gives the evaluation envs (``--eval-freq``, and the trials of ``-optimize``) the
+    entry's ``env_kwargs`` unless ``--eval-env-kwargs`` is given (see :func:`_evaluate_with_the_entrys_env_kwargs`).
 
     :param argv: The arguments (default: ``sys.argv[1:]``)
+    :param single_thread_envs: Env ids for which ``train`` and ``enjoy`` use one torch thread (``--num-threads 1``)
+        unless the arguments give ``--num-threads``: envs whose small networks run slower on more threads
     :raises SystemExit: with code 2 on a missing or unknown command, and as the zoo's commands exit (``-h``, errors)
     """
     args = list(sys.argv[1:] if argv is None else argv)
@@ -565,13 +572,22 @@ def main(argv: list[str] | None = None) -> None:
             )
             raise SystemExit(2)
     register_dcqn()
-    runner, args = _prepare(command, args)
+    runner, args = _prepare(command, _with_default_threads(command, args, single_thread_envs))
     saved_argv = sys.argv
     sys.argv = [prog, *args]  # argparse takes its usage line's program name from sys.argv[0]
     try:
         runner()
     finally:
         sys.argv = saved_argv
+
+
+def _with_default_threads(command: str, args: list[str], single_thread_envs: Collection[str]) -> list[str]:
+    """``args`` with ``--num-threads 1`` added for an env of ``single_thread_envs`` (none given, command takes it)."""
+    env_id = (_option_value(args, "--env") or "").rpartition(":")[2]  # "module:EnvId" names EnvId too
+    wanted = command in _THREADED_COMMANDS and env_id in single_thread_envs
+    if wanted and not _gives_option(args, "--num-threads", shortest="--nu"):
+        return [*args, "--num-threads", "1"]
+    return args
 
 
 def _prepare(command: str, args: list[str]) -> tuple[Callable[[], None], list[str]]:
@@ -581,7 +597,7 @@ def _prepare(command: str, args: list[str]) -> tuple[Callable[[], None], list[st
 
         if not _has_conf_option(args):
             args = [*args, "-conf", str(default_hyperparams_path())]
-        return train, args
+        return (lambda: _evaluate_with_the_entrys_env_kwargs(train)), args
     if command == "enjoy":
         _allow_enjoy_without_requests()
         from rl_zoo3.enjoy import enjoy
@@ -601,11 +617,60 @@ def _prepare(command: str, args: list[str]) -> tuple[Callable[[], None], list[st
 
 def _has_conf_option(args: list[str]) -> bool:
     """Whether the train arguments give ``-conf``/``--conf-file`` (``=value`` and argparse's prefixes included)."""
+    return _gives_option(args, "--conf-file", shortest="--conf", alias="-conf")
+
+
+def _gives_option(args: list[str], name: str, shortest: str, alias: str | None = None) -> bool:
+    """
+    Whether ``args`` give the option ``name`` (``--name value`` or ``--name=value``), as argparse reads them.
+
+    :param args: The command's arguments
+    :param name: The option's long name
+    :param shortest: Its shortest prefix that argparse takes for it (no other option of the command starts so)
+    :param alias: Its short name, if any
+    """
     for arg in args:
-        name = arg.split("=", 1)[0]
-        if name == "-conf" or (name.startswith("--conf") and "--conf-file".startswith(name)):
+        given = arg.split("=", 1)[0]
+        if given == alias or (given.startswith(shortest) and name.startswith(given)):
             return True
     return False
+
+
+def _option_value(args: list[str], name: str) -> str | None:
+    """The value given to option ``name`` (``--name value`` or ``--name=value``; the last one wins), else None."""
+    value = None
+    for i, arg in enumerate(args):
+        if arg == name and i + 1 < len(args):
+            value = args[i + 1]
+        elif arg.startswith(f"{name}="):
+            value = arg.split("=", 1)[1]
+    return value
+
+
+def _evaluate_with_the_entrys_env_kwargs(train: Callable[[], None]) -> None:
+    """
+    Run the zoo's ``train`` with evaluation envs made with the training env's ``env_kwargs`` (the entry's, or
+    ``--env-kwargs``, which replace them) unless ``--eval-env-kwargs`` is given.
+
+    rl_zoo3 2.9's ``ExperimentManager`` copies only ``--env-kwargs`` to the evaluation envs: the ``env_kwargs`` of the
+    hyperparameter file's entry (CampusNav's ``view_dim: 64``) reach the training env alone, so the eval env of
+    ``--eval-freq`` and of every ``-optimize`` trial had another observation space than the model and evaluation failed.
+    """
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    preprocess = ExperimentManager._preprocess_hyperparams
+
+    def preprocess_and_share_env_kwargs(self: Any, hyperparams: dict[str, Any]) -> Any:
+        processed = preprocess(self, hyperparams)  # sets self.env_kwargs from the entry or the command line
+        if self._eval_env_kwargs_args is None:  # no --eval-env-kwargs
+            self.eval_env_kwargs = self.env_kwargs
+        return processed
+
+    ExperimentManager._preprocess_hyperparams = preprocess_and_share_env_kwargs  # train.py makes its own manager
+    try:
+        train()
+    finally:
+        ExperimentManager._preprocess_hyperparams = preprocess
 
 
 def _download_needs_requests(*args: Any, **kwargs: Any) -> None:

@@ -3,8 +3,10 @@
 The test starts a real PostgreSQL server of its own (``initdb`` and ``pg_ctl`` in a temp folder, listening on a free
 localhost port, trust authentication, a database ``optuna``), then runs two worker processes of README's sweep
 command against ``--storage postgresql+psycopg://optuna@127.0.0.1:PORT/optuna`` at the same time, each in a folder of
-its own as on two machines: CampusNav-v0 from the shipped entry with the cheap ``pixels`` views (``--env-kwargs``), two
-trials each, a few hundred steps per trial. Neither creates the study beforehand: the first to arrive does, the other
+its own as on two machines: CampusNav-v0 from the shipped entry as README's command runs it (no ``--env-kwargs``, so
+the entry's own ``env_kwargs``, ``view_dim: 64`` with EfficientNet-Lite0 views, make the training and the evaluation
+envs; each worker encodes the campus's views once into its own feature cache), two trials each, a few hundred steps
+per trial. Neither creates the study beforehand: the first to arrive does, the other
 joins. The study must hold the four completed trials, numbered 0-3 with no number twice, two from each worker (each
 worker's log names the trials it finished). The server is stopped and its folder removed at the end, also when the
 test fails.
@@ -48,10 +50,10 @@ TRIALS_PER_WORKER = 2
 SERVER_ACCOUNTS = ("postgres", "nobody")
 SERVER_TIMEOUT_S = 60
 WORKER_TIMEOUT_S = 600
-# The CampusNav-v0 entry with cheap views and short episodes; the sampler draws the rest of the settings
+# README's sweep command with a small budget: the shipped CampusNav-v0 entry (its env_kwargs reach the trials' eval
+# envs only through dcqn-zoo: --env-kwargs would hide that) and one torch thread (dcqn-zoo's default for CampusNav)
 SWEEP_ARGS = [
     "--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs",
-    "--env-kwargs", "encoder:'pixels'", "view_dim:16", "max_steps:30", "progress:False",
     "-optimize", "--study-name", STUDY, "--n-trials", str(TRIALS_PER_WORKER), "--n-jobs", "1",
     "--sampler", "random", "--pruner", "none", "-n", "400", "--n-evaluations", "1", "--eval-episodes", "2",
     "--no-optim-plots", "--seed", "0",
@@ -132,7 +134,7 @@ def start_worker(storage: str, folder: Path) -> subprocess.Popen:
     """One ``dcqn-zoo`` sweep worker (the console script's code) in ``folder``, as on a machine of its own."""
     folder.mkdir()
     code = "import sys; from sb3_dcqn.campusnav.zoo import main; main(sys.argv[1:])"
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "CAMPUSNAV_CACHE": str(folder / "cache")}
+    env = {**os.environ, "CAMPUSNAV_CACHE": str(folder / "cache")}
     return subprocess.Popen(
         [sys.executable, "-c", code, *SWEEP_ARGS, "--storage", storage],
         cwd=folder,

@@ -11,12 +11,14 @@ needs; :func:`~sb3_dcqn.zoo.load_zoo_entry` (the command line's path) reads the 
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -118,6 +120,99 @@ def campusnav_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
+# ------------------------------------------------------------------------------------------ the shipped CampusNav entry
+# As a user runs it: the shipped dcqn.yml, no --env-kwargs (so the entry's own env_kwargs, view_dim 64, make the env;
+# any --env-kwargs would replace them) and evaluation on. Few steps, two evaluation episodes.
+SHIPPED_EVAL = ["-n", "300", "--eval-freq", "100", "--eval-episodes", "2", "--seed", "0"]
+
+
+@pytest.fixture(scope="module")
+def shipped_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One feature cache for the module's runs of the shipped CampusNav entry (EfficientNet views, encoded once)."""
+    return tmp_path_factory.mktemp("zoo-shipped-cache")
+
+
+@pytest.fixture(scope="module")
+def shipped_campusnav_run(tmp_path_factory: pytest.TempPathFactory, shipped_cache: Path) -> tuple[Path, str]:
+    """A folder whose ``logs/`` holds a short run of the shipped CampusNav-v0 entry with evaluation; its stdout."""
+    root = tmp_path_factory.mktemp("zoo-shipped")
+    args = ["train", "--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs", *SHIPPED_EVAL, "--verbose", "2"]
+    result = run_zoo(args, root, {**module_env(root), "CAMPUSNAV_CACHE": str(shipped_cache)})
+    assert result.returncode == 0, result.stderr[-3000:]
+    return root, result.stdout
+
+
+def test_the_shipped_campusnav_entry_is_evaluated_with_its_own_env_kwargs(
+    shipped_campusnav_run: tuple[Path, str],
+) -> None:
+    root, stdout = shipped_campusnav_run
+    assert "eval_env_kwargs={'view_dim': 64}" in stdout  # the entry's, not given on the command line
+    evaluations = np.load(root / "logs" / "dcqn" / "CampusNav-v0_1" / "evaluations.npz")
+    assert evaluations["timesteps"].tolist() == [100, 200, 300]
+    assert evaluations["results"].shape == (3, 2) and np.isfinite(evaluations["results"]).all()
+    model = DCQN.load(root / "logs" / "dcqn" / "CampusNav-v0_1" / "CampusNav-v0.zip")
+    assert model.observation_space["views"].shape == (4 * 64,)  # four views of view_dim 64
+
+
+@pytest.mark.skipif(not PLOTS_INSTALLED, reason="the zoo's plots need seaborn and scipy")
+def test_all_plots_tabulates_the_evaluations_of_the_shipped_campusnav_run(
+    shipped_campusnav_run: tuple[Path, str],
+) -> None:
+    root, _ = shipped_campusnav_run
+    args = ["all_plots", "-a", "dcqn", "-e", "CampusNav-v0", "-f", "logs", "-o", "results", "--no-display"]
+    result = run_zoo(args, root, module_env(root))
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "|CampusNav-v0|" in result.stdout and (root / "results.pkl").is_file()
+
+
+def test_a_sweep_of_the_shipped_campusnav_entry_completes_its_trials(tmp_path: Path, shipped_cache: Path) -> None:
+    storage = tmp_path / "study.log"
+    args = ["--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs", "-optimize", "--storage", str(storage)]
+    args += ["--study-name", "shipped", "--n-trials", "2", "--n-jobs", "1", "--sampler", "random", "--pruner", "none"]
+    args += ["-n", "300", "--n-evaluations", "1", "--eval-episodes", "2", "--seed", "0"]
+    result = run_zoo(args, tmp_path, {"CAMPUSNAV_CACHE": str(shipped_cache)})
+    assert result.returncode == 0, result.stderr[-3000:]
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    study = optuna.load_study(study_name="shipped", storage=JournalStorage(JournalFileBackend(str(storage))))
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 2, result.stdout[-3000:]
+    # A trial's value is its mean evaluation reward: 200 steps at most, none below -0.01, +1 at the goal
+    assert all(-2.0 - 1e-6 <= t.value <= 1.0 for t in study.trials), [t.value for t in study.trials]
+
+
+def test_campusnav_ids_train_with_one_torch_thread_unless_told_otherwise(
+    shipped_campusnav_run: tuple[Path, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from rl_zoo3 import train as zoo_train
+
+    from sb3_dcqn.campusnav.zoo import main as dcqn_zoo
+
+    _, stdout = shipped_campusnav_run
+    assert "Setting torch.num_threads to 1" in stdout  # the zoo's own message (--verbose 2): the default arrived
+    given: list[list[str]] = []
+    monkeypatch.setattr(zoo_train, "train", lambda: given.append(sys.argv[1:]))
+
+    zoo_parser = argparse.ArgumentParser()  # the zoo's train reads --num-threads so (prefixes too; the last wins)
+    zoo_parser.add_argument("--num-threads", type=int, default=-1)
+
+    def threads(*args: str) -> int:
+        dcqn_zoo(["train", "--algo", "dcqn", *args])
+        return zoo_parser.parse_known_args(given.pop())[0].num_threads
+
+    for env_id in ("CampusNav-v0", "CampusNavCity-v0", "campusnav_env:CampusNavGoal-v0"):
+        assert threads("--env", env_id) == 1, env_id
+    assert threads("--env=CampusNavMulti-v0") == 1
+    # The user's own choice is kept, in each of argparse's spellings
+    assert threads("--env", "CampusNav-v0", "--num-threads", "4") == 4
+    assert threads("--env", "CampusNav-v0", "--num-threads=4") == 4
+    assert threads("--env", "CampusNav-v0", "--num-t", "4") == 4
+    # Other envs keep torch's default (-1)
+    assert threads("--env", "CartPole-v1") == -1
+    assert threads() == -1  # the zoo's default env, CartPole-v1
+
+
 def test_register_adds_dcqn_to_the_zoo_tables() -> None:
     from rl_zoo3 import exp_manager
     from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER
@@ -192,10 +287,11 @@ def test_record_video_writes_a_video_of_cartpole(cartpole_run: Path, tmp_path: P
 def test_campusnav_agent_plays_and_is_recorded_with_its_saved_env_kwargs(campusnav_run: Path, tmp_path: Path) -> None:
     env = module_env(campusnav_run)
     args = ["enjoy", "--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs", "-n", "30", "--no-render"]
-    result = run_zoo(args, campusnav_run, env)
+    result = run_zoo([*args, "--verbose", "2"], campusnav_run, env)
     assert result.returncode == 0, result.stderr[-3000:]
     # The model loads (view_dim 16) and an episode ends within 30 steps (max_steps 30): the config's env_kwargs
     assert "Episode Reward:" in result.stdout
+    assert "Setting torch.num_threads to 1" in result.stdout  # one thread by default for the CampusNav ids
     # record_video: the env is made with the saved env_kwargs (view_dim 16), else the model's spaces would not match
     args = ["record_video", "--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs", "-n", "10"]
     result = run_zoo([*args, "-o", str(tmp_path / "videos")], campusnav_run, env)
