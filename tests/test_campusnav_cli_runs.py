@@ -180,8 +180,8 @@ def test_readapt_goes_on_with_the_saved_closures_levers_and_entry_callbacks(
     with pytest.raises(CommandError, match=r"--levers revision: experience revision is set when a model is built.*"
                        r"its levers: boost"):  # fmt: skip
         cli("readapt", str(model), "--close-random", "1", "--levers", "revision", "--out", str(tmp_path / "x"))
-    # The revision-triggered boost counts revisions in DCQN's own replay buffer, which this model does not have
-    with pytest.raises(CommandError, match=r"--levers: lever 'boost_on_revision' .* not DictReplayBuffer"):
+    # The revision-triggered boost counts revisions of a replay buffer with revision, which this model does not have
+    with pytest.raises(CommandError, match=r"--levers boost_on_revision: .* set when a model is built.*levers: boost"):
         cli("readapt", str(model), "--close-random", "1", "--levers", "boost_on_revision", "--out", str(tmp_path / "x"))
     assert not (tmp_path / "x").exists()
 
