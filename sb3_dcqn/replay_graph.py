@@ -3,9 +3,9 @@
 **The experience graph** (:class:`ExperienceGraph`). In a deterministic world with discrete actions whose observations
 repeat exactly (CampusNav: the same intersection seen at the same heading gives the same bytes), every stored
 transition ``(o, a) -> (r, o', terminated)`` is an exact, 1-hop edge of the world's graph. Observations are keyed by a
-digest of their bytes (:func:`sb3_dcqn.replay.revision.digest`; a Dict observation's keys in sorted order, nothing else: the
-key holds only what the agent sees). Each ``(o, a)`` has one outcome, the latest: a new outcome replaces the old
-one, so a road seen closed (a collision: ``o' == o``) removes the edge it used to be. The graph answers, from an
+digest of their bytes (:func:`sb3_dcqn.replay.revision.digest`; a Dict observation's keys in sorted order, nothing
+else: the key holds only what the agent sees). Each ``(o, a)`` has one outcome, the latest: a new outcome replaces
+the old one, so a road seen closed (a collision: ``o' == o``) removes the edge it used to be. The graph answers, from an
 observation:
 
 - the shortest route in hops to a **success**: a terminated transition with a reward above ``success_reward`` (the
