@@ -34,3 +34,16 @@ def _library_caches_in_pytest_temp(tmp_path_factory: pytest.TempPathFactory) -> 
             if variable not in os.environ:
                 patch.setenv(variable, str(tmp_path_factory.mktemp(name)))
         yield
+
+
+@pytest.fixture(scope="module")
+def _module_cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("cache")
+
+
+@pytest.fixture
+def module_feature_cache(_module_cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """``$CAMPUSNAV_CACHE`` set to one feature cache per test module (``pytest.mark.usefixtures``): a module's tests
+    render and encode the views once, not once per test."""
+    monkeypatch.setenv("CAMPUSNAV_CACHE", str(_module_cache_dir))
+    return _module_cache_dir

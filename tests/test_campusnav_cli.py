@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import re
 import zipfile
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -46,16 +45,8 @@ features_dim=16), share_features_extractor=True, net_arch=[16], heading_key='hea
 ROAD = ("14", "15")  # a road of the built-in campus whose closure keeps every goal reachable
 
 
-@pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("cache")
-
-
-@pytest.fixture(autouse=True)
-def _shared_feature_cache(cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    # One cache for the module: the views are rendered and encoded once, not once per test
-    monkeypatch.setenv("CAMPUSNAV_CACHE", str(cache_dir))
-    yield
+# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
+pytestmark = pytest.mark.usefixtures("module_feature_cache")
 
 
 @pytest.fixture

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -37,15 +36,8 @@ DEAD_END = ("0", "11")  # node 0 of the built-in campus has this road only: clos
 REST_MARKUP = ("``", ":mod:", ":func:", ":class:", ":meth:", ":data:")
 
 
-@pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("cache")
-
-
-@pytest.fixture(autouse=True)
-def _shared_feature_cache(cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    monkeypatch.setenv("CAMPUSNAV_CACHE", str(cache_dir))
-    yield
+# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
+pytestmark = pytest.mark.usefixtures("module_feature_cache")
 
 
 @pytest.fixture(scope="module")

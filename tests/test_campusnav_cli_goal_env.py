@@ -11,7 +11,6 @@ views, 64 x 48, one feature cache per module.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -51,15 +50,8 @@ ROAD = ("14", "15")  # a road of the built-in campus with a way around it
 BRIDGE = ("0", "11")  # node 0's only road: closing it cuts an intersection (a goal of the goal env) off
 
 
-@pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("cache")
-
-
-@pytest.fixture(autouse=True)
-def _shared_feature_cache(cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    monkeypatch.setenv("CAMPUSNAV_CACHE", str(cache_dir))
-    yield
+# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
+pytestmark = pytest.mark.usefixtures("module_feature_cache")
 
 
 @pytest.fixture

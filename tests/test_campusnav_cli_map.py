@@ -9,7 +9,6 @@ registered CampusNav id; ``roads`` takes only the options it uses. Cheap ``pixel
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -41,15 +40,8 @@ features_dim=16), share_features_extractor=True, net_arch=[16], heading_key='hea
 """
 
 
-@pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("cache")
-
-
-@pytest.fixture(autouse=True)
-def _shared_feature_cache(cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    monkeypatch.setenv("CAMPUSNAV_CACHE", str(cache_dir))
-    yield
+# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
+pytestmark = pytest.mark.usefixtures("module_feature_cache")
 
 
 @pytest.fixture(scope="module")
