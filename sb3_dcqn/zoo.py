@@ -132,8 +132,10 @@ def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
     entry = dict(table[env_id])
     if "n_timesteps" not in entry:
         raise KeyError(f"{path}: entry {env_id!r} has no 'n_timesteps'")
-    n_timesteps = int(entry.pop("n_timesteps"))
-    n_envs = int(entry.pop("n_envs", 1))
+    n_timesteps = _whole_number(entry.pop("n_timesteps"), f"{path}: {env_id!r}: n_timesteps")
+    n_envs = _whole_number(entry.pop("n_envs", 1), f"{path}: {env_id!r}: n_envs")
+    if isinstance(entry.get("train_freq"), list):  # YAML has no tuples: the zoo reads [4, "episode"] as (4, "episode")
+        entry["train_freq"] = tuple(entry["train_freq"])
     env_kwargs = entry.pop("env_kwargs", None) or {}
     if not isinstance(env_kwargs, dict):
         raise ValueError(f"{path}: {env_id!r}: env_kwargs must be a mapping, got {env_kwargs!r}")
@@ -148,6 +150,14 @@ def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
             except Exception as error:
                 raise ValueError(f"{path}: {env_id!r}: cannot evaluate {key} {entry[key]!r}") from error
     return ZooEntry(n_timesteps, entry, dict(env_kwargs), n_envs, callbacks)
+
+
+def _whole_number(value: Any, where: str) -> int:
+    """A count from YAML (``3e4`` written ``!!float 3e4`` is a float), or an error naming the key."""
+    if isinstance(value, bool) or not _is_number(value) or value != int(value):
+        hint = " (YAML reads 3e4 as a string: write 30000 or !!float 3e4)" if isinstance(value, str) else ""
+        raise ValueError(f"{where}: expected a whole number, got {value!r}{hint}")
+    return int(value)
 
 
 def _callback_specs(value: Any, where: str) -> tuple[tuple[str, dict[str, Any]], ...]:
@@ -281,11 +291,6 @@ _TRAIN_FREQ_UNITS = ("step", "episode")
 def _train_freq(value: Any) -> str | None:
     if _is_int(value) and value >= 1:
         return None
-    if isinstance(value, list):
-        return (
-            f"expected a positive integer or a (frequency, unit) tuple, got the list {value!r} (SB3 reads a list as "
-            "one frequency); give the frequency in steps as an integer"
-        )
     if isinstance(value, tuple) and len(value) == 2:
         frequency, unit = value
         if not (_is_int(frequency) and frequency >= 1):

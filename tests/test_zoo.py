@@ -428,3 +428,17 @@ def test_an_entrys_callbacks_are_read_as_the_zoo_reads_them_and_built_anew_for_e
         ValueError, match=r"conf.yml: 'CampusNav-v0': callback 'campusnav_env.callbacks.NoSuchCallback'"
     ):
         load_zoo_entry(conf, "CampusNav-v0")
+
+
+def test_counts_and_train_freq_are_read_as_the_zoo_reads_them(tmp_path: Path) -> None:
+    conf = tmp_path / "conf.yml"
+    conf.write_text("CartPole-v1:\n  n_timesteps: !!float 2e3\n  policy: MlpPolicy\n  train_freq: [2, episode]\n")
+    entry = load_zoo_entry(conf, "CartPole-v1")
+    assert entry.n_timesteps == 2000 and entry.hyperparams["train_freq"] == (2, "episode")  # a tuple, as the zoo's
+    check_hyperparams(entry.hyperparams, DCQN, "here")
+    conf.write_text("CartPole-v1:\n  n_timesteps: abc\n")
+    with pytest.raises(ValueError, match=r"conf.yml: 'CartPole-v1': n_timesteps: expected a whole number, got 'abc'"):
+        load_zoo_entry(conf, "CartPole-v1")
+    conf.write_text("CartPole-v1:\n  n_timesteps: 3e4\n")  # YAML 1.1: a string
+    with pytest.raises(ValueError, match=r"YAML reads 3e4 as a string"):
+        load_zoo_entry(conf, "CartPole-v1")
