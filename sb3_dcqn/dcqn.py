@@ -204,9 +204,8 @@ class DCQN(OffPolicyAlgorithm):
 
     def _setup_model(self) -> None:
         # DCQN's replay variants are buffer classes (sb3_dcqn.replay): which one, and whether they combine
-        given = self.replay_buffer_class
         self.replay_buffer_class, self.replay_buffer_kwargs = resolve_replay_buffer(
-            given,
+            self.replay_buffer_class,
             self.replay_buffer_kwargs,
             isinstance(self.observation_space, spaces.Dict),
             self.n_steps,

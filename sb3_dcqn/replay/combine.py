@@ -76,15 +76,16 @@ _SB3_BASES: dict[type, tuple[str, frozenset[str]]] = {
 _CONFLICTS: dict[frozenset[str], str] = {
     frozenset({"nstep", "revision"}): "a revised transition is one step, rewritten with its new outcome alone",
     frozenset({"nstep", "prioritized"}): "a priority is one transition's TD error, not an n-step window's",
-    frozenset({"nstep", "blocked"}): (
-        "an unchanged observation after n steps does not mean the first action was blocked"
-    ),
     frozenset({"Her", "prioritized"}): (
         "a stored transition stands for every goal it is relabelled with, its TD error for none of them"
     ),
     frozenset({"Her", "nstep"}): "a relabelled goal changes the rewards along the window",
     frozenset({"Her", "count_bonus"}): "relabelled rewards are the env's compute_reward, with no room for a bonus",
     frozenset({"Box", "lean"}): "lean storage interns each Dict key's vectors: Dict observations only",
+    # DCQN's options last: what the buffer itself cannot be is named first
+    frozenset({"nstep", "blocked"}): (
+        "an unchanged observation after n steps does not mean the first action was blocked"
+    ),
 }
 _WHAT = {
     "lean": "lean storage (lean)",
@@ -259,7 +260,9 @@ def resolve_replay_buffer(
     if buffer_class is None:
         base = "Dict" if is_dict else "Box"
         check_combination(base, wants_n_steps, blocked)  # SB3 builds NStepReplayBuffer for Box
-        resolved: type[ReplayBuffer] | None = replay_buffer_class("nstep") if is_dict and wants_n_steps else None
+        if not (is_dict and wants_n_steps):
+            return None, buffer_kwargs
+        variants = wants_n_steps
     else:
         given = dcqn_buffer_class(buffer_class)
         found = variants_of(given)
@@ -267,11 +270,11 @@ def resolve_replay_buffer(
             if found is not None:
                 check_combination(*found, blocked)
             return given, buffer_kwargs
-        base, variants = found
-        resolved = replay_buffer_class(*variants, *wants_n_steps, base=base)
-        check_combination(base, variants | wants_n_steps, blocked)
+        base, own = found
+        variants = own | wants_n_steps
+        check_combination(base, variants, blocked)
     kwargs = dict(buffer_kwargs)
-    if resolved is not None and "nstep" in (variants_of(resolved) or ("", frozenset()))[1]:
+    if "nstep" in variants:
         kwargs.setdefault("n_steps", n_steps)
         kwargs.setdefault("gamma", gamma)
-    return resolved, kwargs
+    return replay_buffer_class(*variants, base=base), kwargs
