@@ -758,30 +758,47 @@ def _finish_training(
     return summary
 
 
-def _learn_or_save(
+def _train_or_save(
     args: argparse.Namespace,
-    learn: Any,
     model: DCQN,
+    plan: ClosurePlan,
+    budgets: tuple[int, int],
+    callbacks: list[BaseCallback],
     nav: CampusNavEnv,
     settings: EnvSettings,
     out: Path,
     model_path: Path,
-    callbacks: Sequence[tuple[str, dict[str, Any]]],
+    callback_specs: Sequence[tuple[str, dict[str, Any]]],
 ) -> TrainingOutcome:
     """
-    Run ``learn()``; on Ctrl-C save the model, its replay buffer and the closures in force (each file atomically)
-    and a ``summary.json`` that says the run was interrupted, then raise :class:`Interrupted` saying how to go on.
+    Train with the closure plan (:func:`train_with_closures`, its options from the flags; ``budgets``: the first
+    phase's and each closure's steps); on Ctrl-C save the model, its replay buffer and the closures in force (each
+    file atomically) and a ``summary.json`` that says the run was interrupted, then raise :class:`Interrupted` saying
+    how to go on.
     """
     from campusnav_env.atomic_files import write_text_atomic
+    from sb3_dcqn.campusnav.experiments import train_with_closures
     from sb3_dcqn.campusnav.model_files import save_model
 
     try:
-        return learn()
+        return train_with_closures(
+            model,
+            plan,
+            budget=budgets[0],
+            recovery_budget=budgets[1],
+            eval_freq=args.eval_freq,
+            recovery_eval_freq=args.recovery_eval_freq,
+            stop_when_solved=not args.keep_training,
+            stop_when_recovered=not args.keep_training,
+            callbacks=callbacks,
+            verbose=args.verbose,
+            progress=not args.no_progress,
+        )
     except KeyboardInterrupt:
         print(file=sys.stderr)  # past the progress bar
     levers = list(getattr(args, "levers", None) or [])
     try:
-        saved = save_model(model, model_path, settings, sorted(nav.closed_roads), True, levers, callbacks)
+        saved = save_model(model, model_path, settings, sorted(nav.closed_roads), True, levers, callback_specs)
         model.logger.close()
         summary = {
             "command": args.command,
@@ -820,7 +837,6 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     recovery_budget = max(1, budget // 2) if args.recovery_budget is None else args.recovery_budget
     n_envs = entry.n_envs if getattr(args, "n_envs", None) is None else args.n_envs
 
-    from sb3_dcqn.campusnav.experiments import train_with_closures
     from sb3_dcqn.dcqn import DCQN
 
     venv = _make_vec_env(settings, n_envs, args.seed)
@@ -838,27 +854,8 @@ def _train(args: argparse.Namespace, plan: ClosurePlan, replay_buffer: bool, tit
     print(f"training DCQN on {settings.describe()}: up to {budget} steps, {n_envs} env(s){levers}", file=sys.stderr)
     model_path = out / f"{MODEL_NAME}.zip"
     callbacks: list[BaseCallback] = [*lever_callbacks(args.levers), *entry.make_callbacks()]
-    outcome = _learn_or_save(
-        args,
-        lambda: train_with_closures(
-            model,
-            plan,
-            budget=budget,
-            recovery_budget=recovery_budget,
-            eval_freq=args.eval_freq,
-            recovery_eval_freq=args.recovery_eval_freq,
-            stop_when_solved=not args.keep_training,
-            stop_when_recovered=not args.keep_training,
-            callbacks=callbacks,
-            verbose=args.verbose,
-            progress=not args.no_progress,
-        ),
-        model,
-        nav,
-        settings,
-        out,
-        model_path,
-        entry.callbacks,
+    outcome = _train_or_save(
+        args, model, plan, (budget, recovery_budget), callbacks, nav, settings, out, model_path, entry.callbacks
     )
     note = _curves_note(callbacks)
     return _finish_training(
@@ -973,7 +970,6 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
     args.levers = _readapt_levers(args, saved)
     callback_specs = _readapt_callbacks(args, saved, settings.env_id)
 
-    from sb3_dcqn.campusnav.experiments import train_with_closures
     from sb3_dcqn.campusnav.model_files import model_paths
 
     buffer_path = Path(args.replay_buffer) if args.replay_buffer is not None else model_paths(path)[1]
@@ -1007,28 +1003,8 @@ def _cmd_readapt(args: argparse.Namespace) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     tb_folder = _new_logger(model, out, args.verbose)
     callbacks = [*lever_callbacks(args.levers), *_make_callbacks(callback_specs)]
-    outcome = _learn_or_save(
-        args,
-        lambda: train_with_closures(
-            model,
-            plan,
-            budget=args.timesteps if plan.scheduled.events else 0,
-            recovery_budget=args.timesteps,
-            eval_freq=args.eval_freq,
-            recovery_eval_freq=args.recovery_eval_freq,
-            stop_when_solved=not args.keep_training,
-            stop_when_recovered=not args.keep_training,
-            callbacks=callbacks,
-            verbose=args.verbose,
-            progress=not args.no_progress,
-        ),
-        model,
-        nav,
-        settings,
-        out,
-        target,
-        callback_specs,
-    )
+    budgets = (args.timesteps if plan.scheduled.events else 0, args.timesteps)
+    outcome = _train_or_save(args, model, plan, budgets, callbacks, nav, settings, out, target, callback_specs)
     title = f"DCQN re-adapted: {path}"
     if args.levers:
         title += f" (re-adaptation levers: {', '.join(args.levers)})"
