@@ -19,7 +19,7 @@ from torch.nn import functional as F
 from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
 from sb3_dcqn.replay.combine import resolve_replay_buffer
 from sb3_dcqn.replay.prioritized import PrioritizedReplay
-from sb3_dcqn.replay_graph import ReplaySearchPolicy
+from sb3_dcqn.route_memory import RouteMemory, UntriedExplorer, batch_of_one, select_rows
 from sb3_dcqn.targets import blocked_actions, dcqn_td_target
 
 SelfDCQN = TypeVar("SelfDCQN", bound="DCQN")
@@ -43,7 +43,7 @@ class DCQN(OffPolicyAlgorithm):
 
     The paper's settings are ``learning_rate=1e-4, gamma=0.95, buffer_size=412`` with Adam; the defaults below are
     SB3 DQN's, so that DCQN is a drop-in replacement: its parameters are DQN's, plus three of its own (the target's
-    form: ``pessimistic_target``, ``blocked_action_target``; the planner: ``replay_search``).
+    form: ``pessimistic_target``, ``blocked_action_target``; the memory: ``route_memory``, ``explore_untried``).
 
     Replay variants are replay buffer classes, as in SB3 (:mod:`sb3_dcqn.replay`): experience revision, prioritized
     replay, lean storage, n-step returns with Dict observations and a count bonus are mix-ins that compose
@@ -86,13 +86,18 @@ class DCQN(OffPolicyAlgorithm):
     :param exploration_initial_eps: initial value of random action probability
     :param exploration_final_eps: final value of random action probability
     :param max_grad_norm: The maximum value for the gradient clipping
-    :param replay_search: Greedy actions (``predict(..., deterministic=True)``: evaluation, routes) follow the shortest
-        route stored in the replay buffer where it has one, the critics' greedy action elsewhere
-        (:class:`~sb3_dcqn.replay_graph.ReplaySearchPolicy`, after SoRB, Eysenbach et al. 2019): routes longer than
-        the critics can value yet, for a world whose observations repeat exactly (stored transitions are exact
-        edges). The graph is read from the buffer when the model has trained since the last call, and is not saved
-        with the model (a model loaded without its buffer acts on its critics). Exploration is unchanged. Off by
-        default
+    :param route_memory: Greedy actions (``predict(..., deterministic=True)``: evaluation, routes) follow the
+        shortest route to the observation's goal in the model's route memory (``model.memory``, a
+        :class:`~sb3_dcqn.route_memory.RouteMemory`: one graph of every transition the model collected, its states
+        the observations without their goal keys, so one graph serves every goal; a goal is found by its pictures),
+        and the critics' greedy action where the memory has none (an unseen state, a goal not in memory). For worlds
+        whose observations repeat exactly. A collision removes its road from every goal's routes at once. The memory
+        is saved in the model's file. Off by default: ``predict`` then means what it means for DQN
+    :param explore_untried: Exploration drives to the nearest untried (state, action) of the route memory and tries
+        it, in place of epsilon's uniform random action (the warm-up's too): Go-Explore's return-then-explore. Where
+        the memory has nothing (an unseen state: a start never seen), the critics' greedy action; where nothing untried
+        can be reached, epsilon's random action. Keeps the memory as ``route_memory`` does; acting greedily is
+        unchanged unless ``route_memory`` is set. Off by default
     :param blocked_action_target: For a transition after which the observation did not change (a collision), leave
         the taken action out of the target's max (see :func:`blocked_actions`): a blocked action's value falls below
         the open roads' in one update instead of shrinking by ``gamma`` per target update. Off by default (the
@@ -146,7 +151,8 @@ class DCQN(OffPolicyAlgorithm):
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.05,
         max_grad_norm: float = 10,
-        replay_search: bool = False,
+        route_memory: bool = False,
+        explore_untried: bool = False,
         blocked_action_target: bool = False,
         pessimistic_target: bool = True,
         stats_window_size: int = 100,
@@ -193,9 +199,10 @@ class DCQN(OffPolicyAlgorithm):
         self.max_grad_norm = max_grad_norm
         # "epsilon" for the epsilon-greedy exploration
         self.exploration_rate = 0.0
-        self.replay_search = replay_search
-        self._search: ReplaySearchPolicy | None = None
-        self._search_buffer: ReplayBuffer | None = None  # the buffer the search reads (a loaded one replaces it)
+        self.route_memory = route_memory
+        self.explore_untried = explore_untried
+        self.memory: RouteMemory | None = None  # made in _setup_model when route_memory or explore_untried
+        self._explorer: UntriedExplorer | None = None
         self.blocked_action_target = blocked_action_target
         self.pessimistic_target = pessimistic_target
 
@@ -218,6 +225,8 @@ class DCQN(OffPolicyAlgorithm):
                 warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored")
             super()._setup_model()
         self._create_aliases()
+        if self.route_memory or self.explore_untried:
+            self._setup_memory()
         # Copy running stats, see SB3 GH issue #996
         self.batch_norm_stats = get_parameters_by_name(self.q_net, ["running_"])
         self.batch_norm_stats_target = get_parameters_by_name(self.q_net_target, ["running_"])
@@ -359,9 +368,11 @@ class DCQN(OffPolicyAlgorithm):
         :return: the model's action and the next state
             (used in recurrent policies)
         """
-        if deterministic and self.replay_search and self.replay_buffer is not None:
-            return self._replay_search_policy().predict(observation, state, episode_start, deterministic)
+        if deterministic and self.route_memory and self.memory is not None:
+            return self._predict_with_memory(observation, state, episode_start)
         if not deterministic and np.random.rand() < self.exploration_rate:
+            if self.explore_untried and self.memory is not None:
+                return self._explore(observation, state, episode_start), state
             if self.policy.is_vectorized_observation(observation):
                 if isinstance(observation, dict):
                     n_batch = observation[next(iter(observation.keys()))].shape[0]
@@ -392,17 +403,69 @@ class DCQN(OffPolicyAlgorithm):
             progress_bar=progress_bar,
         )
 
-    def _replay_search_policy(self) -> ReplaySearchPolicy:
-        """The replay search over this model's buffer, brought up to date with what was stored since its last use."""
-        if self._search is None or self._search_buffer is not self.replay_buffer:
-            self._search = ReplaySearchPolicy(self, fallback=self.policy.predict)
-            self._search_buffer = self.replay_buffer
-        else:
-            self._search.refresh()
-        return self._search
+    def _setup_memory(self) -> None:
+        """The route memory, fed by every transition the model stores (see ``route_memory``)."""
+        if self._vec_normalize_env is not None and getattr(self._vec_normalize_env, "norm_obs", False):
+            raise ValueError(
+                "route_memory / explore_untried remember the raw observations while predict sees VecNormalize's "
+                "normalized ones: use them without observation normalization"
+            )
+        if self.memory is None:
+            self.memory = RouteMemory.for_env(self)
+        self._explorer = UntriedExplorer(self.memory, self.n_envs)
+
+    def _store_transition(
+        self,
+        replay_buffer: ReplayBuffer,
+        buffer_action: np.ndarray,
+        new_obs: np.ndarray | dict[str, np.ndarray],
+        reward: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        # The memory sees what the buffer is given: SB3's unnormalized observations, terminal observations in place
+        buffer = replay_buffer if self.memory is None else _Remembering(replay_buffer, self.memory)
+        super()._store_transition(buffer, buffer_action, new_obs, reward, dones, infos)  # type: ignore[arg-type]
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        if self.explore_untried and self.memory is not None and self.num_timesteps < learning_starts:
+            action = self._explore(self._last_obs, None, None)  # the warm-up explores towards the untried too
+            return action, action
+        return super()._sample_action(learning_starts, action_noise, n_envs)
+
+    def _explore(self, observation: Any, state: Any, episode_start: Any) -> np.ndarray:
+        """Exploration with the memory: towards the nearest untried action; critics for unseen states; else random."""
+        assert self._explorer is not None and self.memory is not None
+        batched = self.policy.is_vectorized_observation(observation)
+        batch = observation if batched else batch_of_one(observation)
+        actions = self._explorer.actions(batch)
+        unseen = self.memory.states_of(batch) < 0
+        if unseen.any():
+            greedy, _ = self.policy.predict(select_rows(batch, unseen), state, episode_start, deterministic=True)
+            actions[unseen] = np.asarray(greedy).reshape(-1)
+        stuck = actions < 0
+        actions[stuck] = [self.action_space.sample() for _ in range(int(stuck.sum()))]
+        return actions if batched else actions[0]
+
+    def _predict_with_memory(
+        self, observation: Any, state: Any, episode_start: Any
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """The memory's route where it has one, the critics' greedy action elsewhere."""
+        assert self.memory is not None
+        batched = self.policy.is_vectorized_observation(observation)
+        batch = observation if batched else batch_of_one(observation)
+        actions = self.memory.route_actions(batch)
+        fallback = actions < 0
+        if fallback.any():
+            greedy, state = self.policy.predict(select_rows(batch, fallback), state, episode_start, deterministic=True)
+            actions[fallback] = np.asarray(greedy).reshape(-1)
+        return (actions if batched else actions[0]), state
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "q_net", "q_net_target", "_search", "_search_buffer"]
+        # The memory is saved (pickled in the model's data); its explorer's paths are rebuilt
+        return [*super()._excluded_save_params(), "q_net", "q_net_target", "_explorer"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts = ["policy", "policy.optimizer"]
@@ -420,3 +483,19 @@ def _record_critic_statistics(logger: Logger, current_q_values: th.Tensor, targe
         logger.record(f"train/{name}", float(value))
     for critic, value in enumerate(values[len(_STAT_NAMES) :], start=1):
         logger.record(f"train/critic_{critic}_loss", float(value))
+
+
+class _Remembering:
+    """A replay buffer seen through the route memory: each ``add`` is remembered, then stored."""
+
+    def __init__(self, buffer: ReplayBuffer, memory: RouteMemory) -> None:
+        self.buffer = buffer
+        self.memory = memory
+
+    def add(
+        self, obs: Any, next_obs: Any, action: np.ndarray, reward: np.ndarray, done: np.ndarray, infos: Any
+    ) -> None:
+        truncated = np.array([info.get("TimeLimit.truncated", False) for info in infos], dtype=bool)
+        terminated = np.asarray(done, dtype=bool).reshape(-1) & ~truncated
+        self.memory.add_batch(obs, np.asarray(action).reshape(-1), next_obs, reward, terminated)
+        self.buffer.add(obs, next_obs, action, reward, done, infos)
