@@ -11,16 +11,17 @@ entry with one lever added, and the shipped ``CampusNavCity`` entry (its levers 
 - ``her``: hindsight relabelling with the goal-conditioned env on the same city (``CampusNavGoal``, episodes to the
   one goal, transitions relabelled with the places reached);
 - ``count``: a count bonus on observation digests (exploration towards unvisited views);
-- ``search``: greedy actions planned over the replay buffer (DCQN's ``replay_search``, SoRB-style), the critics'
-  greedy action where the stored experience has no route;
+- ``memory``: greedy actions planned over the route memory (DCQN's ``route_memory``, SPTM/SoRB-style), the critics'
+  greedy action where the memory has no route; ``explore``: exploration toward the nearest untried road of the
+  memory (``explore_untried``) in place of epsilon's random action; ``memory_explore``: both;
 - ``lean``: lean replay (memory only: it must not change what is learned).
 
 Solved: success >= 0.99 and SPL >= 0.98 from every (start, heading) (``train_until_solved``; time: training seconds,
 evaluations excluded). The floor: env steps of the experience-graph agent (``experience_graph_floor.py``'s runs file).
 Each run is one process of one torch thread; runs already in the runs file are skipped::
 
-    python benchmarks/long_routes.py --size 1000 --rows base gamma nstep curriculum her count search shipped \
-        --seeds 0 --budget 300 --workers 2
+    python benchmarks/long_routes.py --size 1000 --rows base gamma nstep curriculum her count memory explore \
+        memory_explore shipped --seeds 0 --budget 300 --workers 2
     python benchmarks/long_routes.py --size 1000 --rows shipped --seeds 0 1 2 --budget 300 --encoder efficientnet-lite0
     python benchmarks/long_routes.py --quick     # a smoke run: 101 intersections, pixel features, seconds
 """
@@ -83,7 +84,11 @@ ROWS = {
         overrides={"replay_buffer_kwargs": {"count_bonus": 0.05}},
         variants=("count_bonus",),
     ),
-    "search": Row("+ replay search at evaluation (SoRB-style)", overrides={"replay_search": True}),
+    "memory": Row("+ route memory (plans greedy actions)", overrides={"route_memory": True}),
+    "explore": Row("+ exploration toward the untried", overrides={"explore_untried": True}),
+    "memory_explore": Row(
+        "+ route memory and exploration toward the untried", overrides={"route_memory": True, "explore_untried": True}
+    ),
     "lean": Row("+ lean replay (memory only)", variants=("lean",)),
     "shipped": Row("CampusNavCity entry as shipped", entry="shipped"),
 }

@@ -114,6 +114,11 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
         {},
         {"goal_render_settings": TRAINING_PHOTOS},
     ),
+    "route_memory": (
+        "route memory + exploration toward the untried",
+        {"route_memory": True, "explore_untried": True},
+        {},
+    ),
 }
 
 
@@ -227,6 +232,8 @@ def _point(evaluation: RouteEvaluation) -> dict[str, float]:
     }
     for name, report in evaluation.others.items():
         point[f"{name}_success"], point[f"{name}_spl"] = report.success_rate, report.spl
+    if evaluation.critics is not None:  # the model planned over its route memory: its critics alone, beside
+        point["critics_success"], point["critics_spl"] = evaluation.critics.success_rate, evaluation.critics.spl
     return point
 
 

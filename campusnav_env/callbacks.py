@@ -142,7 +142,10 @@ class RouteEvaluationCallback(_TrainingProgress):
         routes to all goals together)
     :param evaluate_at_end: Evaluate once more when training ends (unless the last evaluation is current)
     :param policy: Makes the policy evaluated from the model, anew at each evaluation (default: the model's greedy
-        ``predict``); e.g. ``lambda model: ReplaySearchPolicy(model)``, a planner over what the model has stored
+        ``predict``)
+    :param critics_alone: Where the model's greedy ``predict`` plans over a route memory (a model with
+        ``route_memory`` set, e.g. DCQN's), also evaluate its critics alone (``model.policy.predict``) on ``goals``:
+        kept in each evaluation's ``critics`` and logged under ``eval/<log_name>/critics/...``
     :param verbose: 1 prints a line per evaluation
     """
 
@@ -161,6 +164,7 @@ class RouteEvaluationCallback(_TrainingProgress):
         every_goal: bool = False,
         evaluate_at_end: bool = True,
         policy: Callable[[BaseAlgorithm], Policy] | None = None,
+        critics_alone: bool = True,
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
@@ -183,6 +187,7 @@ class RouteEvaluationCallback(_TrainingProgress):
         self.every_goal = every_goal
         self.evaluate_at_end = evaluate_at_end
         self.policy = policy
+        self.critics_alone = critics_alone
         self.evaluations: list[RouteEvaluation] = []
         self.shares_training_env = False
         self._next_due = eval_freq
@@ -247,12 +252,27 @@ class RouteEvaluationCallback(_TrainingProgress):
             name: evaluate_routes(self.eval_env, policy, goals=goals, max_steps=self.max_steps)
             for name, goals in self.other_goals.items()
         }
+        critics = None
+        if self.critics_alone and self.policy is None and getattr(model, "route_memory", False):
+
+            def critics_policy(observations: Any) -> np.ndarray:
+                return model.policy.predict(observations, deterministic=True)[0]
+
+            critics = evaluate_routes(self.eval_env, critics_policy, goals=self.goals, max_steps=self.max_steps)
         step = self.model.num_timesteps
         evaluation = RouteEvaluation(
-            step=step, episode=self.episodes, train_seconds=self.train_seconds, report=report, others=others
+            step=step,
+            episode=self.episodes,
+            train_seconds=self.train_seconds,
+            report=report,
+            others=others,
+            critics=critics,
         )
         self.evaluations.append(evaluation)
-        self._log_report("eval" if self.log_name is None else f"eval/{self.log_name}", report)
+        prefix = "eval" if self.log_name is None else f"eval/{self.log_name}"
+        self._log_report(prefix, report)
+        if critics is not None:
+            self._log_report(f"{prefix}/critics", critics)
         for name, other in others.items():
             self._log_report(f"eval/{name}", other)
         self.logger.record("eval/train_seconds", evaluation.train_seconds)
@@ -260,7 +280,8 @@ class RouteEvaluationCallback(_TrainingProgress):
         if self.verbose >= 1:
             print(
                 f"[routes] step {evaluation.step}, episode {evaluation.episode}, {evaluation.train_seconds:.1f} s: "
-                f"success {report.success_rate:.3f}, SPL {report.spl:.3f}",
+                f"success {report.success_rate:.3f}, SPL {report.spl:.3f}"
+                + ("" if critics is None else f" (critics alone {critics.success_rate:.3f} / {critics.spl:.3f})"),
                 flush=True,
             )
         self.excluded_seconds += time.perf_counter() - start

@@ -45,6 +45,8 @@ class RouteEvaluation:
     :param train_seconds: Training wall time so far, evaluations excluded
     :param report: The routes and their scores
     :param others: Routes to other named goal sets evaluated at the same time (e.g. goals never trained on)
+    :param critics: The same routes driven by the critics alone, where the evaluated policy also plans over a memory
+        (DCQN's ``route_memory``): what the weights know, beside what the agent's memory adds
     """
 
     step: int
@@ -52,6 +54,7 @@ class RouteEvaluation:
     train_seconds: float
     report: RouteReport
     others: dict[str, RouteReport] = field(default_factory=dict)
+    critics: RouteReport | None = None
 
     @property
     def success_rate(self) -> float:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from sb3_dcqn.dcqn import DCQN
     from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
-    from sb3_dcqn.replay_graph import ExperienceGraph, ReplaySearchPolicy
+    from sb3_dcqn.route_memory import RouteMemory, UntriedExplorer
     from sb3_dcqn.targets import blocked_actions, dcqn_td_target
 
 __version__ = "0.1.0"
@@ -26,19 +26,19 @@ _MODULE_OF = {
     "MlpPolicy": "sb3_dcqn.policies",
     "MultiInputPolicy": "sb3_dcqn.policies",
     "TwinQNetwork": "sb3_dcqn.policies",
-    "ExperienceGraph": "sb3_dcqn.replay_graph",
-    "ReplaySearchPolicy": "sb3_dcqn.replay_graph",
+    "RouteMemory": "sb3_dcqn.route_memory",
+    "UntriedExplorer": "sb3_dcqn.route_memory",
 }
 
 __all__ = [
     "DCQN",
     "CnnPolicy",
     "DCQNPolicy",
-    "ExperienceGraph",
     "MlpPolicy",
     "MultiInputPolicy",
-    "ReplaySearchPolicy",
+    "RouteMemory",
     "TwinQNetwork",
+    "UntriedExplorer",
     "__version__",
     "blocked_actions",
     "dcqn_td_target",

@@ -26,6 +26,8 @@ SelfDCQN = TypeVar("SelfDCQN", bound="DCQN")
 
 # The statistics of the last batch of each ``train`` call, gathered in one tensor (one sync instead of one per value)
 _STAT_NAMES = ("q_mean", "q_abs_diff", "target_q_mean")
+# Rollouts plan over routes at most this many memory changes old (a search per step costs milliseconds on a city)
+_ROLLOUT_STALENESS = 32
 
 
 class DCQN(OffPolicyAlgorithm):
@@ -381,6 +383,8 @@ class DCQN(OffPolicyAlgorithm):
                 action = np.array([self.action_space.sample() for _ in range(n_batch)])
             else:
                 action = np.array(self.action_space.sample())
+        elif self.route_memory and self.memory is not None:  # the greedy action is the same as predict's
+            return self._predict_with_memory(observation, state, episode_start, _ROLLOUT_STALENESS)
         else:
             action, state = self.policy.predict(observation, state, episode_start, deterministic)
         return action, state
@@ -450,13 +454,14 @@ class DCQN(OffPolicyAlgorithm):
         return actions if batched else actions[0]
 
     def _predict_with_memory(
-        self, observation: Any, state: Any, episode_start: Any
+        self, observation: Any, state: Any, episode_start: Any, staleness: int = 0
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """The memory's route where it has one, the critics' greedy action elsewhere."""
+        """The memory's route where it has one, the critics' greedy action elsewhere (``staleness``: see
+        :meth:`RouteMemory.route_actions`)."""
         assert self.memory is not None
         batched = self.policy.is_vectorized_observation(observation)
         batch = observation if batched else batch_of_one(observation)
-        actions = self.memory.route_actions(batch)
+        actions = self.memory.route_actions(batch, staleness)
         fallback = actions < 0
         if fallback.any():
             greedy, state = self.policy.predict(select_rows(batch, fallback), state, episode_start, deterministic=True)

@@ -64,6 +64,7 @@ DEAD_END = -2  # outcome of a (state, action) whose episode ended without succes
 NO_ROUTE = -1  # hops of a state with no remembered route
 ACHIEVED_GOAL_KEY = "achieved_goal"
 _NEVER = np.iinfo(np.int64).max
+_MAX_CACHED_GOALS = 512
 
 
 class PlaceMatcher(Protocol):
@@ -150,8 +151,8 @@ class RouteMemory:
         self._place_vectors: list[np.ndarray] = []
         self._place_states: list[set[int]] = []
         self.version = 0  # counts changes of edges and goals
-        self._hops: dict[bytes, np.ndarray] = {}  # goal digest -> hops per state, at _hops_version
-        self._hops_version = -1
+        self._hops: dict[bytes, tuple[int, np.ndarray]] = {}  # goal digest -> (version, hops per state)
+        self._lost_move_version = 0  # the last change that removed a move: older hops may route through it
         self._matched: dict[bytes, tuple[int, int]] = {}  # goal digest -> (places seen, matched place or -1)
         self._explore_hops = np.zeros(0, dtype=np.int64)
         self._explore_version = -1
@@ -275,9 +276,12 @@ class RouteMemory:
             self._add_places(next_observations, next_states)
         outcomes = np.where(terminated & ~success, DEAD_END, next_states)
         for state, action, outcome in zip(states.tolist(), actions.tolist(), outcomes.tolist(), strict=True):
-            if state >= 0 and outcome != -1 and self.next_state[state, action] != outcome:
+            previous = int(self.next_state[state, action]) if state >= 0 else UNTRIED
+            if state >= 0 and outcome != -1 and previous != outcome:
                 self.next_state[state, action] = outcome
                 self.version += 1
+                if previous >= 0 and previous != state:  # a move lost (a closed road): routes may lengthen
+                    self._lost_move_version = self.version
         return self.version - before
 
     def _add_places(self, observations: Mapping[str, Any], states: np.ndarray) -> None:
@@ -353,12 +357,13 @@ class RouteMemory:
         batch = batch_of_one(observation)
         return self._goal_hops(self.goal_digests(batch)[0], batch, 0)
 
-    def _goal_hops(self, goal: bytes, batch: Any, index: int) -> np.ndarray:
-        if self._hops_version != self.version:  # one version's routes at a time: bounded by the goals asked since
-            self._hops, self._hops_version = {}, self.version
+    def _goal_hops(self, goal: bytes, batch: Any, index: int, staleness: int = 0) -> np.ndarray:
         cached = self._hops.get(goal)
-        if cached is not None:
-            return cached
+        fresh_enough = cached is not None and cached[0] >= self._lost_move_version
+        if fresh_enough and self.version - cached[0] <= staleness:  # type: ignore[index]
+            return cached[1]
+        if len(self._hops) >= _MAX_CACHED_GOALS:  # bounded: the goals asked for lately
+            self._hops = {g: entry for g, entry in self._hops.items() if entry[0] == self.version}
         targets = np.zeros((self.n_states, self.n_actions), dtype=bool)
         goal_states = self._goal_states(goal, batch, index)
         if goal_states.size:
@@ -368,14 +373,18 @@ class RouteMemory:
             moves = (successors >= 0) & (successors != np.arange(self.n_states)[:, None])
             targets = moves & arrived[np.where(successors >= 0, successors, self.n_states)]
         hops = self._hops_to(targets)
-        self._hops[goal] = hops
+        self._hops[goal] = (self.version, hops)
         return hops
 
-    def route_actions(self, observations: Any) -> np.ndarray:
+    def route_actions(self, observations: Any, staleness: int = 0) -> np.ndarray:
         """
         The first action of a shortest remembered route from each observation to its goal (the lowest such action on
         ties): a batch (a dict of batches) in, int64 actions out, -1 where there is none (unseen state, goal not in
         memory, or not connected).
+
+        :param staleness: Reuse a goal's hops computed up to this many changes of the memory ago (training's
+            rollouts: one search per many steps on a large map; the current edges are still read, so a road seen
+            closed is never taken again); 0: exact
         """
         states = self.states_of(observations)
         goals = self.goal_digests(observations)
@@ -385,7 +394,7 @@ class RouteMemory:
             by_goal.setdefault(goal, []).append(index)
         for goal, indices in by_goal.items():
             rows = np.array(indices)
-            hops = self._goal_hops(goal, observations, indices[0])
+            hops = self._goal_hops(goal, observations, indices[0], staleness)
             actions[rows] = self._first_actions(states[rows], hops, self._goal_targets(goal, observations, indices[0]))
         return actions
 
@@ -455,6 +464,8 @@ class RouteMemory:
         if not known.any() or hops.size == 0:
             return actions
         rows = states[known]
+        if hops.size < self.n_states:  # stale hops: states added since have no known route yet
+            hops = np.concatenate([hops, np.full(self.n_states - hops.size, NO_ROUTE, dtype=np.int64)])
         successors = self.next_state[rows].astype(np.int64)
         via = np.where(successors >= 0, hops[np.maximum(successors, 0)], NO_ROUTE)
         moves = (successors >= 0) & (successors != rows[:, None]) & (via != NO_ROUTE)
@@ -522,9 +533,7 @@ class RouteMemory:
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         # Caches are rebuilt on use; the matcher's own state pickles with it
-        state.update(
-            _hops={}, _hops_version=-1, _matched={}, _explore_version=-1, _exhausted=set(), _exhausted_version=-1
-        )
+        state.update(_hops={}, _matched={}, _explore_version=-1, _exhausted=set(), _exhausted_version=-1)
         state["next_state"] = self.next_state[: self.n_states].copy()
         return state
 

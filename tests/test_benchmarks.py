@@ -64,8 +64,8 @@ def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: P
 
 
 def test_long_routes_quick_run_writes_the_ablation_table(tmp_path: Path) -> None:
-    text = _quick_run("long_routes.py", tmp_path, "--rows", "curriculum", "search")
+    text = _quick_run("long_routes.py", tmp_path, "--rows", "curriculum", "memory")
     assert "| intersections | features | row | step cap | seeds | solved |" in text
     assert "| 101 | pixels | + start curriculum (near to far) | 3,000 | 0 |" in text
-    assert "| 101 | pixels | + replay search at evaluation (SoRB-style) | 3,000 | 0 |" in text
+    assert "| 101 | pixels | + route memory (plans greedy actions) | 3,000 | 0 |" in text
     assert "Command: `python benchmarks/long_routes.py --quick --out" in text

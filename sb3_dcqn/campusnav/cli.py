@@ -545,12 +545,6 @@ def _load_model(path: Path, settings: EnvSettings, nav: CampusNavEnv, venv: Dumm
         raise CommandError(f"{path}: not a readable model file ({error!r}); {_MODEL_FILES}") from None
     if model.observation_space != nav.observation_space:
         raise CommandError(f"{path}: the model's observations do not match those of {settings.describe()}; {hint}")
-    from sb3_dcqn.campusnav.model_files import model_paths
-
-    buffer_path = model_paths(path)[1]
-    if venv is None and model.replay_search and buffer_path.is_file():
-        model.load_replay_buffer(buffer_path)  # its greedy actions plan over the stored routes
-        print(f"replay search over {buffer_path} ({model.replay_buffer.size()} transitions)", file=sys.stderr)
     return model
 
 
