@@ -272,6 +272,7 @@ def test_dcqn_passes_goal_keys_to_a_revision_buffer() -> None:
 
 
 def test_goal_keys_that_do_not_fit_the_buffer_are_named() -> None:
+    assert RevisionDict(10, SPACE, ACTIONS, goal_keys=["goal_views"]).goal_keys == GOAL_KEYS  # a YAML list too
     with pytest.raises(ValueError, match=r"goal key 'goal' is not in the observation space.*'goal_views'"):
         RevisionDict(10, SPACE, ACTIONS, device="cpu", goal_keys=("goal",))
     with pytest.raises(ValueError, match=r"goal_keys is a sequence of keys, got the string 'goal_views'"):
