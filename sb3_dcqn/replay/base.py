@@ -6,8 +6,9 @@ one hook:
 
 - ``_returns``: what a sampled transition bootstraps from (the n-step window's last step, its rewards, its discount);
 - ``_rewards_at``: the rewards of stored transitions (plus a count bonus);
-- ``_transition_bytes`` / ``_outcome_bytes`` / ``_copy_outcome``: what "the same observation and action" and "the same
-  outcome" mean, and how a stored transition gets a new outcome (experience revision);
+- ``_transition_bytes`` / ``_outcome_bytes`` / ``_copy_outcome`` (with ``_goal_bytes`` / ``_holds_for_every_goal``
+  and the ``goal_keys`` they leave out): what "the same observation and action" and "the same outcome" mean, and how a
+  stored transition gets a new outcome (experience revision);
 - ``sample``: which slots are drawn (prioritized replay).
 
 Next observations are always stored (no ``optimize_memory_usage``): the variants revise, window or share them.
@@ -124,12 +125,31 @@ class TransitionHooks:
         return self._normalize_reward(self.rewards[batch_inds, env_inds], env)  # type: ignore[attr-defined]
 
     # ------------------------------------------------------------------ what a transition is (experience revision)
+    # Observation keys that name the goal (``RevisionReplay(goal_keys=...)``, Dict observations): left out of "the same
+    # observation" and of "the same outcome", kept in a stored transition that gets a new outcome
+    goal_keys: tuple[str, ...] = ()
+
+    def _place_keys(self) -> list[str] | None:
+        """The Dict keys that say where the agent is: every key but the goal keys (``None``: every key)."""
+        if not self.goal_keys:
+            return None
+        return sorted(key for key in self.observations if key not in self.goal_keys)
+
     def _transition_bytes(self, obs: Any, action: np.ndarray, env: int) -> bytes:
-        """The bytes that make two transitions "the same observation and action"."""
-        return observation_bytes(obs, env, self.observations) + np.asarray(action)[env].tobytes()
+        """The bytes that make two transitions "the same observation and action" (the goal keys left out)."""
+        return observation_bytes(obs, env, self.observations, self._place_keys()) + np.asarray(action)[env].tobytes()
 
     def _outcome_bytes(self, pos: int, env: int) -> bytes:
-        """The world's answer to the transition at ``(pos, env)``: reward, real termination, where the agent ended."""
+        """
+        The world's answer to the transition at ``(pos, env)``: reward, real termination, where the agent ended.
+
+        With goal keys, where the agent ended alone (every key but the goal keys): the reward and termination of a
+        move are its goal's own (the goal reached or not), not the road's. Whether the agent stayed needs no byte of
+        its own: the observation is in the key, so among one key's transitions a stay has one outcome digest.
+        """
+        place = self._place_keys()
+        if place is not None:
+            return b"".join(self.next_observations[k][pos, env].tobytes() for k in place)
         terminated = self.dones[pos, env] * (1 - self.timeouts[pos, env])
         head = np.array([self.rewards[pos, env], terminated], dtype=np.float32).tobytes()
         if isinstance(self.next_observations, dict):
@@ -138,12 +158,35 @@ class TransitionHooks:
             )
         return head + self.next_observations[pos, env].tobytes()
 
+    def _goal_bytes(self, obs: Any, env: int) -> bytes:
+        """The bytes of the goal a transition was collected for (its goal keys; empty without goal keys)."""
+        if not self.goal_keys:
+            return b""
+        return observation_bytes(obs, env, self.observations, sorted(self.goal_keys))
+
+    def _holds_for_every_goal(self, pos: int, env: int) -> bool:
+        """
+        Whether the outcome of ``(pos, env)`` is the same whatever the goal: the agent stayed where it was (every key
+        but the goal keys unchanged: a collision) and the episode did not end for real (an ending is the goal's).
+        Without goal keys, every key is part of the observation: ``True`` (there is no other goal to tell apart).
+        """
+        place = self._place_keys()
+        if place is None:
+            return True
+        if self.dones[pos, env] * (1 - self.timeouts[pos, env]):
+            return False
+        return all(np.array_equal(self.next_observations[k][pos, env], self.observations[k][pos, env]) for k in place)
+
     def _copy_outcome(self, slots: np.ndarray, pos: int, env: int) -> None:
-        """Give the stored transitions in ``slots`` (``pos * n_envs + env`` each) the outcome of ``(pos, env)``."""
+        """
+        Give the stored transitions in ``slots`` (``pos * n_envs + env`` each) the outcome of ``(pos, env)``: its next
+        observation (the goal keys of each slot's own kept), reward and dones.
+        """
         rows, envs = np.divmod(slots, self.n_envs)
-        storages = (
-            self.next_observations.values() if isinstance(self.next_observations, dict) else [self.next_observations]
-        )
+        if isinstance(self.next_observations, dict):
+            storages = [self.next_observations[k] for k in self._place_keys() or self.next_observations]
+        else:
+            storages = [self.next_observations]
         for storage in storages:
             for row, row_env in zip(rows, envs, strict=True):
                 storage[row, row_env] = storage[pos, env]

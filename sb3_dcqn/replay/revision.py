@@ -11,16 +11,35 @@ per added transition; the buffer counts the transitions it revised (``revised``)
 "the outcome" mean is the buffer's (``_transition_bytes``, ``_outcome_bytes``, ``_copy_outcome``): with hindsight
 relabelling (``DCQNHerReplayBuffer``) the goal is left out of the match and rewards are computed anew for each
 transition's own goal.
+
+On a plain Dict buffer the goal is part of the observation (CampusNav-v0's ``goal_views``), so by default a collision
+seen on the way to goal A revises goal A's copies only. ``goal_keys`` names the goal's keys to leave out of the match:
+
+- "the same observation and action": the observation without the goal keys, and the action;
+- "the same outcome": the next observation without the goal keys (whether the agent stayed follows from it, since the
+  observation is in the key); the reward and termination are left out: they are the goal's own (reached or not);
+- a new outcome where the agent stayed and the episode did not end (a collision) holds for every goal: every goal's
+  stale copies get it (next observation: the copy's own observation, its own goal keys kept; the collision's reward;
+  not done);
+- a new move (a reopened road) carries its goal's own reward and termination: only the stale copies collected for
+  the same goal (equal goal keys) get it, the other goals' copies are left as they are (they are rewritten when the
+  agent next drives that road for them; a route memory without goal keys learns the reopening for every goal).
 """
 
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from sb3_dcqn.replay.base import TransitionHooks
+
 __all__ = ["RevisionReplay", "digest", "index_transition"]
+
+# The goal key of SB3's goal-env observations, which the hindsight-relabelling base leaves out of the match itself
+_HER_GOAL_KEY = "desired_goal"
 
 
 def digest(data: bytes) -> bytes:
@@ -35,6 +54,9 @@ def index_transition(
     slot: int,
     key: bytes,
     outcome: bytes,
+    goal_of: list[bytes | None] | None = None,
+    goal: bytes = b"",
+    same_goal_only: bool = False,
 ) -> list[int]:
     """
     Index the transition just written to ``slot`` in the revision index and find what it contradicts.
@@ -45,8 +67,12 @@ def index_transition(
     :param slot: The slot written (its previous transition, if any, leaves the index)
     :param key: The new transition's key
     :param outcome: The new transition's outcome
-    :return: the other slots of the same key with another outcome: the caller rewrites them; their outcome is now
-        ``outcome``
+    :param goal_of: Each slot's goal digest (``None``: goals are not told apart)
+    :param goal: The new transition's goal digest (recorded in ``goal_of``)
+    :param same_goal_only: Only the slots of the same goal (``goal_of``) are contradicted: the new outcome is the
+        goal's own
+    :return: the other slots of the same key (and goal, with ``same_goal_only``) with another outcome: the caller
+        rewrites them; their outcome is now ``outcome``
     """
     old = key_of[slot]
     if old is not None:
@@ -55,33 +81,82 @@ def index_transition(
         if not holders:
             del slots_of[old]
     stale = [other for other in slots_of.get(key, ()) if outcome_of[other] != outcome]
+    if same_goal_only:
+        if goal_of is None:
+            raise ValueError("same_goal_only needs goal_of, each slot's goal digest")
+        stale = [other for other in stale if goal_of[other] == goal]
     for other in stale:
         outcome_of[other] = outcome
     slots_of.setdefault(key, set()).add(slot)
     key_of[slot] = key
     outcome_of[slot] = outcome
+    if goal_of is not None:
+        goal_of[slot] = goal
     return stale
 
 
 class RevisionReplay:
     """
-    Experience revision (see the module docstring) over any of DCQN's replay buffers. No arguments of its own.
+    Experience revision (see the module docstring) over any of DCQN's replay buffers.
 
+    :param goal_keys: Dict observation keys that name the goal (CampusNav-v0: ``("goal_views",)``), left out of the
+        match: a collision revises every goal's stale copies, a reopened road the same goal's (see the module
+        docstring). Default: none, every key is matched. The hindsight-relabelling base leaves its goal out itself
+        (``()`` or ``("desired_goal",)`` there)
     :ivar revised: How many stored transitions were rewritten so far
     """
 
     buffer_size: int
     n_envs: int
     pos: int
+    observations: Any
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, goal_keys: Sequence[str] = (), **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        self.goal_keys = self._checked_goal_keys(goal_keys)
         self.revised = 0
         slots = self.buffer_size * self.n_envs
         # (observation, action) digest -> slots holding it; each slot's digests, to unindex on overwrite
         self._slots_of: dict[bytes, set[int]] = {}
         self._key_of: list[bytes | None] = [None] * slots
         self._outcome_of: list[bytes | None] = [None] * slots
+        # Each slot's goal digest, where goals are told apart (a plain Dict base with goal keys)
+        self._goal_of: list[bytes | None] | None = (
+            [None] * slots if self.goal_keys and isinstance(self, TransitionHooks) else None
+        )
+
+    def _checked_goal_keys(self, goal_keys: Sequence[str]) -> tuple[str, ...]:
+        name = type(self).__name__
+        if isinstance(goal_keys, str):
+            raise ValueError(f"{name}: goal_keys is a sequence of keys, got the string {goal_keys!r}")
+        keys = tuple(dict.fromkeys(goal_keys))
+        if not keys:
+            return keys
+        if not isinstance(self.observations, dict):
+            raise ValueError(f"{name}: goal_keys={keys} needs Dict observations, the observations are a Box")
+        space_keys = list(self.observations)
+        if not isinstance(self, TransitionHooks):  # hindsight relabelling: its hooks leave desired_goal out
+            if keys != (_HER_GOAL_KEY,):
+                raise ValueError(
+                    f"{name}: with hindsight relabelling the goal left out of the match is {_HER_GOAL_KEY!r} "
+                    f"(its rewards are computed for each goal), goal_keys={keys} cannot be chosen"
+                )
+            return keys
+        for key in keys:
+            if key not in self.observations:
+                raise ValueError(f"{name}: goal key {key!r} is not in the observation space (keys: {space_keys})")
+        if len(keys) == len(space_keys):
+            raise ValueError(f"{name}: goal_keys={keys} leave no key of {space_keys} to tell observations apart")
+        return keys
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # Buffers saved before goal_keys: every key matched
+        state = {"goal_keys": (), "_goal_of": None, **state}
+        parent = getattr(super(), "__setstate__", None)
+        if parent is not None:
+            parent(state)
+        else:
+            self.__dict__.update(state)
 
     def add(
         self,
@@ -98,7 +173,20 @@ class RevisionReplay:
             slot = pos * self.n_envs + env
             key = digest(self._transition_bytes(obs, action, env))  # type: ignore[attr-defined]
             outcome = digest(self._outcome_bytes(pos, env))  # type: ignore[attr-defined]
-            stale = index_transition(self._slots_of, self._key_of, self._outcome_of, slot, key, outcome)
+            if self._goal_of is None:
+                stale = index_transition(self._slots_of, self._key_of, self._outcome_of, slot, key, outcome)
+            else:
+                stale = index_transition(
+                    self._slots_of,
+                    self._key_of,
+                    self._outcome_of,
+                    slot,
+                    key,
+                    outcome,
+                    goal_of=self._goal_of,
+                    goal=digest(self._goal_bytes(obs, env)),  # type: ignore[attr-defined]
+                    same_goal_only=not self._holds_for_every_goal(pos, env),  # type: ignore[attr-defined]
+                )
             if stale:
                 self._copy_outcome(np.array(stale), pos, env)  # type: ignore[attr-defined]
                 self.revised += len(stale)
