@@ -18,8 +18,10 @@ from torch.nn import functional as F
 
 from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
 from sb3_dcqn.replay.combine import resolve_replay_buffer
+from sb3_dcqn.replay.her import DCQNHerReplayBuffer
 from sb3_dcqn.replay.prioritized import PrioritizedReplay
-from sb3_dcqn.route_memory import RouteMemory, UntriedExplorer, batch_of_one, select_rows
+from sb3_dcqn.replay.revision import RevisionReplay
+from sb3_dcqn.route_memory import RouteMemory, UntriedExplorer, batch_of_one, default_goal_keys, select_rows
 from sb3_dcqn.targets import blocked_actions, dcqn_td_target
 
 SelfDCQN = TypeVar("SelfDCQN", bound="DCQN")
@@ -93,8 +95,10 @@ class DCQN(OffPolicyAlgorithm):
         :class:`~sb3_dcqn.route_memory.RouteMemory`: one graph of every transition the model collected, its states
         the observations without their goal keys, so one graph serves every goal; a goal is found by its pictures),
         and the critics' greedy action where the memory has none (an unseen state, a goal not in memory). For worlds
-        whose observations repeat exactly. A collision removes its road from every goal's routes at once. The memory
-        is saved in the model's file. Off by default: ``predict`` then means what it means for DQN
+        whose observations repeat exactly. A collision removes its road from every goal's routes at once (and, with
+        an experience-revision buffer on a Dict base, DCQN passes it the memory's goal keys: every goal's stale copies
+        through the road are revised too). The memory is saved in the model's file. Off by default: ``predict``
+        then means what it means for DQN
     :param explore_untried: Exploration drives to the nearest untried (state, action) of the route memory and tries
         it, in place of epsilon's uniform random action (the warm-up's too): Go-Explore's return-then-explore. Where
         the memory has nothing (an unseen state: a start never seen), the critics' greedy action; where nothing untried
@@ -221,6 +225,10 @@ class DCQN(OffPolicyAlgorithm):
             self.gamma,
             self.blocked_action_target,
         )
+        if self.route_memory and _revises_per_goal(self.replay_buffer_class, self.replay_buffer_kwargs):
+            # A closure is one fact for every goal: stale copies through a closed road are revised for every goal
+            goal_keys = default_goal_keys(self.observation_space)
+            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "goal_keys": goal_keys}
         with warnings.catch_warnings():
             if "n_steps" in self.replay_buffer_kwargs:
                 # SB3 warns that n_steps goes unused with a given buffer class: the class's n_steps is set
@@ -488,6 +496,13 @@ def _record_critic_statistics(logger: Logger, current_q_values: th.Tensor, targe
         logger.record(f"train/{name}", float(value))
     for critic, value in enumerate(values[len(_STAT_NAMES) :], start=1):
         logger.record(f"train/critic_{critic}_loss", float(value))
+
+
+def _revises_per_goal(buffer_class: type | None, buffer_kwargs: dict[str, Any]) -> bool:
+    """Whether the buffer revises stored transitions matching the goal too (a Dict base, no goal keys given)."""
+    revises = isinstance(buffer_class, type) and issubclass(buffer_class, RevisionReplay)
+    her = isinstance(buffer_class, type) and issubclass(buffer_class, DCQNHerReplayBuffer)  # leaves the goal out
+    return revises and not her and "goal_keys" not in buffer_kwargs
 
 
 class _Remembering:
