@@ -15,8 +15,10 @@ the digest of the observation without its goal keys (CampusNav: the views and th
 A goal never trained on is then a place already in memory: reaching it is a search, not a generalisation of weights.
 Each ``(state, action)`` keeps one outcome, the latest, so a collision (the observation did not change: a closed
 road) turns that edge into a self-loop **for every goal at once**, and a move where the agent used to collide (a
-reopened road) restores it. A terminated transition that is no success (FrozenLake's holes) is a dead end: tried,
-never routed through.
+reopened road) restores it. The other remembered moves into the state the lost move led to become untried again
+(:meth:`RouteMemory._suspect_moves_into`): where the state after a move tells the road taken (CampusNav: the place and
+the heading away from the road), they are the same road from the other headings, so one bump closes it for all. A
+terminated transition that is no success (FrozenLake's holes) is a dead end: tried, never routed through.
 
 What it holds (its own store, not the replay buffer's contents): per state a 16-byte digest and a row of
 ``n_actions`` int32 outcomes; per distinct ``achieved_goal`` picture its vector (for the place matcher) and the states
@@ -151,6 +153,7 @@ class RouteMemory:
         self._place_vectors: list[np.ndarray] = []
         self._place_states: list[set[int]] = []
         self.version = 0  # counts changes of edges and goals
+        self.suspected = 0  # moves made untried again by a collision on a move into the same state
         self._hops: dict[bytes, tuple[int, np.ndarray]] = {}  # goal digest -> (version, hops per state)
         self._lost_move_version = 0  # the last change that removed a move: older hops may route through it
         self._matched: dict[bytes, tuple[int, int]] = {}  # goal digest -> (places seen, matched place or -1)
@@ -281,8 +284,22 @@ class RouteMemory:
                 self.next_state[state, action] = outcome
                 self.version += 1
                 if previous >= 0 and previous != state:  # a move lost (a closed road): routes may lengthen
+                    if outcome == state:
+                        self._suspect_moves_into(previous)
                     self._lost_move_version = self.version
         return self.version - before
+
+    def _suspect_moves_into(self, lost: int) -> None:
+        """
+        A collision where a move into ``lost`` used to be: the other remembered moves into ``lost`` become untried
+        again (routes avoid them until they are tried anew, and exploration tries them). Where the state after a move
+        tells which road was taken (CampusNav: the place and the heading away from the road came along), those moves
+        are the same road seen from the other headings at its start, so one bump closes it for all of them.
+        """
+        into = self.next_state[: self.n_states] == lost
+        if into.any():
+            self.next_state[: self.n_states][into] = UNTRIED
+            self.suspected += int(into.sum())
 
     def _add_places(self, observations: Mapping[str, Any], states: np.ndarray) -> None:
         """Attach each state to the place its achieved goal pictures."""
