@@ -8,11 +8,8 @@ the same family, each one its own draw.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,7 +17,6 @@ import torch as th
 
 from sb3_dcqn.place_recognition import NOT_IN_MEMORY, NearestPlace, PlaceEmbedding, PlaceMatcher, fit_place_matcher
 
-ROOT = Path(__file__).resolve().parents[1]
 D, N_PLACES, R = 64, 60, 8
 NOISE = 0.02
 
@@ -220,18 +216,3 @@ def test_bad_training_data_names_the_problem():
         embedding.transform(np.ones((3, 32), np.float32))
     with pytest.raises(RuntimeError, match=r"call fit"):
         PlaceEmbedding().transform(references)
-
-
-def test_goal_pictures_benchmark_quick_run(tmp_path: Path):
-    out = tmp_path / "goal_pictures.md"
-    result = subprocess.run(
-        [sys.executable, "benchmarks/goal_pictures.py", "--quick", "--out", str(out)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert result.returncode == 0, result.stderr
-    text = out.read_text()
-    assert "| raw cosine |" in text and "| learned embedding |" in text
-    assert "absent" in text
