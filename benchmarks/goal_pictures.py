@@ -1,0 +1,235 @@
+"""Goals found by their pictures: which remembered place a goal photo in a new condition shows, on the real campus.
+
+A route memory (``sb3_dcqn.route_memory``) keeps the ``achieved_goal`` vectors it has seen, each labelled by the
+place it was seen at; a goal photo that matches none exactly goes to a place matcher
+(``sb3_dcqn.place_recognition``): the nearest reference by cosine similarity with a calibrated threshold, on the raw
+vectors (**raw cosine**) or in an embedding learned on the references with a supervised contrastive loss (**learned
+embedding**, :func:`~sb3_dcqn.place_recognition.fit_place_matcher`). The vectors are those the agent sees:
+``CampusNavGoal-v0`` with the shipped entry's ``env_kwargs`` (``view_dim``; ``hyperparams/dcqn.yml``), goal tables
+(``env._goal_tables``) of EfficientNet-Lite0 features (cached on disk after the first build).
+
+References (what the memory holds), per seed (``held_out_split(101, 0.2, seed)``):
+
+- **driven through**: every intersection pictured in the goal-photo training conditions of
+  ``benchmarks/unseen_goals.py`` (``TRAINING_PHOTOS``: noon, 7:00, 16:00, 20:30): episode goals are drawn from the
+  80% training goals, and the agent drove through the held-out 20% too, so their ``achieved_goal`` rows are there;
+- **noon only**: every intersection at noon (as the agent's own views); with one row per place there is nothing for
+  the embedding to learn what stays the same, so only raw cosine is measured;
+- **absent places**: the training photo conditions of the 80% only: the held-out intersections' queries must answer
+  -1 ("not in memory").
+
+Queries: every intersection under each condition of ``APPEARANCES`` (8:30, 17:30, 19:30 night, passing cars, night
++ cars; none a reference condition). Per condition: accuracy (the matched row's place is the query's), the share
+answered "not in memory" and the share matched to a wrong place; for the learned embedding the median and the worst
+of seeds 0, 1, 2. Usage::
+
+    python benchmarks/goal_pictures.py            # EfficientNet-Lite0 features (a cold build: about a minute each)
+    python benchmarks/goal_pictures.py --quick    # smoke run: pixel features of 64x48 views, seed 0
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
+    sys.path[0] = str(Path(__file__).resolve().parents[1])
+
+import numpy as np
+import torch as th
+
+from benchmarks.campusnav_runs import quick_env_kwargs
+from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish, write_results
+from benchmarks.unseen_goals import APPEARANCES, HELD_OUT_FRACTION, TRAINING_PHOTOS
+from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
+from sb3_dcqn.place_recognition import NOT_IN_MEMORY, NearestPlace, fit_place_matcher
+from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
+
+ENTRY = "CampusNavGoal-v0"
+SEEDS = (0, 1, 2)
+MATCHERS = {"raw cosine": False, "learned embedding": True}
+REFERENCE_CASES = ("driven through", "noon only")
+
+
+def goal_tables(quick: bool) -> np.ndarray:
+    """
+    The goal vectors of every intersection in each condition: ``(conditions, nodes, 4 * D)``, the training photo
+    conditions first, then the appearances, in the shipped entry's ``env_kwargs`` (pixel features with ``quick``).
+    """
+    env_kwargs = dict(load_zoo_entry(default_hyperparams_path(), ENTRY).env_kwargs)
+    if quick:
+        env_kwargs.update(quick_env_kwargs())
+    env = CampusNavGoalEnv(goal_render_settings=[*TRAINING_PHOTOS, *APPEARANCES.values()], progress=False, **env_kwargs)
+    return env._goal_tables
+
+
+def scores(rows: np.ndarray, labels: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """Accuracy, "not in memory" and wrong-match shares of one condition's queries."""
+    answered = rows != NOT_IN_MEMORY
+    right = answered & (labels[np.where(answered, rows, 0)] == truth)
+    return {
+        "accuracy": float(right.mean()),
+        "not_in_memory": float((~answered).mean()),
+        "wrong": float((answered & ~right).mean()),
+    }
+
+
+def measure(tables: np.ndarray, seed: int) -> dict[str, Any]:
+    """Every case and matcher for one seed: per condition, the scores (and the calibrated thresholds)."""
+    n_photo, n_nodes = len(TRAINING_PHOTOS), tables.shape[1]
+    training, held_out = (np.array(part) for part in held_out_split(n_nodes, HELD_OUT_FRACTION, seed))
+    every = np.arange(n_nodes)
+    queries = {name: tables[n_photo + k] for k, name in enumerate(APPEARANCES)}
+
+    def references(nodes: np.ndarray, conditions: range) -> tuple[np.ndarray, np.ndarray]:
+        return tables[list(conditions)][:, nodes].reshape(-1, tables.shape[2]), np.tile(nodes, len(conditions))
+
+    cases = {
+        "driven through": references(every, range(n_photo)),
+        "noon only": references(every, range(1)),
+        "absent places": references(training, range(n_photo)),
+    }
+    record: dict[str, Any] = {"seed": seed, "held_out": held_out.tolist(), "cases": {}}
+    for case, (refs, labels) in cases.items():
+        for matcher_name, learned in MATCHERS.items():
+            if learned and case == "noon only":
+                continue  # one row per place: no pair to learn from (PlaceEmbedding.fit refuses)
+            start = time.perf_counter()
+            matcher = fit_place_matcher(refs, labels, learned=learned, seed=seed)
+            fit_seconds = time.perf_counter() - start
+            entry: dict[str, Any] = {"threshold": matcher.threshold, "fit_seconds": fit_seconds, "conditions": {}}
+            nearest = NearestPlace(embedding=matcher.embedding)  # the same space, no threshold
+            for name, photos in queries.items():
+                if case == "absent places":
+                    absent = matcher.match(photos[held_out], refs, labels)
+                    present = matcher.match(photos[training], refs, labels)
+                    entry["conditions"][name] = {
+                        "absent_rejected": float((absent == NOT_IN_MEMORY).mean()),
+                        **scores(present, labels, training),
+                    }
+                else:
+                    entry["conditions"][name] = {
+                        **scores(matcher.match(photos, refs, labels), labels, every),
+                        "nearest_accuracy": scores(nearest.match(photos, refs, labels), labels, every)["accuracy"],
+                    }
+            record["cases"][f"{case}/{matcher_name}"] = entry
+    return record
+
+
+def summary(records: list[dict[str, Any]], key: str, condition: str, metric: str, worst: Callable) -> str:
+    """A metric over the seeds: one value when they agree, else ``median (worst)``."""
+    values = [r["cases"][key]["conditions"][condition][metric] for r in records if key in r["cases"]]
+    median, bad = statistics.median(values), worst(values)
+    return f"{median:.3f}" if abs(bad - median) < 5e-4 else f"{median:.3f} ({bad:.3f})"
+
+
+def report(records: list[dict[str, Any]], quick: bool, d: int, seconds: float) -> list[str]:
+    """The results file's lines."""
+    features = "64x48 pixel features (--quick)" if quick else "EfficientNet-Lite0 features"
+    seeds = ", ".join(str(r["seed"]) for r in records)
+    lines = [
+        "# Goals found by their pictures",
+        "",
+        f"`{ENTRY}` goal vectors (d = {d}: four views, the shipped entry's `view_dim`), {features}, "
+        f"{tables_line()}; seeds {seeds} (split `held_out_split(101, {HELD_OUT_FRACTION}, seed)` and the learned "
+        "embedding's seed). Cells: median over the seeds, the worst in brackets where they differ. Raw cosine "
+        "depends on the seed only through the split (absent places).",
+        "",
+        machine_line("one process"),
+        "",
+        "## Remembered places, pictured in a new condition",
+        "",
+        "accuracy: the matched row is of the query's intersection; not in memory: below the calibrated threshold; "
+        "wrong: matched to another intersection; nearest: accuracy of the nearest row without a threshold.",
+        "",
+    ]
+    header = ["references", "matcher", "condition", "accuracy", "not in memory", "wrong", "nearest", "threshold"]
+    rows = []
+    for case in REFERENCE_CASES:
+        for matcher_name in MATCHERS:
+            key = f"{case}/{matcher_name}"
+            if key not in records[0]["cases"]:
+                rows.append(
+                    [case, matcher_name, "all", "n/a: one row per place, nothing to learn from", "", "", "", ""]
+                )
+                continue
+            thresholds = [r["cases"][key]["threshold"] for r in records]
+            for name in APPEARANCES:
+                rows.append(
+                    [
+                        case,
+                        matcher_name,
+                        name,
+                        summary(records, key, name, "accuracy", min),
+                        summary(records, key, name, "not_in_memory", max),
+                        summary(records, key, name, "wrong", max),
+                        summary(records, key, name, "nearest_accuracy", min),
+                        f"{statistics.median(thresholds):.3f}",
+                    ]
+                )
+    lines += markdown_table(header, rows)
+    lines += [
+        "",
+        "## Places not in memory",
+        "",
+        f"References: the training photo conditions of the {100 - round(100 * HELD_OUT_FRACTION)}% training "
+        "intersections only. rejected: share of the held-out intersections' queries answered -1 (they must be); "
+        "then the scores of the remembered intersections' queries against the same references.",
+        "",
+    ]
+    header = ["matcher", "condition", "absent rejected", "accuracy", "not in memory", "wrong"]
+    rows = []
+    for matcher_name in MATCHERS:
+        key = f"absent places/{matcher_name}"
+        for name in APPEARANCES:
+            rows.append(
+                [
+                    matcher_name,
+                    name,
+                    summary(records, key, name, "absent_rejected", min),
+                    summary(records, key, name, "accuracy", min),
+                    summary(records, key, name, "not_in_memory", max),
+                    summary(records, key, name, "wrong", max),
+                ]
+            )
+    lines += markdown_table(header, rows)
+    fits = [r["cases"]["driven through/learned embedding"]["fit_seconds"] for r in records]
+    lines += [
+        "",
+        f"Fitting the learned matcher (two embeddings: the cross-fit probe and the final one, "
+        f"{len(TRAINING_PHOTOS) * 101} rows): median {statistics.median(fits):.1f} s on one torch thread; the whole "
+        f"benchmark {seconds:.0f} s after the features were built or read from the cache.",
+    ]
+    return lines
+
+
+def tables_line() -> str:
+    """The conditions, as the results file names them."""
+    photos = ", ".join("noon" if s is None else f"{s.time_of_day:g} h" for s in TRAINING_PHOTOS)
+    return f"reference conditions {photos}; query conditions {', '.join(APPEARANCES)}"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seeds", nargs="+", type=int, help="seeds (default 0 1 2; 0 with --quick)")
+    parser.add_argument("--quick", action="store_true", help="smoke run: pixel features of 64x48 views, seed 0")
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR / "goal_pictures.md")
+    args = parser.parse_args(argv)
+    th.set_num_threads(1)
+    seeds = args.seeds or ([0] if args.quick else list(SEEDS))
+    tables = goal_tables(args.quick)
+    start = time.perf_counter()
+    records = [measure(tables, seed) for seed in seeds]
+    lines = report(records, args.quick, tables.shape[2], time.perf_counter() - start)
+    publish(args.out, lines, "goal_pictures.py", argv)
+    write_results(args.out.with_suffix(".json"), json.dumps(records, indent=1))
+
+
+if __name__ == "__main__":
+    main()
