@@ -1,7 +1,7 @@
 """The experience-graph floor: how few env steps an agent that only remembers what it saw needs to solve a map.
 
 The agent (:class:`FloorAgent`) is told nothing but observations, rewards and terminations: no map, no distances, no
-action mask. It keeps every transition in an :class:`sb3_dcqn.replay_graph.ExperienceGraph` (exact observations as
+action mask. It keeps every transition in an :class:`sb3_dcqn.route_memory.RouteMemory` (exact observations as
 states, the latest outcome of each (observation, action) as its edge) and acts:
 
 - **explore** while an untried (observation, action) can be reached over the transitions seen: drive to the nearest
@@ -49,7 +49,7 @@ from campusnav_env.env import CampusNavEnv
 from campusnav_env.recovery import RouteEvaluation
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 from sb3_dcqn.campusnav.solved import is_solved, solved_bar
-from sb3_dcqn.replay_graph import ExperienceGraph
+from sb3_dcqn.route_memory import RouteMemory, batch_of_one
 
 FIXED_ACTION = 0  # forward: what the agent does where it knows nothing
 RUNS_LINE = "runs one after another in one process, evaluations included in the wall time"
@@ -102,7 +102,7 @@ class FloorAgent:
     :param fixed_action: The action where it knows nothing
     """
 
-    def __init__(self, graph: ExperienceGraph, fixed_action: int = FIXED_ACTION) -> None:
+    def __init__(self, graph: RouteMemory, fixed_action: int = FIXED_ACTION) -> None:
         self.graph = graph
         self.fixed_action = fixed_action
         # The exploration path being driven: the states it expects to pass and the action at each
@@ -116,7 +116,7 @@ class FloorAgent:
         actions = self.graph.path_to_untried(state)
         if actions is None:
             self._path = []
-            route = int(self.graph.route_actions(np.array([state]))[0])
+            route = int(self.graph.route_actions(batch_of_one(observation))[0])
             return route if route >= 0 else self.fixed_action
         self._path = self._states_along(state, actions)
         return self._path.pop(0)[1]
@@ -132,7 +132,7 @@ class FloorAgent:
     def policy(self, observations: Any) -> np.ndarray:
         """The greedy batch policy that is evaluated: plan, else explore, else the fixed action."""
         states = self.graph.states_of(observations)
-        actions = self.graph.route_actions(states)
+        actions = self.graph.route_actions(observations)
         unplanned = actions < 0
         if unplanned.any():
             actions[unplanned] = self.graph.explore_actions(states[unplanned])
@@ -152,7 +152,7 @@ def floor_steps(env: CampusNavEnv, seed: int, eval_every: int, max_env_steps: in
     """
     if eval_every < 1:
         raise ValueError(f"eval_every must be at least 1, got {eval_every}")
-    graph = ExperienceGraph.for_env(env)
+    graph = RouteMemory.for_env(env)
     agent = FloorAgent(graph)
     driven = entered_states(env)  # for the report only: the agent is never told
     cap = max_env_steps if max_env_steps is not None else 200 * env.graph.transition_table.size

@@ -15,7 +15,7 @@ the digest of the observation without its goal keys (CampusNav: the views and th
 A goal never trained on is then a place already in memory: reaching it is a search, not a generalisation of weights.
 Each ``(state, action)`` keeps one outcome, the latest, so a collision (the observation did not change: a closed
 road) turns that edge into a self-loop **for every goal at once**, and a move where the agent used to collide (a
-reopened road) restores it. The other remembered moves into the state the lost move led to become untried again
+reopened road) restores it (in a goal env, an episode's end is its goal's, and the move stays a move). The other remembered moves into the state the lost move led to become untried again
 (:meth:`RouteMemory._suspect_moves_into`): where the state after a move tells the road taken (CampusNav: the place and
 the heading away from the road), they are the same road from the other headings, so one bump closes it for all. A
 terminated transition that is no success (FrozenLake's holes) is a dead end: tried, never routed through.
@@ -277,7 +277,9 @@ class RouteMemory:
         if self._achieved_key is not None:
             self._add_places(observations, states)
             self._add_places(next_observations, next_states)
-        outcomes = np.where(terminated & ~success, DEAD_END, next_states)
+        # An end without success is a dead end of the world, except in a goal env: there the end is the goal's
+        dead = terminated & ~success if self._achieved_key is None else np.zeros_like(terminated)
+        outcomes = np.where(dead, DEAD_END, next_states)
         for state, action, outcome in zip(states.tolist(), actions.tolist(), outcomes.tolist(), strict=True):
             previous = int(self.next_state[state, action]) if state >= 0 else UNTRIED
             if state >= 0 and outcome != -1 and previous != outcome:

@@ -16,7 +16,7 @@ sys.path.insert(0, str(ROOT))  # the benchmarks package, as `python -m benchmark
 
 from benchmarks.experience_graph_floor import FloorAgent, floor_steps, make_env  # noqa: E402
 from campusnav_env import CampusNavEnv  # noqa: E402
-from sb3_dcqn.replay_graph import ExperienceGraph  # noqa: E402
+from sb3_dcqn.route_memory import RouteMemory  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +39,7 @@ def test_the_floor_gives_up_at_its_step_cap(env: CampusNavEnv) -> None:
 
 
 def test_the_agent_explores_untried_actions_before_it_plans(env: CampusNavEnv) -> None:
-    agent = FloorAgent(ExperienceGraph.for_env(env))
+    agent = FloorAgent(RouteMemory.for_env(env))
     observation, _ = env.reset(seed=0)
     tried = []
     for _ in range(4):  # a new observation: its actions are tried in order, collisions included
@@ -54,7 +54,7 @@ def test_the_agent_explores_untried_actions_before_it_plans(env: CampusNavEnv) -
 
 
 def test_the_policy_takes_the_fixed_action_on_unseen_observations(env: CampusNavEnv) -> None:
-    agent = FloorAgent(ExperienceGraph.for_env(env), fixed_action=2)
+    agent = FloorAgent(RouteMemory.for_env(env), fixed_action=2)
     observations = env.observations_at(np.array([0, 1]), np.array(env.graph.map.state_headings[:2]), "Dreese Lab")
     assert agent.policy(observations).tolist() == [2, 2]
 
