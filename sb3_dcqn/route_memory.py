@@ -13,12 +13,13 @@ the digest of the observation without its goal keys (CampusNav: the views and th
   without ``achieved_goal``: CampusNav-v0's ``goal_views``, FrozenLake's single goal).
 
 A goal never trained on is then a place already in memory: reaching it is a search, not a generalisation of weights.
-Each ``(state, action)`` keeps one outcome, the latest, so a collision (the observation did not change: a closed
-road) turns that edge into a self-loop **for every goal at once**, and a move where the agent used to collide (a
-reopened road) restores it (in a goal env, an episode's end is its goal's, and the move stays a move). The other remembered moves into the state the lost move led to become untried again
-(:meth:`RouteMemory._suspect_moves_into`): where the state after a move tells the road taken (CampusNav: the place and
-the heading away from the road), they are the same road from the other headings, so one bump closes it for all. A
-terminated transition that is no success (FrozenLake's holes) is a dead end: tried, never routed through.
+Each ``(state, action)`` keeps one outcome, the latest, so a collision (the observation did not change: a closed road)
+turns that edge into a self-loop **for every goal at once**, and a move where the agent used to collide (a reopened
+road) restores it (in a goal env, an episode's end is its goal's, and the move stays a move). The other remembered moves
+into the state the lost move led to become untried again (:meth:`RouteMemory._suspect_moves_into`): where the state
+after a move tells the road taken (CampusNav: the place and the heading away from the road), they are the same road from
+the other headings, so one bump closes it for all. A terminated transition that is no success (FrozenLake's holes) is a
+dead end: tried, never routed through.
 
 What it holds (its own store, not the replay buffer's contents): per state a 16-byte digest and a row of
 ``n_actions`` int32 outcomes; per distinct ``achieved_goal`` picture its vector (for the place matcher) and the states

@@ -221,7 +221,7 @@ def test_dcqn_route_memory_on_bit_flipping_reaches_visited_goals_in_hamming_step
         asked += distance > 0  # a goal drawn equal to the start ends the episode at any step
         for step in range(1, 5):
             action, _ = model.predict(observation, deterministic=True)
-            observation, reward, terminated, _, _ = env.step(action)
+            observation, _, terminated, _, _ = env.step(action)
             if terminated:
                 reached += distance > 0 and step == distance
                 break
