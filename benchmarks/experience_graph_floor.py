@@ -222,9 +222,15 @@ def routes_from(evaluation: RouteEvaluation, env: CampusNavEnv, starts: np.ndarr
     return replace(evaluation, report=RouteReport(kept))
 
 
-def make_env(n_nodes: int) -> CampusNavEnv:
-    """The floor's env: the generated map of ``n_nodes`` (the built-in campus at 101), goal Dreese Lab, pixels."""
-    return CampusNavEnv(world=make_graph(n_nodes, "scaled"), goals=GOAL, progress=False, **env_kwargs_for(PIXELS))
+def make_env(n_nodes: int, map_seed: int = 0) -> CampusNavEnv:
+    """
+    The floor's env: the generated map of ``n_nodes`` (the built-in campus at 101, map seed 0), goal Dreese Lab,
+    pixels. ``map_seed``: the city's (``CampusNavCity-v0``'s ``map_seed``); 0 is the maps of the scale benchmarks.
+    """
+    from campusnav_env.maps.campus import generate_city
+
+    world = make_graph(n_nodes, "scaled") if map_seed == 0 else generate_city(n_nodes, seed=map_seed)
+    return CampusNavEnv(world=world, goals=GOAL, progress=False, **env_kwargs_for(PIXELS))
 
 
 def run_one(
@@ -234,12 +240,14 @@ def run_one(
     quick: bool,
     max_env_steps: int | None = None,
     env: CampusNavEnv | None = None,
+    map_seed: int = 0,
 ) -> dict[str, Any]:
-    """One run as a JSON-lines record (``env``: the size's env, if already built)."""
-    env = make_env(n_nodes) if env is None else env
+    """One run as a JSON-lines record (``env``: the size's env on that map seed, if already built)."""
+    env = make_env(n_nodes, map_seed) if env is None else env
     result = floor_steps(env, seed, eval_every, max_env_steps)
     return {
         "size": n_nodes,
+        "map_seed": map_seed,
         "seed": seed,
         "eval_every": eval_every,
         "quick": quick,
@@ -326,19 +334,24 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--eval-every", type=int, help="env steps between evaluations (default: by size)")
     parser.add_argument("--max-env-steps", type=int, help="step cap per run (default: 200 per (state, action) pair)")
     parser.add_argument("--quick", action="store_true", help="smoke run: 101 nodes, seed 0")
+    parser.add_argument("--map-seed", type=int, default=0, help="seed of the generated city (CampusNavCity's map_seed)")
     parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "experience_graph_floor_runs.jsonl")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "experience_graph_floor.md")
     args = parser.parse_args(argv)
     sizes = args.sizes or ([101] if args.quick else [101, 1000])
     seeds = args.seeds or ([0] if args.quick else [0, 1, 2])
-    done = {(r["size"], r["seed"], r["eval_every"], r["quick"], r["max_env_steps"]) for r in read_runs(args.runs_file)}
+    done = {
+        (r["size"], r.get("map_seed", 0), r["seed"], r["eval_every"], r["quick"], r["max_env_steps"])
+        for r in read_runs(args.runs_file)
+    }
     for size in sizes:
         eval_every = args.eval_every or default_eval_every(size)
-        todo = [seed for seed in seeds if (size, seed, eval_every, args.quick, args.max_env_steps) not in done]
+        key = (size, args.map_seed)
+        todo = [seed for seed in seeds if (*key, seed, eval_every, args.quick, args.max_env_steps) not in done]
         print(f"{size} intersections: {len(seeds) - len(todo)} runs already in {args.runs_file}, {len(todo)} to do")
-        env = make_env(size) if todo else None
+        env = make_env(size, args.map_seed) if todo else None
         for seed in todo:
-            record = run_one(size, seed, eval_every, args.quick, args.max_env_steps, env)
+            record = run_one(size, seed, eval_every, args.quick, args.max_env_steps, env, args.map_seed)
             append_run(args.runs_file, record)
             print(
                 f"{size} nodes seed {seed}: {'solved' if record['solved'] else 'NOT solved'} at "

@@ -24,6 +24,8 @@ Each run is one process of one torch thread; runs already in the runs file are s
         memory_explore shipped --seeds 0 --budget 300 --workers 2
     python benchmarks/long_routes.py --size 1000 --rows shipped --seeds 0 1 2 --budget 300 --encoder efficientnet-lite0
     python benchmarks/long_routes.py --quick     # a smoke run: 101 intersections, pixel features, seconds
+    python benchmarks/long_routes.py --map-seed 23 --rows base memory_explore --floor-runs-file \
+        benchmarks/results/new_map_floor_runs.jsonl --out benchmarks/results/new_map.md   # a city never tuned on
 """
 
 from __future__ import annotations
@@ -96,7 +98,7 @@ ROWS = {
 
 @dataclass(frozen=True)
 class Job:
-    """One run: a row on one map with one seed."""
+    """One run: a row on one map (size, map seed) with one seed."""
 
     row: str
     size: int
@@ -106,6 +108,7 @@ class Job:
     eval_freq: int
     encoder: str
     quick: bool = False
+    map_seed: int = 0
 
 
 def city_id(size: int) -> str:
@@ -135,21 +138,23 @@ def job_entry(job: Job) -> Any:
 
 
 def make_env(job: Job, env_kwargs: dict[str, Any]) -> Any:
-    """The city of the job's size (its goal-conditioned twin for the HER row)."""
+    """The city of the job's size and map seed (its goal-conditioned twin for the HER row)."""
     import gymnasium as gym
 
     import campusnav_env  # noqa: F401  (registers the ids)
     from campusnav_env.maps.campus import generate_city
     from campusnav_env.rendering.street_view import RenderSettings
 
-    kwargs = {**env_kwargs, "progress": False, "encoder": job.encoder}
+    kwargs = {**env_kwargs, "progress": False, "encoder": job.encoder, "map_seed": job.map_seed}
     if job.encoder == PIXELS:
         kwargs["render_settings"] = RenderSettings(64, 48)
     if ROWS[job.row].her:
         from campusnav_env.goal_env import CampusNavGoalEnv
 
         kwargs.pop("n_intersections", None)
-        return CampusNavGoalEnv(world=generate_city(job.size), goals=[GOAL], **{"max_steps": "auto", **kwargs})
+        kwargs.pop("map_seed")
+        world = generate_city(job.size, seed=job.map_seed)
+        return CampusNavGoalEnv(world=world, goals=[GOAL], **{"max_steps": "auto", **kwargs})
     if job.size in CITY_IDS:
         return gym.make(city_id(job.size), **kwargs)
     return gym.make("CampusNavCity-v0", **{**kwargs, "n_intersections": job.size})
@@ -185,6 +190,7 @@ def run_one(job: Job) -> dict[str, Any]:
     return {
         "row": job.row,
         "size": job.size,
+        "map_seed": job.map_seed,
         "seed": job.seed,
         "encoder": job.encoder,
         "budget": job.budget,
@@ -208,14 +214,18 @@ def run_one(job: Job) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------------------ report
-def floor_steps(size: int, key: str = "env_steps") -> list[int]:
+FLOOR_RUNS = RESULTS_DIR / "experience_graph_floor_runs.jsonl"
+
+
+def floor_steps(size: int, key: str = "env_steps", map_seed: int = 0, runs_file: Path = FLOOR_RUNS) -> list[int]:
     """
-    Env steps to solved of the experience-graph floor at this size (its runs file): from every (start, heading)
-    (``env_steps``), or from the states a move leads to (``driven_solved_steps``: the floor's exploration alone,
-    without its wait for each start-only state to come up as a random start)
+    Env steps to solved of the experience-graph floor on this map (its runs file; records without a map seed are
+    of map seed 0): from every (start, heading) (``env_steps``), or from the states a move leads to
+    (``driven_solved_steps``: the floor's exploration alone, without its wait for each start-only state to come up
+    as a random start)
     """
-    runs = read_runs(RESULTS_DIR / "experience_graph_floor_runs.jsonl")
-    solved = [r for r in runs if r.get("size") == size and not r.get("quick")]
+    runs = read_runs(runs_file)
+    solved = [r for r in runs if r.get("size") == size and r.get("map_seed", 0) == map_seed and not r.get("quick")]
     return [int(r[key]) for r in solved if r.get(key) is not None and (r.get("solved") or key != "env_steps")]
 
 
@@ -229,10 +239,14 @@ def median_worst(values: list[float], worst_is_max: bool = True, digits: int = 0
     return f"{statistics.median(values):,.{digits}f} ({worst:,.{digits}f})"
 
 
-def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
-    """One line per (size, features, row): solved runs, time and env steps to solved, the floor ratio, final scores."""
+def ablation_table(runs: list[dict[str, Any]], floor_runs: Path = FLOOR_RUNS) -> list[str]:
+    """
+    One line per (size, map seed, features, row): solved runs, time and env steps to solved, the ratio to the floor
+    of the same size and map seed, final scores.
+    """
     header = [
         "intersections",
+        "map seed",
         "features",
         "row",
         "step cap",
@@ -248,13 +262,14 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
         "peak RSS (MB)",
         "replay B / transition",
     ]
-    groups: dict[tuple[int, str, str, int], list[dict[str, Any]]] = {}
+    groups: dict[tuple[int, int, str, str, int], list[dict[str, Any]]] = {}
     for run in runs:
-        groups.setdefault((run["size"], run["encoder"], run["row"], run["max_steps"]), []).append(run)
+        key = (run["size"], run.get("map_seed", 0), run["encoder"], run["row"], run["max_steps"])
+        groups.setdefault(key, []).append(run)
     order = list(ROWS)
     lines = []
-    for (size, encoder, row, cap), group in sorted(
-        groups.items(), key=lambda item: (item[0][0], item[0][1], order.index(item[0][2]), item[0][3])
+    for (size, map_seed, encoder, row, cap), group in sorted(
+        groups.items(), key=lambda item: (*item[0][:3], order.index(item[0][3]), item[0][4])
     ):
         solved = [r for r in group if r["solved"]]
         # A run that spent its budget counts with its budget: the worst case is at least that
@@ -263,13 +278,14 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
         ratios = []
         solved_steps = [r["steps"] for r in solved]
         for key in ("env_steps", "driven_solved_steps"):
-            floor = floor_steps(size, key)
+            floor = floor_steps(size, key, map_seed, floor_runs)
             ratio = statistics.median(solved_steps) / statistics.median(floor) if floor and solved else None
             ratios.append("-" if ratio is None else f"{ratio:.1f}")
         time_cell = median_worst(seconds) + ("" if len(solved) == len(group) else " (misses: their budget)")
         lines.append(
             [
                 f"{size:,}",
+                str(map_seed),
                 encoder,
                 ROWS[row].name,
                 f"{cap:,}",
@@ -288,9 +304,10 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
     return markdown_table(header, lines)
 
 
-def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None) -> None:
+def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None, floor_runs: Path = FLOOR_RUNS) -> None:
     machine = machine_line("runs one after another, each in one process", torch_threads="1 torch thread per run")
-    floors = sorted({r["size"] for r in runs if floor_steps(r["size"])})
+    maps = {(r["size"], r.get("map_seed", 0)) for r in runs}
+    floors = sorted(m for m in maps if floor_steps(*m[:1], map_seed=m[1], runs_file=floor_runs))
     lines = [
         "# Long routes: what each lever buys on a city",
         "",
@@ -303,10 +320,10 @@ def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None) 
         "counts with its budget and its last evaluation. Floor: the experience-graph agent's median env steps to "
         "solved from every (start, heading), and from the states a move leads to (its exploration alone: the rest "
         "is waiting for each start-only state to come up as a random start, which DCQN, whose critics generalise "
-        "across headings, need not do; `experience_graph_floor.md`; sizes with a floor: "
-        f"{', '.join(f'{s:,}' for s in floors) or 'none'}). Ratios over solved runs only.",
+        f"across headings, need not do; `{floor_runs.name}`, the floor of the same size and map seed; maps with a "
+        f"floor: {', '.join(f'{s:,} (map seed {m})' for s, m in floors) or 'none'}). Ratios over solved runs only.",
         "",
-        *ablation_table(runs),
+        *ablation_table(runs, floor_runs),
     ]
     publish(out, lines, "long_routes.py", argv)
 
@@ -320,7 +337,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--max-steps", type=int, default=None, help="env-step cap per run (default: 2M)")
     parser.add_argument("--eval-freq", type=int, default=None, help="env steps between route evaluations")
     parser.add_argument("--encoder", default=PIXELS, help="features: pixels (64x48 views) or efficientnet-lite0")
+    parser.add_argument("--map-seed", type=int, default=0, help="seed of the generated city (CampusNavCity's map_seed)")
     parser.add_argument("--quick", action="store_true", help="smoke run: 101 intersections, a few seconds per row")
+    parser.add_argument(
+        "--floor-runs-file", type=Path, default=FLOOR_RUNS, help="the experience-graph floor's runs (for the ratios)"
+    )
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "long_routes.md")
     parser.add_argument("--runs-file", type=Path, default=None, help="default: next to --out, *_runs.jsonl")
     workers_argument(parser)
@@ -330,12 +351,15 @@ def main(argv: list[str] | None = None) -> None:
     eval_freq = args.eval_freq or (1_000 if args.size <= 200 else 5_000 if args.size <= 2_000 else 20_000)
     max_steps = args.max_steps or (3_000 if args.quick else 2_000_000)
     runs_file = args.runs_file or args.out.with_name(args.out.stem + "_runs.jsonl")
-    done = {(r["row"], r["size"], r["seed"], r["encoder"], r["max_steps"]) for r in read_runs(runs_file)}
+    done = {
+        (r["row"], r["size"], r.get("map_seed", 0), r["seed"], r["encoder"], r["max_steps"])
+        for r in read_runs(runs_file)
+    }
     jobs = [
-        Job(row, args.size, seed, args.budget, max_steps, eval_freq, args.encoder, args.quick)
+        Job(row, args.size, seed, args.budget, max_steps, eval_freq, args.encoder, args.quick, args.map_seed)
         for row in args.rows
         for seed in args.seeds
-        if (row, args.size, seed, args.encoder, max_steps) not in done
+        if (row, args.size, args.map_seed, seed, args.encoder, max_steps) not in done
     ]
     for run in run_in_workers(run_one, jobs, args.workers):
         append_run(runs_file, run)
@@ -344,7 +368,7 @@ def main(argv: list[str] | None = None) -> None:
             f"{run['seconds']:.0f} s (success {run['final_success']:.3f}, SPL {run['final_spl']:.3f})",
             flush=True,
         )
-    write_report(read_runs(runs_file), args.out, argv)
+    write_report(read_runs(runs_file), args.out, argv, args.floor_runs_file)
 
 
 if __name__ == "__main__":

@@ -65,7 +65,33 @@ def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: P
 
 def test_long_routes_quick_run_writes_the_ablation_table(tmp_path: Path) -> None:
     text = _quick_run("long_routes.py", tmp_path, "--rows", "curriculum", "memory")
-    assert "| intersections | features | row | step cap | seeds | solved |" in text
-    assert "| 101 | pixels | + start curriculum (near to far) | 3,000 | 0 |" in text
-    assert "| 101 | pixels | + route memory (plans greedy actions) | 3,000 | 0 |" in text
+    assert "| intersections | map seed | features | row | step cap | seeds | solved |" in text
+    assert "| 101 | 0 | pixels | + start curriculum (near to far) | 3,000 | 0 |" in text
+    assert "| 101 | 0 | pixels | + route memory (plans greedy actions) | 3,000 | 0 |" in text
     assert "Command: `python benchmarks/long_routes.py --quick --out" in text
+
+
+def test_long_routes_reads_the_floor_of_the_same_size_and_map_seed(tmp_path: Path) -> None:
+    from benchmarks.long_routes import ablation_table, floor_steps
+    from benchmarks.report import append_run
+
+    floor_runs = tmp_path / "floor_runs.jsonl"
+    # A record without a map seed is one of map seed 0 (the runs files written before --map-seed)
+    for size, map_seed, steps in ((1_000, None, 100_000), (1_000, 23, 200_000), (101, 23, 5_000)):
+        record = {"size": size, "quick": False, "solved": True, "env_steps": steps, "driven_solved_steps": steps // 10}
+        append_run(floor_runs, record if map_seed is None else {**record, "map_seed": map_seed})
+    assert floor_steps(1_000, map_seed=0, runs_file=floor_runs) == [100_000]
+    assert floor_steps(1_000, map_seed=23, runs_file=floor_runs) == [200_000]
+    assert floor_steps(1_000, "driven_solved_steps", map_seed=23, runs_file=floor_runs) == [20_000]
+    assert floor_steps(1_000, map_seed=7, runs_file=floor_runs) == []
+
+    run = {
+        "row": "base", "size": 1_000, "map_seed": 23, "seed": 0, "encoder": "pixels", "max_steps": 2_000_000,
+        "solved": True, "steps": 400_000, "seconds": 100.0, "final_steps": 400_000, "final_seconds": 100.0,
+        "final_success": 1.0, "final_spl": 0.99, "ms_per_step": 0.25, "peak_rss_mb": 900.0,
+        "replay_bytes_per_transition": 800.0,
+    }  # fmt: skip
+    (line,) = ablation_table([run], floor_runs)[2:]
+    # 400k steps against the map-23 floor's 200k (not map 0's 100k), and against its exploration alone (20k)
+    assert line.startswith("| 1,000 | 23 | pixels | CampusNav-v0's entry")
+    assert "| 2.0 | 20.0 |" in line
