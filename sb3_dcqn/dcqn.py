@@ -450,13 +450,10 @@ class DCQN(OffPolicyAlgorithm):
     def _explore(self, observation: Any, state: Any, episode_start: Any) -> np.ndarray:
         """Exploration with the memory: towards the nearest untried action; critics for unseen states; else random."""
         assert self._explorer is not None and self.memory is not None
-        batched = self.policy.is_vectorized_observation(observation)
-        batch = observation if batched else batch_of_one(observation)
-        actions = self._explorer.actions(batch)
-        unseen = self.memory.states_of(batch) < 0
-        if unseen.any():
-            greedy, _ = self.policy.predict(select_rows(batch, unseen), state, episode_start, deterministic=True)
-            actions[unseen] = np.asarray(greedy).reshape(-1)
+        batched, batch = _as_batch(self.policy, observation)
+        states = self.memory.states_of(batch)
+        actions = self._explorer.actions_at(states)
+        actions, _ = self._critics_where(states < 0, actions, batch, state, episode_start)
         stuck = actions < 0
         actions[stuck] = [self.action_space.sample() for _ in range(int(stuck.sum()))]
         return actions if batched else actions[0]
@@ -467,14 +464,19 @@ class DCQN(OffPolicyAlgorithm):
         """The memory's route where it has one, the critics' greedy action elsewhere (``staleness``: see
         :meth:`RouteMemory.route_actions`)."""
         assert self.memory is not None
-        batched = self.policy.is_vectorized_observation(observation)
-        batch = observation if batched else batch_of_one(observation)
+        batched, batch = _as_batch(self.policy, observation)
         actions = self.memory.route_actions(batch, staleness)
-        fallback = actions < 0
-        if fallback.any():
-            greedy, state = self.policy.predict(select_rows(batch, fallback), state, episode_start, deterministic=True)
-            actions[fallback] = np.asarray(greedy).reshape(-1)
+        actions, state = self._critics_where(actions < 0, actions, batch, state, episode_start)
         return (actions if batched else actions[0]), state
+
+    def _critics_where(
+        self, mask: np.ndarray, actions: np.ndarray, batch: Any, state: Any, episode_start: Any
+    ) -> tuple[np.ndarray, Any]:
+        """``actions`` with the critics' greedy action where ``mask`` is set (the memory has nothing there)."""
+        if mask.any():
+            greedy, state = self.policy.predict(select_rows(batch, mask), state, episode_start, deterministic=True)
+            actions[mask] = np.asarray(greedy).reshape(-1)
+        return actions, state
 
     def _excluded_save_params(self) -> list[str]:
         # The memory is saved (pickled in the model's data); its explorer's paths are rebuilt
@@ -503,6 +505,12 @@ def _revises_per_goal(buffer_class: type | None, buffer_kwargs: dict[str, Any]) 
     revises = isinstance(buffer_class, type) and issubclass(buffer_class, RevisionReplay)
     her = isinstance(buffer_class, type) and issubclass(buffer_class, DCQNHerReplayBuffer)  # leaves the goal out
     return revises and not her and "goal_keys" not in buffer_kwargs
+
+
+def _as_batch(policy: DCQNPolicy, observation: Any) -> tuple[bool, Any]:
+    """Whether ``observation`` is a batch, and it as one."""
+    batched = policy.is_vectorized_observation(observation)
+    return batched, observation if batched else batch_of_one(observation)
 
 
 class _Remembering:

@@ -384,15 +384,7 @@ class RouteMemory:
             return cached[1]
         if len(self._hops) >= _MAX_CACHED_GOALS:  # bounded: the goals asked for lately
             self._hops = {g: entry for g, entry in self._hops.items() if entry[0] == self.version}
-        targets = np.zeros((self.n_states, self.n_actions), dtype=bool)
-        goal_states = self._goal_states(goal, batch, index)
-        if goal_states.size:
-            arrived = np.zeros(self.n_states + 1, dtype=bool)
-            arrived[goal_states] = True
-            successors = self.next_state[: self.n_states]
-            moves = (successors >= 0) & (successors != np.arange(self.n_states)[:, None])
-            targets = moves & arrived[np.where(successors >= 0, successors, self.n_states)]
-        hops = self._hops_to(targets)
+        hops = self._hops_to(self._goal_targets(goal, batch, index)(np.arange(self.n_states)))
         self._hops[goal] = (self.version, hops)
         return hops
 
@@ -425,8 +417,7 @@ class RouteMemory:
 
         def is_target(rows: np.ndarray) -> np.ndarray:
             successors = self.next_state[rows]
-            moves = (successors >= 0) & (successors != rows[:, None])
-            return moves & arrived[np.where(successors >= 0, successors, self.n_states)]
+            return self._moves(rows) & arrived[np.where(successors >= 0, successors, self.n_states)]
 
         return is_target
 
@@ -450,6 +441,11 @@ class RouteMemory:
             state = int(self.next_state[state, action])
         return actions
 
+    def _moves(self, rows: np.ndarray) -> np.ndarray:
+        """Which (state, action) pairs of the rows lead to another state (routes go along them)."""
+        successors = self.next_state[rows]
+        return (successors >= 0) & (successors != rows[:, None])
+
     def _hops_to(self, targets: np.ndarray) -> np.ndarray:
         """
         Hops from every state to one of the target (state, action) pairs, that action included: a backward BFS level
@@ -461,7 +457,7 @@ class RouteMemory:
         n = self.n_states
         hops = np.full(n, NO_ROUTE, dtype=np.int64)
         successors = self.next_state[:n]
-        moves = (successors >= 0) & (successors != np.arange(n)[:, None])
+        moves = self._moves(np.arange(n))
         sources = np.broadcast_to(np.arange(n)[:, None], successors.shape)[moves]
         ends = successors[moves]
         level = np.flatnonzero(targets.any(axis=1))
@@ -488,7 +484,7 @@ class RouteMemory:
             hops = np.concatenate([hops, np.full(self.n_states - hops.size, NO_ROUTE, dtype=np.int64)])
         successors = self.next_state[rows].astype(np.int64)
         via = np.where(successors >= 0, hops[np.maximum(successors, 0)], NO_ROUTE)
-        moves = (successors >= 0) & (successors != rows[:, None]) & (via != NO_ROUTE)
+        moves = self._moves(rows) & (via != NO_ROUTE)
         cost = np.where(is_target(rows), 1, np.where(moves, via + 1, _NEVER))
         best = cost.argmin(axis=1)
         actions[known] = np.where(cost[np.arange(rows.size), best] != _NEVER, best, -1)
@@ -582,7 +578,10 @@ class UntriedExplorer:
     def actions(self, observations: Any) -> np.ndarray:
         """The exploring action of each env's observation (a batch), -1 where the memory has none (unseen state, or
         nothing untried can be reached)."""
-        states = self.memory.states_of(observations)
+        return self.actions_at(self.memory.states_of(observations))
+
+    def actions_at(self, states: np.ndarray) -> np.ndarray:
+        """:meth:`actions` for the envs' memory states (-1: unseen), where the caller has them already."""
         if states.size != len(self._paths):
             self._paths = [[] for _ in range(states.size)]
         return np.array([self._action(env, int(state)) for env, state in enumerate(states)], dtype=np.int64)
