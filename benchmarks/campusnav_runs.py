@@ -177,10 +177,10 @@ LEVER_SETS = {
         ("revision", "prioritized", "visible", "boost_on_revision"),
     ),
     "boost_callback": LeverSet("adaptation boost (episode-length trigger, callback)", ("boost",)),
-    "route_memory": LeverSet("route memory + exploration toward the untried", ("route_memory", "explore_untried")),
+    "route_memory": LeverSet("route memory + exploration toward the untried", ("route_memory",)),
     "route_memory_revision_blocked": LeverSet(
         "route memory + exploration toward the untried + revision + blocked-action target",
-        ("route_memory", "explore_untried", "revision", "blocked"),
+        ("route_memory", "revision", "blocked"),
     ),
 }
 

@@ -11,9 +11,10 @@ entry with one lever added, and the shipped ``CampusNavCity`` entry (its levers 
 - ``her``: hindsight relabelling with the goal-conditioned env on the same city (``CampusNavGoal``, episodes to the
   one goal, transitions relabelled with the places reached);
 - ``count``: a count bonus on observation digests (exploration towards unvisited views);
-- ``memory``: greedy actions planned over the route memory (DCQN's ``route_memory``, SPTM/SoRB-style), the critics'
-  greedy action where the memory has no route; ``explore``: exploration toward the nearest untried road of the
-  memory (``explore_untried``) in place of epsilon's random action; ``memory_explore``: both;
+- ``memory``: greedy actions planned over the route memory (DCQN's ``route_memory=dict(explore=False)``,
+  SPTM/SoRB-style), the critics' greedy action where the memory has no route; ``memory_explore``: the memory as
+  shipped (``route_memory=True``): also exploration toward the nearest untried road of the memory in place of
+  epsilon's random action;
 - ``lean``: lean replay (memory only: it must not change what is learned).
 
 Solved: success >= 0.99 and SPL >= 0.98 from every (start, heading) (``train_until_solved``; time: training seconds,
@@ -86,11 +87,8 @@ ROWS = {
         overrides={"replay_buffer_kwargs": {"count_bonus": 0.05}},
         variants=("count_bonus",),
     ),
-    "memory": Row("+ route memory (plans greedy actions)", overrides={"route_memory": True}),
-    "explore": Row("+ exploration toward the untried", overrides={"explore_untried": True}),
-    "memory_explore": Row(
-        "+ route memory and exploration toward the untried", overrides={"route_memory": True, "explore_untried": True}
-    ),
+    "memory": Row("+ route memory (plans greedy actions)", overrides={"route_memory": {"explore": False}}),
+    "memory_explore": Row("+ route memory and exploration toward the untried", overrides={"route_memory": True}),
     "lean": Row("+ lean replay (memory only)", variants=("lean",)),
     "shipped": Row("CampusNavCity entry as shipped", entry="shipped"),
 }

@@ -116,7 +116,7 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     ),
     "route_memory": (
         "route memory + exploration toward the untried",
-        {"route_memory": True, "explore_untried": True},
+        {"route_memory": True},
         {},
     ),
 }

@@ -14,7 +14,7 @@ from campusnav_env.features.encoders import ThumbnailEncoder, ViewEncoder
 from campusnav_env.features.projection import FeatureTransform
 from campusnav_env.features.view_source import ViewSource
 from campusnav_env.maps.campus import default_campus
-from campusnav_env.maps.compass import ACTION_NAMES, COMPASS
+from campusnav_env.maps.compass import ACTION_NAMES, BACK, COMPASS
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.map_view import draw_map
@@ -24,6 +24,8 @@ OBSERVATION_MODES = ("features", "image")
 # max_steps="auto": this many steps per hop of the longest shortest route to a goal, and never fewer than the floor
 AUTO_MAX_STEPS_PER_HOP = 4
 AUTO_MAX_STEPS_FLOOR = 200
+# A re-rendered view (visible closures) this close to the open map's, in every feature, is the open map's view
+UNCHANGED_VIEW_TOLERANCE = 1e-4
 # (height, width) of the image observations made from a scene file's stored images
 SCENE_THUMBNAIL = (48, 64)
 # Cheap settings for image mode: thumbnails are all the policy sees, so render small views directly
@@ -79,6 +81,14 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     exactly. Re-encodings are cached in memory and on disk (``cache_dir``), so closing a road again costs nothing;
     the first time costs rendering and encoding eight views. The ``"views"``/``"goal_views"`` boxes then span the
     float32 range, since new views may fall outside the open map's range.
+
+    ## Frame (``metadata["place_frame"]``, features mode)
+    The env declares what a route memory needs to key *places* rather than poses (see :func:`place_frame`): the
+    ``"views"`` picture the intersection in compass order whatever the heading, ``"heading"`` is the one-hot frame the
+    actions are relative to (compass slot = (heading + action) mod 4), roads are two-way (right after a move, action 2,
+    back, leads to where the move started), the views are four equal blocks (a barrier changes one), and
+    ``"goal_views"`` picture the goal place as ``"views"`` do. Image mode declares nothing (its views are ordered by
+    the heading).
 
     ## Rewards
     ``goal_reward`` (+1.0) on reaching the goal; ``collision_penalty`` (-0.01) for an action with no open road that
@@ -291,6 +301,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
                     "heading": spaces.Box(0.0, 1.0, shape=(4,), dtype=np.float32),
                 }
             )
+            self.metadata = {**type(self).metadata, "place_frame": place_frame("views", "goal_views")}
         else:
             _, _, channels, height, width = self._node_views.shape
             self.observation_space = spaces.Box(0, 255, shape=(channels, 2 * height, 4 * width), dtype=np.uint8)
@@ -470,7 +481,14 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             views = self._closure_views.get((node, at_node))
             if views is None:
                 encoded = source.views_with(node, at_node)
-                views = self._closure_views[node, at_node] = self._features.transform(encoded[None])[0]
+                views = self._features.transform(encoded[None])[0]
+                # A view the barrier does not reach differs from the open map's by the re-encoding's float noise
+                # only: it keeps the open map's features exactly, so that the place still looks like itself
+                open_views = self._open_views[node]
+                noise = np.abs(views - open_views).reshape(len(views), -1).max(axis=1) <= UNCHANGED_VIEW_TOLERANCE
+                views = self._closure_views[node, at_node] = np.where(
+                    noise.reshape((-1,) + (1,) * (views.ndim - 1)), open_views, views
+                )
             self._node_views[node] = views
         self._shown_closures, self._shown_version = closed, self.graph.version
 
@@ -594,6 +612,23 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             "collision": collision,
             "action_mask": (self.graph.transition_table[state] >= 0).astype(np.int8),
         }
+
+
+def place_frame(place_key: str, goal_key: str, goals_pictured_otherwise: bool = False) -> dict[str, Any]:
+    """
+    CampusNav's declaration of its frame (``metadata["place_frame"]``, read by :mod:`sb3_dcqn.place_frame`): the
+    views picture the place in compass order whatever the heading, the heading is a one-hot frame the actions are
+    relative to (slot = (heading + action) mod 4), roads are two-way (right after a move, "back" leads to where it
+    started), the views are four equal blocks, and the goal key pictures a place as the views do.
+    """
+    return {
+        "place_keys": [place_key],
+        "frame_key": "heading",
+        "reverse_action": BACK,
+        "views_per_place": len(COMPASS),
+        "goal_pictures": {goal_key: place_key},
+        "goals_pictured_otherwise": goals_pictured_otherwise,
+    }
 
 
 def longest_shortest_route(graph: NavigationGraph, goal_nodes: Sequence[int]) -> int:

@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from campusnav_env.env import CampusNavEnv, auto_max_steps, resolve_goals, resolve_world
+from campusnav_env.env import CampusNavEnv, auto_max_steps, place_frame, resolve_goals, resolve_world
 from campusnav_env.features.encoders import ViewEncoder, make_encoder
 from campusnav_env.features.view_source import ViewSource
 from campusnav_env.maps.navigation import NavigationGraph
@@ -40,6 +40,12 @@ class CampusNavGoalEnv(CampusNavEnv):
       under the goal's render settings (``goal_render_settings``), so that at the goal it equals ``"desired_goal"``;
     - ``"desired_goal"``: ``Box(4 * D,)`` float32, the goal's views, pictured in the same way;
     - ``"heading"``: ``Box(0, 1, (4,))`` float32, the one-hot compass heading.
+
+    ## Frame
+    As CampusNav's (``metadata["place_frame"]``), with ``"observation"`` picturing the place and ``"desired_goal"``
+    the goal place; ``goals_pictured_otherwise`` is set where ``goal_render_settings`` pictures goals in other
+    conditions than the agent's views. ``"achieved_goal"`` is left out of the declaration: it is the env's rendering of
+    the agent's location under the goal's conditions, which HER may use and a fair memory must not.
 
     ## Rewards
     As in CampusNav: ``goal_reward`` (+1.0) on reaching the goal, ``collision_penalty`` (-0.01) for an action with no
@@ -182,6 +188,11 @@ class CampusNavGoalEnv(CampusNavEnv):
         self._condition = 0  # the condition of the current episode's goal pictures
         self._node_of_goal = _unique_rows(self._goal_tables)
         self.observation_space = self._goal_observation_space(unbounded=visible_closures)
+        pictured_otherwise = any(settings is not None for settings in conditions)
+        self.metadata = {
+            **type(self).metadata,
+            "place_frame": place_frame("observation", "desired_goal", goals_pictured_otherwise=pictured_otherwise),
+        }
 
     @property
     def _goal_rows(self) -> np.ndarray:

@@ -16,6 +16,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import LinearSchedule, get_parameters_by_name, polyak_update
 from torch.nn import functional as F
 
+from sb3_dcqn.place_frame import place_frame_of
 from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
 from sb3_dcqn.replay.combine import resolve_replay_buffer
 from sb3_dcqn.replay.her import DCQNHerReplayBuffer
@@ -47,7 +48,7 @@ class DCQN(OffPolicyAlgorithm):
 
     The paper's settings are ``learning_rate=1e-4, gamma=0.95, buffer_size=412`` with Adam; the defaults below are
     SB3 DQN's, so that DCQN is a drop-in replacement: its parameters are DQN's, plus three of its own (the target's
-    form: ``pessimistic_target``, ``blocked_action_target``; the memory: ``route_memory``, ``explore_untried``).
+    form: ``pessimistic_target``, ``blocked_action_target``; the memory and its exploration: ``route_memory``).
 
     Replay variants are replay buffer classes, as in SB3 (:mod:`sb3_dcqn.replay`): experience revision, prioritized
     replay, lean storage, n-step returns with Dict observations and a count bonus are mix-ins that compose
@@ -90,20 +91,26 @@ class DCQN(OffPolicyAlgorithm):
     :param exploration_initial_eps: initial value of random action probability
     :param exploration_final_eps: final value of random action probability
     :param max_grad_norm: The maximum value for the gradient clipping
-    :param route_memory: Greedy actions (``predict(..., deterministic=True)``: evaluation, routes) follow the
-        shortest route to the observation's goal in the model's route memory (``model.memory``, a
+    :param route_memory: ``True`` (or a dict of settings) keeps a route memory (``model.memory``, a
         :class:`~sb3_dcqn.route_memory.RouteMemory`: one graph of every transition the model collected, its states
-        the observations without their goal keys, so one graph serves every goal; a goal is found by its pictures),
-        and the critics' greedy action where the memory has none (an unseen state, a goal not in memory). For worlds
-        whose observations repeat exactly. A collision removes its road from every goal's routes at once (and, with
-        an experience-revision buffer on a Dict base, DCQN passes it the memory's goal keys: every goal's stale copies
-        through the road are revised too). The memory is saved in the model's file. Off by default: ``predict``
-        then means what it means for DQN
-    :param explore_untried: Exploration drives to the nearest untried (state, action) of the route memory and tries
-        it, in place of epsilon's uniform random action (the warm-up's too): Go-Explore's return-then-explore. Where
-        the memory has nothing (an unseen state: a start never seen), the critics' greedy action; where nothing untried
-        can be reached, epsilon's random action. Keeps the memory as ``route_memory`` does; acting greedily is
-        unchanged unless ``route_memory`` is set. Off by default
+        the observations without their goal keys, so one graph serves every goal; places and compass slots where the
+        env declares its frame, :mod:`sb3_dcqn.place_frame`), acts with it and explores with it:
+
+        - greedy actions (``predict(..., deterministic=True)``: evaluation, routes; and the rollouts' greedy steps)
+          follow the shortest remembered route to the observation's goal, and the critics' action where the memory
+          has none (an unseen place, a goal not in memory); rollouts may also re-try a road blocked
+          ``retry_after`` transitions ago where that route is shorter (a reopened road is found again);
+        - exploration (epsilon's share and the warm-up) drives to the nearest untried (place, slot) and tries it
+          (Go-Explore's return-then-explore); the critics act at unseen places, epsilon's uniform action applies
+          where nothing untried can be reached.
+
+        A collision removes its road from every goal's routes at once (with an experience-revision buffer on a Dict
+        base, DCQN passes it the memory's goal keys: every goal's stale copies through the road are revised too).
+        The memory is saved in the model's file. Settings (a dict): ``explore`` (default ``True``; ``False``: the
+        memory acts, epsilon explores as DQN's) and :class:`~sb3_dcqn.route_memory.RouteMemory`'s ``success_reward``,
+        ``max_states``, ``retry_after``, ``max_cache_bytes``, ``goal_tolerance``, ``place_frame`` (``"auto"``: the
+        env's declaration; ``None``: pose states), ``place_matcher``. For worlds whose observations repeat exactly.
+        Off by default: ``predict`` then means what it means for DQN
     :param blocked_action_target: For a transition after which the observation did not change (a collision), leave
         the taken action out of the target's max (see :func:`blocked_actions`): a blocked action's value falls below
         the open roads' in one update instead of shrinking by ``gamma`` per target update. Off by default (the
@@ -157,8 +164,7 @@ class DCQN(OffPolicyAlgorithm):
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.05,
         max_grad_norm: float = 10,
-        route_memory: bool = False,
-        explore_untried: bool = False,
+        route_memory: bool | dict[str, Any] = False,
         blocked_action_target: bool = False,
         pessimistic_target: bool = True,
         stats_window_size: int = 100,
@@ -206,8 +212,7 @@ class DCQN(OffPolicyAlgorithm):
         # "epsilon" for the epsilon-greedy exploration
         self.exploration_rate = 0.0
         self.route_memory = route_memory
-        self.explore_untried = explore_untried
-        self.memory: RouteMemory | None = None  # made in _setup_model when route_memory or explore_untried
+        self.memory: RouteMemory | None = None  # made in _setup_model with route_memory
         self._explorer: UntriedExplorer | None = None
         self.blocked_action_target = blocked_action_target
         self.pessimistic_target = pessimistic_target
@@ -215,7 +220,16 @@ class DCQN(OffPolicyAlgorithm):
         if _init_setup_model:
             self._setup_model()
 
+    @property
+    def explores_untried(self) -> bool:
+        """Whether exploration drives to the route memory's untried moves (``route_memory``'s ``explore``)."""
+        return bool(self.route_memory) and bool(_memory_settings(self.route_memory).get("explore", True))
+
     def _setup_model(self) -> None:
+        frame = place_frame_of(self.env)
+        if frame is not None and frame.frame_key is not None and "heading_key" not in self.policy_kwargs:
+            # The env declares the frame its actions are relative to: the critics score compass slots
+            self.policy_kwargs = {**self.policy_kwargs, "heading_key": frame.frame_key}
         # DCQN's replay variants are buffer classes (sb3_dcqn.replay): which one, and whether they combine
         self.replay_buffer_class, self.replay_buffer_kwargs = resolve_replay_buffer(
             self.replay_buffer_class,
@@ -235,7 +249,7 @@ class DCQN(OffPolicyAlgorithm):
                 warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored")
             super()._setup_model()
         self._create_aliases()
-        if self.route_memory or self.explore_untried:
+        if self.route_memory:
             self._setup_memory()
         # Copy running stats, see SB3 GH issue #996
         self.batch_norm_stats = get_parameters_by_name(self.q_net, ["running_"])
@@ -381,7 +395,7 @@ class DCQN(OffPolicyAlgorithm):
         if deterministic and self.route_memory and self.memory is not None:
             return self._predict_with_memory(observation, state, episode_start)
         if not deterministic and np.random.rand() < self.exploration_rate:
-            if self.explore_untried and self.memory is not None:
+            if self.explores_untried and self.memory is not None:
                 return self._explore(observation, state, episode_start), state
             if self.policy.is_vectorized_observation(observation):
                 if isinstance(observation, dict):
@@ -391,8 +405,8 @@ class DCQN(OffPolicyAlgorithm):
                 action = np.array([self.action_space.sample() for _ in range(n_batch)])
             else:
                 action = np.array(self.action_space.sample())
-        elif self.route_memory and self.memory is not None:  # the greedy action is the same as predict's
-            return self._predict_with_memory(observation, state, episode_start, _ROLLOUT_STALENESS)
+        elif self.route_memory and self.memory is not None:  # predict's greedy action, re-trying aged closures
+            return self._predict_with_memory(observation, state, episode_start, _ROLLOUT_STALENESS, retry=True)
         else:
             action, state = self.policy.predict(observation, state, episode_start, deterministic)
         return action, state
@@ -419,11 +433,17 @@ class DCQN(OffPolicyAlgorithm):
         """The route memory, fed by every transition the model stores (see ``route_memory``)."""
         if self._vec_normalize_env is not None and getattr(self._vec_normalize_env, "norm_obs", False):
             raise ValueError(
-                "route_memory / explore_untried remember the raw observations while predict sees VecNormalize's "
-                "normalized ones: use them without observation normalization"
+                "route_memory remembers the raw observations while predict sees VecNormalize's normalized ones: use "
+                "it without observation normalization"
             )
         if self.memory is None:
-            self.memory = RouteMemory.for_env(self)
+            settings = {key: value for key, value in _memory_settings(self.route_memory).items() if key != "explore"}
+            frame = settings.pop("place_frame", "auto")
+            env = self.env if self.env is not None else self
+            try:
+                self.memory = RouteMemory.for_env(env, place_frame=frame, **settings)
+            except TypeError as error:
+                raise ValueError(f"route_memory: {error} (settings: explore, {', '.join(_MEMORY_SETTINGS)})") from None
         self._explorer = UntriedExplorer(self.memory, self.n_envs)
 
     def _store_transition(
@@ -442,7 +462,7 @@ class DCQN(OffPolicyAlgorithm):
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
-        if self.explore_untried and self.memory is not None and self.num_timesteps < learning_starts:
+        if self.explores_untried and self.memory is not None and self.num_timesteps < learning_starts:
             action = self._explore(self._last_obs, None, None)  # the warm-up explores towards the untried too
             return action, action
         return super()._sample_action(learning_starts, action_noise, n_envs)
@@ -452,20 +472,20 @@ class DCQN(OffPolicyAlgorithm):
         assert self._explorer is not None and self.memory is not None
         batched, batch = _as_batch(self.policy, observation)
         states = self.memory.states_of(batch)
-        actions = self._explorer.actions_at(states)
+        actions = self._explorer.actions_at(states, batch)
         actions, _ = self._critics_where(states < 0, actions, batch, state, episode_start)
         stuck = actions < 0
         actions[stuck] = [self.action_space.sample() for _ in range(int(stuck.sum()))]
         return actions if batched else actions[0]
 
     def _predict_with_memory(
-        self, observation: Any, state: Any, episode_start: Any, staleness: int = 0
+        self, observation: Any, state: Any, episode_start: Any, staleness: int = 0, retry: bool = False
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """The memory's route where it has one, the critics' greedy action elsewhere (``staleness``: see
+        """The memory's route where it has one, the critics' greedy action elsewhere (``staleness``, ``retry``: see
         :meth:`RouteMemory.route_actions`)."""
         assert self.memory is not None
         batched, batch = _as_batch(self.policy, observation)
-        actions = self.memory.route_actions(batch, staleness)
+        actions = self.memory.route_actions(batch, staleness, retry)
         actions, state = self._critics_where(actions < 0, actions, batch, state, episode_start)
         return (actions if batched else actions[0]), state
 
@@ -507,6 +527,29 @@ def _revises_per_goal(buffer_class: type | None, buffer_kwargs: dict[str, Any]) 
     return revises and not her and "goal_keys" not in buffer_kwargs
 
 
+_MEMORY_SETTINGS = (
+    "success_reward",
+    "max_states",
+    "retry_after",
+    "max_cache_bytes",
+    "goal_tolerance",
+    "place_frame",
+    "place_matcher",
+)
+
+
+def _memory_settings(route_memory: bool | dict[str, Any]) -> dict[str, Any]:
+    """``route_memory``'s settings (``True``: the defaults); an unknown one is named."""
+    if isinstance(route_memory, bool) or route_memory is None:
+        return {}
+    if not isinstance(route_memory, dict):
+        raise ValueError(f"route_memory must be True, False or a dict of settings, got {route_memory!r}")
+    unknown = sorted(set(route_memory) - {"explore", *_MEMORY_SETTINGS})
+    if unknown:
+        raise ValueError(f"route_memory: unknown settings {unknown}; known: explore, {', '.join(_MEMORY_SETTINGS)}")
+    return dict(route_memory)
+
+
 def _as_batch(policy: DCQNPolicy, observation: Any) -> tuple[bool, Any]:
     """Whether ``observation`` is a batch, and it as one."""
     batched = policy.is_vectorized_observation(observation)
@@ -525,5 +568,13 @@ class _Remembering:
     ) -> None:
         truncated = np.array([info.get("TimeLimit.truncated", False) for info in infos], dtype=bool)
         terminated = np.asarray(done, dtype=bool).reshape(-1) & ~truncated
-        self.memory.add_batch(obs, np.asarray(action).reshape(-1), next_obs, reward, terminated)
+        rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
+        # The env's word on success where it gives one (SB3's is_success), else a reward above the memory's bar
+        successes = np.array(
+            [
+                bool(info["is_success"]) if "is_success" in info else value > self.memory.success_reward
+                for info, value in zip(infos, rewards, strict=True)
+            ]
+        )
+        self.memory.add_batch(obs, np.asarray(action).reshape(-1), next_obs, rewards, terminated, successes)
         self.buffer.add(obs, next_obs, action, reward, done, infos)

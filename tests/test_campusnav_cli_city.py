@@ -31,7 +31,6 @@ CampusNavCity-v0:
   n_steps: 4
   replay_buffer_class: LeanDictReplayBuffer
   route_memory: True
-  explore_untried: True
   buffer_size: 2000
   learning_starts: 100
   batch_size: 32
@@ -82,7 +81,7 @@ def test_the_city_entry_trains_with_its_curriculum_and_lean_n_step_replay_and_ev
     model = DCQN.load(out / "dcqn_campusnav.zip")
     assert (
         model.route_memory
-        and model.explore_untried
+        and model.explores_untried
         and model.replay_buffer_class is LeanNStepDictReplayBuffer
         and model.n_steps == 4
     )

@@ -95,7 +95,6 @@ def test_levers_combine_their_replay_variants_dcqn_and_env_options_in_order() ->
     # The adaptation boost is a callback, not a DCQN option
     assert set(LEVERS) == {
         *("revision", "blocked", "prioritized", "visible", "boost", "boost_on_revision", "route_memory"),
-        "explore_untried",
     }
     dcqn_options, env_options = lever_options(("revision", "blocked", "visible"))
     assert dcqn_options == {"blocked_action_target": True}

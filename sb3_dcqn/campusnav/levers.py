@@ -69,8 +69,9 @@ LEVERS: dict[str, Lever] = {
     "prioritized": Lever("prioritized replay", replay_variants=("prioritized",)),
     "visible": Lever("visible closures", env_options={"visible_closures": True}),
     # The route memory: a collision removes its road from every goal's remembered routes at once
-    "route_memory": Lever("route memory (greedy actions plan)", dcqn_options={"route_memory": True}),
-    "explore_untried": Lever("exploration toward the untried", dcqn_options={"explore_untried": True}),
+    "route_memory": Lever(
+        "route memory (greedy actions plan, exploration seeks the untried)", dcqn_options={"route_memory": True}
+    ),
     # An SB3 callback, not a DCQN option; alone it cannot be triggered by revisions: longer episodes are the sign
     "boost": Lever("adaptation boost (episode-length trigger)", boost_options={"trigger": "episode_length"}),
     # Triggered by the replay buffer's count of revised transitions: it needs revision, and switches it on
