@@ -1,11 +1,15 @@
 """The experience-graph floor: how few env steps an agent that only remembers what it saw needs to solve a map.
 
 The agent (:class:`FloorAgent`) is told nothing but observations, rewards and terminations: no map, no distances, no
-action mask. It keeps every transition in an :class:`sb3_dcqn.route_memory.RouteMemory` (exact observations as
-states, the latest outcome of each (observation, action) as its edge) and acts:
+action mask. It keeps every transition in an :class:`sb3_dcqn.route_memory.RouteMemory` and acts on it. With the same
+knowledge as DCQN's memory (``--memory places``, the default): the env's declared frame (``metadata["place_frame"]``:
+views in compass order, actions relative to the heading, two-way roads), so states are places, moves compass slots,
+and a driven road's way back is inferred; with ``--memory poses``: exact observations (views and heading) as states
+and the actions as edges, the floor before places. Both floors are reported, each beside the learner that has the
+same knowledge. It acts:
 
-- **explore** while an untried (observation, action) can be reached over the transitions seen: drive to the nearest
-  one (breadth-first search over the known graph) and try it; a collision counts as tried;
+- **explore** while an untried (state, slot) can be reached over the transitions seen: drive to the nearest one
+  (breadth-first search over the known graph) and try it; a collision counts as tried;
 - **plan** once nothing untried can be reached from where it stands: drive the shortest route over the transitions
   seen to the goal (breadth-first search back from the transitions that reached it); where it knows none, a fixed
   action.
@@ -49,9 +53,11 @@ from campusnav_env.env import CampusNavEnv
 from campusnav_env.recovery import RouteEvaluation
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 from sb3_dcqn.campusnav.solved import is_solved, solved_bar
-from sb3_dcqn.route_memory import RouteMemory, batch_of_one
+from sb3_dcqn.route_memory import RouteMemory, batch_of_one, select_rows
 
 FIXED_ACTION = 0  # forward: what the agent does where it knows nothing
+# What the agent knows of the env: its declared frame (places, compass slots, two-way roads), or exact observations
+MEMORIES = ("places", "poses")
 RUNS_LINE = "runs one after another in one process, evaluations included in the wall time"
 
 
@@ -73,8 +79,8 @@ class FloorResult:
     :param evaluations: Evaluations run
     :param success: Success rate of the last evaluation
     :param spl: SPL of the last evaluation
-    :param states: Observations seen
-    :param tried: (observation, action) pairs tried
+    :param states: States remembered (places, or (observation) poses)
+    :param tried: (state, slot) pairs tried
     :param driven_solved_steps: Env steps at the first evaluation at the solved bar on the routes from the states a
         move leads to (the start-only states left out: the coverage of random starts aside), ``None`` if never
     :param driven_solved_episodes: Episodes started by then
@@ -110,37 +116,38 @@ class FloorAgent:
 
     def act(self, observation: Any) -> int:
         """The training action at one (unbatched) observation."""
-        state = self.graph.state_of(observation, add=True)
-        if self._path and self._path[0][0] == state:
-            return self._path.pop(0)[1]
-        actions = self.graph.path_to_untried(state)
-        if actions is None:
-            self._path = []
-            route = int(self.graph.route_actions(batch_of_one(observation))[0])
-            return route if route >= 0 else self.fixed_action
-        self._path = self._states_along(state, actions)
-        return self._path.pop(0)[1]
+        batch = batch_of_one(observation)
+        state = int(self.graph.states_of(batch, add=True)[0])
+        if not (self._path and self._path[0][0] == state):
+            slots = self.graph.path_to_untried(state)
+            if slots is None:
+                self._path = []
+                route = int(self.graph.route_actions(batch)[0])
+                return route if route >= 0 else self.fixed_action
+            self._path = self._states_along(state, slots)
+        return int(self.graph.slot_actions(batch, np.array([self._path.pop(0)[1]]))[0])
 
-    def _states_along(self, state: int, actions: list[int]) -> list[tuple[int, int]]:
-        """The (state, action) pairs of a path of known edges (its last action untried)."""
+    def _states_along(self, state: int, slots: list[int]) -> list[tuple[int, int]]:
+        """The (state, slot) pairs of a path of known edges (its last slot untried)."""
         pairs = []
-        for action in actions:
-            pairs.append((state, action))
-            state = int(self.graph.next_state[state, action])
+        for slot in slots:
+            pairs.append((state, slot))
+            state = int(self.graph.target[state, slot])
         return pairs
 
     def policy(self, observations: Any) -> np.ndarray:
         """The greedy batch policy that is evaluated: plan, else explore, else the fixed action."""
-        states = self.graph.states_of(observations)
         actions = self.graph.route_actions(observations)
         unplanned = actions < 0
         if unplanned.any():
-            actions[unplanned] = self.graph.explore_actions(states[unplanned])
+            actions[unplanned] = self.graph.explore_actions(select_rows(observations, unplanned))
         actions[actions < 0] = self.fixed_action
         return actions
 
 
-def floor_steps(env: CampusNavEnv, seed: int, eval_every: int, max_env_steps: int | None = None) -> FloorResult:
+def floor_steps(
+    env: CampusNavEnv, seed: int, eval_every: int, max_env_steps: int | None = None, memory: str = "places"
+) -> FloorResult:
     """
     Run the experience-graph agent on ``env`` until its greedy policy solves the map (or ``max_env_steps``).
 
@@ -148,11 +155,14 @@ def floor_steps(env: CampusNavEnv, seed: int, eval_every: int, max_env_steps: in
     :param seed: Seed of the env's starts (the agent itself is deterministic)
     :param eval_every: Env steps between evaluations
     :param max_env_steps: Step cap (default: 200 steps per (observation, action) pair, far beyond need)
+    :param memory: ``"places"`` (the env's declared frame) or ``"poses"`` (exact observations)
     :return: the run's figures
     """
     if eval_every < 1:
         raise ValueError(f"eval_every must be at least 1, got {eval_every}")
-    graph = RouteMemory.for_env(env)
+    if memory not in MEMORIES:
+        raise ValueError(f"memory must be one of {MEMORIES}, got {memory!r}")
+    graph = RouteMemory.for_env(env, place_frame="auto" if memory == "places" else None)
     agent = FloorAgent(graph)
     driven = entered_states(env)  # for the report only: the agent is never told
     cap = max_env_steps if max_env_steps is not None else 200 * env.graph.transition_table.size
@@ -168,8 +178,8 @@ def floor_steps(env: CampusNavEnv, seed: int, eval_every: int, max_env_steps: in
         done = False
         while not done and steps < cap:
             action = agent.act(observation)
-            next_observation, reward, terminated, truncated, _ = env.step(action)
-            graph.add(observation, action, next_observation, float(reward), terminated)
+            next_observation, reward, terminated, truncated, info = env.step(action)
+            graph.add(observation, action, next_observation, float(reward), terminated, info.get("is_success"))
             steps += 1
             observation, done = next_observation, terminated or truncated
             if steps % eval_every == 0:
@@ -241,11 +251,13 @@ def run_one(
     max_env_steps: int | None = None,
     env: CampusNavEnv | None = None,
     map_seed: int = 0,
+    memory: str = "places",
 ) -> dict[str, Any]:
     """One run as a JSON-lines record (``env``: the size's env on that map seed, if already built)."""
     env = make_env(n_nodes, map_seed) if env is None else env
-    result = floor_steps(env, seed, eval_every, max_env_steps)
+    result = floor_steps(env, seed, eval_every, max_env_steps, memory)
     return {
+        "memory": memory,
         "size": n_nodes,
         "map_seed": map_seed,
         "seed": seed,
@@ -259,16 +271,17 @@ def run_one(
 
 
 def floor_table(runs: list[dict[str, Any]]) -> list[str]:
-    """One row per (size, eval_every): median and range over seeds."""
-    groups: dict[tuple[int, int], list[dict[str, Any]]] = {}
-    for run in sorted(runs, key=lambda r: (r["size"], r["eval_every"], r["seed"])):
-        groups.setdefault((run["size"], run["eval_every"]), []).append(run)
+    """One row per (memory, size, map seed, eval_every): median and range over seeds."""
+    groups: dict[tuple[str, int, int, int], list[dict[str, Any]]] = {}
+    for run in sorted(runs, key=lambda r: (memory_of(r), r["size"], r.get("map_seed", 0), r["eval_every"], r["seed"])):
+        groups.setdefault((memory_of(run), run["size"], run.get("map_seed", 0), run["eval_every"]), []).append(run)
     rows = []
-    for (size, eval_every), group in groups.items():
+    for (memory, size, map_seed, eval_every), group in groups.items():
         solved = [r for r in group if r["solved"]]
         steps = [r["env_steps"] for r in solved]
         rows.append([
-            f"{size:,}", f"{group[0]['state_actions']:,}", f"{group[0]['start_only_states']:,}", f"{eval_every:,}",
+            memory, f"{size:,}", str(map_seed), f"{group[0]['state_actions']:,}",
+            f"{group[0]['start_only_states']:,}", f"{eval_every:,}",
             " ".join(str(r["seed"]) for r in group),
             f"{len(solved)}/{len(group)}",
             _median_range(steps), _median_range([r["episodes"] for r in solved]),
@@ -279,8 +292,10 @@ def floor_table(runs: list[dict[str, Any]]) -> list[str]:
             _median_range([r["evaluation_seconds"] for r in group], 1),
         ])  # fmt: skip
     header = [
+        "memory",
         "intersections",
-        "(state, action) pairs",
+        "map seed",
+        "(node, heading, action) triples",
         "start-only states",
         "eval every",
         "seeds",
@@ -294,6 +309,11 @@ def floor_table(runs: list[dict[str, Any]]) -> list[str]:
         "of which eval s",
     ]
     return markdown_table(header, rows)
+
+
+def memory_of(run: dict[str, Any]) -> str:
+    """The run's memory (runs from before places were pose runs)."""
+    return str(run.get("memory", "poses"))
 
 
 def _median_range(values: list[float], digits: int = 0) -> str:
@@ -335,26 +355,31 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--max-env-steps", type=int, help="step cap per run (default: 200 per (state, action) pair)")
     parser.add_argument("--quick", action="store_true", help="smoke run: 101 nodes, seed 0")
     parser.add_argument("--map-seed", type=int, default=0, help="seed of the generated city (CampusNavCity's map_seed)")
+    parser.add_argument("--memory", nargs="+", choices=MEMORIES, default=["places"], help="what the agent knows")
     parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "experience_graph_floor_runs.jsonl")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "experience_graph_floor.md")
     args = parser.parse_args(argv)
     sizes = args.sizes or ([101] if args.quick else [101, 1000])
     seeds = args.seeds or ([0] if args.quick else [0, 1, 2])
     done = {
-        (r["size"], r.get("map_seed", 0), r["seed"], r["eval_every"], r["quick"], r["max_env_steps"])
+        (memory_of(r), r["size"], r.get("map_seed", 0), r["seed"], r["eval_every"], r["quick"], r["max_env_steps"])
         for r in read_runs(args.runs_file)
     }
     for size in sizes:
         eval_every = args.eval_every or default_eval_every(size)
-        key = (size, args.map_seed)
-        todo = [seed for seed in seeds if (*key, seed, eval_every, args.quick, args.max_env_steps) not in done]
-        print(f"{size} intersections: {len(seeds) - len(todo)} runs already in {args.runs_file}, {len(todo)} to do")
+        todo = [
+            (memory, seed)
+            for memory in args.memory
+            for seed in seeds
+            if (memory, size, args.map_seed, seed, eval_every, args.quick, args.max_env_steps) not in done
+        ]
+        print(f"{size} intersections: {len(todo)} runs to do ({args.runs_file} has the others)")
         env = make_env(size, args.map_seed) if todo else None
-        for seed in todo:
-            record = run_one(size, seed, eval_every, args.quick, args.max_env_steps, env, args.map_seed)
+        for memory, seed in todo:
+            record = run_one(size, seed, eval_every, args.quick, args.max_env_steps, env, args.map_seed, memory)
             append_run(args.runs_file, record)
             print(
-                f"{size} nodes seed {seed}: {'solved' if record['solved'] else 'NOT solved'} at "
+                f"{memory}, {size} nodes seed {seed}: {'solved' if record['solved'] else 'NOT solved'} at "
                 f"{record['env_steps']:,} env steps, {record['episodes']:,} episodes, {record['wall_seconds']:.1f} s "
                 f"(success {record['success']:.3f}, SPL {record['spl']:.3f})",
                 flush=True,

@@ -215,16 +215,31 @@ def run_one(job: Job) -> dict[str, Any]:
 FLOOR_RUNS = RESULTS_DIR / "experience_graph_floor_runs.jsonl"
 
 
-def floor_steps(size: int, key: str = "env_steps", map_seed: int = 0, runs_file: Path = FLOOR_RUNS) -> list[int]:
+def floor_steps(
+    size: int, key: str = "env_steps", map_seed: int = 0, runs_file: Path = FLOOR_RUNS, memory: str = "poses"
+) -> list[int]:
     """
     Env steps to solved of the experience-graph floor on this map (its runs file; records without a map seed are
-    of map seed 0): from every (start, heading) (``env_steps``), or from the states a move leads to
-    (``driven_solved_steps``: the floor's exploration alone, without its wait for each start-only state to come up
-    as a random start)
+    of map seed 0, records without a memory are of poses): from every (start, heading) (``env_steps``), or from the
+    states a move leads to (``driven_solved_steps``: the floor's exploration alone, without its wait for each
+    start-only state to come up as a random start). ``memory``: the floor with the same knowledge as the row
+    (``"places"`` for rows with the route memory, ``"poses"`` for the critics alone)
     """
     runs = read_runs(runs_file)
-    solved = [r for r in runs if r.get("size") == size and r.get("map_seed", 0) == map_seed and not r.get("quick")]
+    solved = [
+        r
+        for r in runs
+        if r.get("size") == size
+        and r.get("map_seed", 0) == map_seed
+        and not r.get("quick")
+        and r.get("memory", "poses") == memory
+    ]
     return [int(r[key]) for r in solved if r.get(key) is not None and (r.get("solved") or key != "env_steps")]
+
+
+def row_uses_memory(row: str) -> bool:
+    """Whether a row's DCQN keeps the route memory (its floor is then the floor over places)."""
+    return row == "shipped" or bool(ROWS[row].overrides.get("route_memory"))
 
 
 def median_worst(values: list[float], worst_is_max: bool = True, digits: int = 0) -> str:
@@ -275,8 +290,9 @@ def ablation_table(runs: list[dict[str, Any]], floor_runs: Path = FLOOR_RUNS) ->
         steps = [r["steps"] if r["solved"] else r["final_steps"] for r in group]
         ratios = []
         solved_steps = [r["steps"] for r in solved]
+        memory = "places" if row_uses_memory(row) else "poses"
         for key in ("env_steps", "driven_solved_steps"):
-            floor = floor_steps(size, key, map_seed, floor_runs)
+            floor = floor_steps(size, key, map_seed, floor_runs, memory)
             ratio = statistics.median(solved_steps) / statistics.median(floor) if floor and solved else None
             ratios.append("-" if ratio is None else f"{ratio:.1f}")
         time_cell = median_worst(seconds) + ("" if len(solved) == len(group) else " (misses: their budget)")
@@ -318,7 +334,8 @@ def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None, 
         "counts with its budget and its last evaluation. Floor: the experience-graph agent's median env steps to "
         "solved from every (start, heading), and from the states a move leads to (its exploration alone: the rest "
         "is waiting for each start-only state to come up as a random start, which DCQN, whose critics generalise "
-        f"across headings, need not do; `{floor_runs.name}`, the floor of the same size and map seed; maps with a "
+        f"across headings, need not do; `{floor_runs.name}`, the floor of the same size and map seed, with the same "
+        "knowledge: over places for the rows with the route memory, over poses for the others; maps with a "
         f"floor: {', '.join(f'{s:,} (map seed {m})' for s, m in floors) or 'none'}). Ratios over solved runs only.",
         "",
         *ablation_table(runs, floor_runs),
