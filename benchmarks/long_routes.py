@@ -321,7 +321,11 @@ def ablation_table(runs: list[dict[str, Any]], floor_runs: Path = FLOOR_RUNS) ->
 def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None, floor_runs: Path = FLOOR_RUNS) -> None:
     machine = machine_line("runs one after another, each in one process", torch_threads="1 torch thread per run")
     maps = {(r["size"], r.get("map_seed", 0)) for r in runs}
-    floors = sorted(m for m in maps if floor_steps(*m[:1], map_seed=m[1], runs_file=floor_runs))
+    floors = sorted(
+        m
+        for m in maps
+        if any(floor_steps(m[0], map_seed=m[1], runs_file=floor_runs, memory=memory) for memory in ("places", "poses"))
+    )
     lines = [
         "# Long routes: what each lever buys on a city",
         "",

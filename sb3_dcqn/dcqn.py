@@ -17,8 +17,9 @@ from stable_baselines3.common.utils import LinearSchedule, get_parameters_by_nam
 from torch.nn import functional as F
 
 from sb3_dcqn.place_frame import place_frame_of
+from sb3_dcqn.place_recognition import AlignedNearestPlace
 from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
-from sb3_dcqn.replay.combine import resolve_replay_buffer
+from sb3_dcqn.replay.combine import resolve_replay_buffer, with_variants
 from sb3_dcqn.replay.her import DCQNHerReplayBuffer
 from sb3_dcqn.replay.prioritized import PrioritizedReplay
 from sb3_dcqn.replay.revision import RevisionReplay
@@ -109,7 +110,9 @@ class DCQN(OffPolicyAlgorithm):
         The memory is saved in the model's file. Settings (a dict): ``explore`` (default ``True``; ``False``: the
         memory acts, epsilon explores as DQN's) and :class:`~sb3_dcqn.route_memory.RouteMemory`'s ``success_reward``,
         ``max_states``, ``retry_after``, ``max_cache_bytes``, ``goal_tolerance``, ``place_frame`` (``"auto"``: the
-        env's declaration; ``None``: pose states), ``place_matcher``. For worlds whose observations repeat exactly.
+        env's declaration; ``None``: pose states), ``place_matcher`` (default: an
+        :class:`~sb3_dcqn.place_recognition.AlignedNearestPlace` where the env declares that goals may be pictured
+        in other conditions than its views, none elsewhere). For worlds whose observations repeat exactly.
         Off by default: ``predict`` then means what it means for DQN
     :param blocked_action_target: For a transition after which the observation did not change (a collision), leave
         the taken action out of the target's max (see :func:`blocked_actions`): a blocked action's value falls below
@@ -239,6 +242,10 @@ class DCQN(OffPolicyAlgorithm):
             self.gamma,
             self.blocked_action_target,
         )
+        if self.route_memory:
+            self.replay_buffer_class = _with_revision(
+                self.replay_buffer_class, isinstance(self.observation_space, spaces.Dict), self.n_steps > 1
+            )
         if self.route_memory and _revises_per_goal(self.replay_buffer_class, self.replay_buffer_kwargs):
             # A closure is one fact for every goal: stale copies through a closed road are revised for every goal
             goal_keys = default_goal_keys(self.observation_space)
@@ -440,6 +447,10 @@ class DCQN(OffPolicyAlgorithm):
             settings = {key: value for key, value in _memory_settings(self.route_memory).items() if key != "explore"}
             frame = settings.pop("place_frame", "auto")
             env = self.env if self.env is not None else self
+            declared = place_frame_of(env) if frame == "auto" else frame
+            if declared is not None and declared.goals_pictured_otherwise and "place_matcher" not in settings:
+                # Goals may be pictured in conditions the agent's views never are: match them to its own views
+                settings["place_matcher"] = AlignedNearestPlace(views=declared.views_per_place)
             try:
                 self.memory = RouteMemory.for_env(env, place_frame=frame, **settings)
             except TypeError as error:
@@ -518,6 +529,20 @@ def _record_critic_statistics(logger: Logger, current_q_values: th.Tensor, targe
         logger.record(f"train/{name}", float(value))
     for critic, value in enumerate(values[len(_STAT_NAMES) :], start=1):
         logger.record(f"train/critic_{critic}_loss", float(value))
+
+
+def _with_revision(buffer_class: type[ReplayBuffer] | None, is_dict: bool, n_step: bool) -> type[ReplayBuffer] | None:
+    """
+    With the route memory, the replay buffer revises too (the ``revision`` variant added where it combines: not with
+    n-step returns, nor a user's own class): a closure the memory learns from one bump stops the stale transitions
+    through that road from voting in the critics' replay, the hindsight-relabelling buffer's included.
+    """
+    if n_step or (isinstance(buffer_class, type) and issubclass(buffer_class, RevisionReplay)):
+        return buffer_class
+    try:
+        return with_variants(buffer_class, "revision", base="Dict" if is_dict else "Box")
+    except ValueError:  # a buffer the variant does not extend or combine with: as given
+        return buffer_class
 
 
 def _revises_per_goal(buffer_class: type | None, buffer_kwargs: dict[str, Any]) -> bool:

@@ -25,7 +25,14 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import torch as th
 
-__all__ = ["NOT_IN_MEMORY", "NearestPlace", "PlaceEmbedding", "PlaceMatcher", "fit_place_matcher"]
+__all__ = [
+    "NOT_IN_MEMORY",
+    "AlignedNearestPlace",
+    "NearestPlace",
+    "PlaceEmbedding",
+    "PlaceMatcher",
+    "fit_place_matcher",
+]
 
 PROBE_SHARE = 0.2  # places left out of the probe embedding that calibrates a learned matcher's threshold
 NOT_IN_MEMORY = -1  # the answer for a query no remembered place is close enough to
@@ -36,11 +43,15 @@ NORM_EPS = 1e-12  # a zero vector stays zero when normalised (its similarity to 
 class PlaceMatcher(Protocol):
     """What a route memory asks when a goal photo matches none of its place vectors exactly."""
 
-    def match(self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    def match(
+        self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, goal_pictures: np.ndarray | None = None
+    ) -> np.ndarray:
         """
         :param queries: ``(m, d)`` float32 goal photos
         :param references: ``(n, d)`` float32 the memory's place vectors
         :param labels: ``(n,)`` int64 the place identity of each reference (rows seen at one state share a label)
+        :param goal_pictures: ``(k, d)`` every goal photo the memory was shown so far (unlabelled: the goals' own
+            conditions, for a matcher that aligns them with the references'); a matcher may ignore it
         :return: ``(m,)`` int64: the matched reference ROW for each query, or -1: "not in memory" (no remembered place
             is close enough)
         """
@@ -245,11 +256,14 @@ class NearestPlace:
         queries = _check_matrix("queries", queries, references.shape[1])
         return self._embed(queries) @ self._embed(references).T
 
-    def match(self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    def match(
+        self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, goal_pictures: np.ndarray | None = None
+    ) -> np.ndarray:
         """
         :param queries: ``(m, d)`` float32 goal photos
         :param references: ``(n, d)`` float32 the memory's place vectors
         :param labels: ``(n,)`` int64 the place identity of each reference
+        :param goal_pictures: Unused (the protocol's)
         :return: ``(m,)`` int64: the nearest reference row for each query, or -1 where its similarity is below the
             threshold (and for every query when there are no references)
         """
@@ -363,3 +377,84 @@ def fit_place_matcher(references: np.ndarray, labels: np.ndarray, *, learned: bo
     matcher.impostor_similarities = calibrated.impostor_similarities
     matcher.genuine_similarities = calibrated.genuine_similarities
     return matcher
+
+
+class AlignedNearestPlace:
+    """
+    Goal photos taken in other conditions than the agent's own views (night, passing cars), matched against the
+    agent's own views without a label: the goal photos' domain is first aligned with the references' by CORAL
+    (Sun, Feng & Saenko 2016: whiten with the goal photos' covariance, colour with the references'; means moved
+    alike), estimated from every goal photo the memory was shown (``goal_pictures``: the training goals' photos, no
+    place named), then each query is matched to the reference of highest mean cosine similarity over the
+    ``views`` blocks of the picture (a view in shadow pulls one block down, not the whole match).
+
+    Unlike :class:`NearestPlace` with a learned :class:`PlaceEmbedding`, it needs no place seen in two conditions:
+    the agent's own views (one condition) and the unlabelled goal photos suffice, which is all a fair memory has.
+
+    :param views: Equal blocks of a picture (CampusNav: 4 views)
+    :param regularisation: Added to both covariances' diagonals (features are whitened, O(1): 1.0 is mild)
+    :param threshold: The lowest mean cosine similarity answered (``None``: every query gets its nearest)
+    :param min_goal_pictures: Below this many goal photos the domains are not aligned (their statistics would be noise)
+    """
+
+    def __init__(
+        self, views: int = 1, regularisation: float = 1.0, threshold: float | None = None, min_goal_pictures: int = 8
+    ) -> None:
+        if int(views) < 1 or regularisation < 0:
+            raise ValueError(f"AlignedNearestPlace: views >= 1 and regularisation >= 0, got {views}, {regularisation}")
+        if threshold is not None and not -1.0 <= float(threshold) <= 1.0:
+            raise ValueError(f"AlignedNearestPlace: threshold is a cosine similarity in [-1, 1], got {threshold}")
+        self.views = int(views)
+        self.regularisation = float(regularisation)
+        self.threshold = None if threshold is None else float(threshold)
+        self.min_goal_pictures = int(min_goal_pictures)
+        self._fitted: tuple[tuple[int, int], np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def align(self, queries: np.ndarray, references: np.ndarray, goal_pictures: np.ndarray | None) -> np.ndarray:
+        """The queries moved into the references' domain (as they are where there are too few goal photos)."""
+        if goal_pictures is None or len(goal_pictures) < self.min_goal_pictures or len(references) < 2:
+            return queries.astype(np.float64)
+        key = (len(goal_pictures), len(references))
+        if self._fitted is None or self._fitted[0] != key:  # refit when either domain has grown
+            source, target = goal_pictures.astype(np.float64), references.astype(np.float64)
+            eye = self.regularisation * np.eye(source.shape[1])
+            whiten = _matrix_power(np.cov(source.T) + eye, -0.5)
+            colour = _matrix_power(np.cov(target.T) + eye, 0.5)
+            self._fitted = (key, source.mean(axis=0), whiten @ colour, target.mean(axis=0))
+        _, source_mean, transform, target_mean = self._fitted
+        return (queries.astype(np.float64) - source_mean) @ transform + target_mean
+
+    def similarities(self, queries: np.ndarray, references: np.ndarray) -> np.ndarray:
+        """``(m, n)`` mean cosine similarity over the view blocks."""
+        return _block_units(queries, self.views) @ _block_units(references, self.views).T / self.views
+
+    def match(
+        self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, goal_pictures: np.ndarray | None = None
+    ) -> np.ndarray:
+        """See :class:`PlaceMatcher`; ``goal_pictures`` are the goal photos' domain sample."""
+        references = _check_matrix("references", references)
+        queries = _check_matrix("queries", queries, references.shape[1])
+        _check_labels(labels, references)
+        if references.shape[1] % self.views:
+            raise ValueError(f"AlignedNearestPlace: {references.shape[1]} columns do not split into {self.views} views")
+        if len(references) == 0 or len(queries) == 0:
+            return np.full(len(queries), NOT_IN_MEMORY, dtype=np.int64)
+        if goal_pictures is not None:
+            goal_pictures = _check_matrix("goal_pictures", goal_pictures, references.shape[1])
+        similarity = self.similarities(self.align(queries, references, goal_pictures), references)
+        rows = similarity.argmax(axis=1).astype(np.int64)
+        if self.threshold is not None:
+            rows[similarity[np.arange(len(rows)), rows] < self.threshold] = NOT_IN_MEMORY
+        return rows
+
+
+def _matrix_power(matrix: np.ndarray, power: float) -> np.ndarray:
+    """A symmetric positive definite matrix to a power, by its eigendecomposition."""
+    values, vectors = np.linalg.eigh(matrix)
+    return (vectors * np.maximum(values, NORM_EPS) ** power) @ vectors.T
+
+
+def _block_units(vectors: np.ndarray, views: int) -> np.ndarray:
+    """Each view block of each row divided by its norm."""
+    blocks = np.asarray(vectors, dtype=np.float64).reshape(len(vectors), views, -1)
+    return (blocks / np.maximum(np.linalg.norm(blocks, axis=2, keepdims=True), NORM_EPS)).reshape(len(vectors), -1)

@@ -85,6 +85,7 @@ NO_ROUTE = -1  # hops of a state with no remembered route
 ACHIEVED_GOAL_KEY = "achieved_goal"
 DEFAULT_RETRY_AFTER = 200  # transitions after which a blocked road may be tried again where it shortens a route
 DEFAULT_CACHE_BYTES = 64 * 2**20
+MAX_GOALS_SHOWN = 20_000  # distinct goal pictures kept for a place matcher (their conditions' statistics)
 _NEVER = np.iinfo(np.int64).max
 _ROUTES = (DRIVEN, INFERRED)
 _SLOT_ARRAYS = {"outcome": UNTRIED, "target": -1, "arrival": -1, "last_tried": 0}  # fill of untried rows
@@ -93,11 +94,14 @@ _SLOT_ARRAYS = {"outcome": UNTRIED, "target": -1, "arrival": -1, "last_tried": 0
 class PlaceMatcher(Protocol):
     """Finds the remembered place of goal pictures that match none exactly (see :mod:`sb3_dcqn.place_recognition`)."""
 
-    def match(self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    def match(
+        self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, goal_pictures: np.ndarray | None = None
+    ) -> np.ndarray:
         """
         :param queries: ``(m, d)`` goal pictures
         :param references: ``(n, d)`` the memory's place pictures
         :param labels: ``(n,)`` each reference's place (pictures of one state share a label)
+        :param goal_pictures: ``(k, d)`` the distinct goal pictures the memory was shown (no place named)
         :return: ``(m,)`` the matched reference row of each query, -1: not in memory
         """
         ...
@@ -209,6 +213,7 @@ class RouteMemory:
         self._picture_of: dict[bytes, int] = {}
         self._pictures: list[np.ndarray] = []
         self._picture_states: list[set[int]] = []
+        self._goals_shown: dict[bytes, np.ndarray] = {}  # distinct goal pictures asked for (a matcher's domain sample)
         self.version = 0  # counts changes of edges and goals
         self._goal_version = 0  # counts changes of what goals attach to (pictures, places, goals reached)
         self.suspected = 0  # pose states only: moves made untried again by a collision on a move into the same state
@@ -258,7 +263,7 @@ class RouteMemory:
         per-object overhead not counted)."""
         per_slot = 4 + 4 + 1 + 1  # target, last tried, outcome, arrival frame
         pictures = sum(vector.nbytes for vector in self._pictures)
-        goals = sum(vector.nbytes for vector in self._goal_vectors.values())
+        goals = sum(vector.nbytes for vector in (*self._goal_vectors.values(), *self._goals_shown.values()))
         links = sum(len(states) for states in self._picture_states) + sum(len(s) for s in self._reached.values())
         digests = 16 * (len(self._state_of) + len(self._view_places) + self.n_places + len(self._reached))
         return self._size * self.n_actions * per_slot + digests + pictures + goals + 8 * links
@@ -422,6 +427,8 @@ class RouteMemory:
         success = terminated & reached
         if success.any():
             self._add_reached(select_rows(observations, success), next_states[success])
+        if self._picture_key is not None and self.place_matcher is not None:
+            self._add_goals_shown(observations)
         if self._achieved_key is not None:
             self._add_achieved(observations, states)
             self._add_achieved(next_observations, next_states)
@@ -548,6 +555,21 @@ class RouteMemory:
         self._goal_vectors[goal] = np.array(vector, dtype=np.float64)
         return goal
 
+    def _add_goals_shown(self, observations: Any) -> None:
+        """Remember the distinct goal pictures of a batch (at most ``MAX_GOALS_SHOWN``: a sample of their domain)."""
+        if len(self._goals_shown) >= MAX_GOALS_SHOWN or not isinstance(observations, Mapping):
+            return
+        pictures = np.asarray(observations[self._picture_key], dtype=np.float32)
+        pictures = pictures.reshape(_batch_size(observations), -1)
+        for picture in np.unique(pictures, axis=0):
+            self._goals_shown.setdefault(_digest(picture.tobytes()), picture.copy())
+
+    def goal_pictures(self) -> np.ndarray:
+        """The distinct goal pictures shown to the memory so far, ``(k, d)`` float32 (with a place matcher)."""
+        if not self._goals_shown:
+            return np.zeros((0, 0), dtype=np.float32)
+        return np.stack(list(self._goals_shown.values()))
+
     def _add_achieved(self, observations: Mapping[str, Any], states: np.ndarray) -> None:
         """Attach each state to the place its achieved goal pictures (pose states: SB3's goal-env convention)."""
         rows = self._rows(observations, [self._achieved_key])  # type: ignore[list-item]
@@ -641,7 +663,8 @@ class RouteMemory:
         if found is None and self.place_matcher is not None and self._pictures:
             vectors = self.place_vectors()
             query = np.asarray(picture, dtype=np.float32).reshape(1, -1)
-            matched = int(self.place_matcher.match(query, vectors, self.place_labels())[0])
+            shown = self.goal_pictures() if self._goals_shown else None
+            matched = int(self.place_matcher.match(query, vectors, self.place_labels(), shown)[0])
             found = matched if matched >= 0 else None
         return set() if found is None else set(self._picture_states[found])
 
