@@ -1,0 +1,142 @@
+"""Specification of the view build on a Ray cluster (campusnav_env.features.ray_build), on a local two-CPU cluster.
+
+The tests that need Ray are marked ``ray`` and skipped, saying so, where it is not installed (``pip install
+"sb3-dcqn[ray]"``).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from campusnav_env.features.encoders import PixelProjectionEncoder
+from campusnav_env.features.feature_cache import cache_path, encode_every_node, node_batches
+from campusnav_env.features.ray_build import encode_batches_on_ray, import_ray
+from campusnav_env.features.view_source import ViewSource
+from campusnav_env.features.view_worker import ViewBuildError
+from campusnav_env.maps.campus import generate_campus
+from campusnav_env.rendering.street_view import RenderSettings
+
+N_NODES = 20
+SMALL_VIEWS = RenderSettings(width=64, height=48)
+needs_ray = pytest.mark.skipif(
+    importlib.util.find_spec("ray") is None, reason='Ray is not installed (pip install "sb3-dcqn[ray]")'
+)
+
+
+class NoiseRenderer:
+    """
+    Picklable renderer (actors import it from this module): node n's views drawn from seed n.
+
+    :param fail_at: The node whose rendering raises
+    :param exit_once_at: The node whose first rendering ends the actor's process (the file ``marker`` then exists)
+    :param marker: See ``exit_once_at``
+    """
+
+    def __init__(self, fail_at: int | None = None, exit_once_at: int | None = None, marker: Path | None = None) -> None:
+        self.fail_at, self.exit_once_at, self.marker = fail_at, exit_once_at, marker
+
+    def __call__(self) -> NoiseRenderer:
+        return self
+
+    def render_node(self, node: int) -> np.ndarray:
+        if node == self.fail_at:
+            raise RuntimeError("the renderer crashed")
+        if node == self.exit_once_at and self.marker is not None and not self.marker.exists():
+            self.marker.touch()
+            os._exit(1)  # the actor's process dies, as under the OOM killer or with its node
+        return np.random.default_rng(node).integers(0, 256, (4, 24, 32, 3), dtype=np.uint8)
+
+
+@pytest.fixture(scope="module")
+def ray_cluster() -> Iterator[Any]:
+    """A local Ray instance of two CPUs whose workers import this module (as a cluster's nodes import the package)."""
+    ray = import_ray()
+    path = os.pathsep.join([str(Path(__file__).parent), str(Path(__file__).resolve().parents[1]), *sys.path])
+    ray.init(
+        num_cpus=2,
+        include_dashboard=False,
+        logging_level="ERROR",
+        runtime_env={"env_vars": {"PYTHONPATH": path, "OMP_NUM_THREADS": "1"}},
+    )
+    yield ray
+    ray.shutdown()
+
+
+def on_ray(renderer: NoiseRenderer, encoder: PixelProjectionEncoder, actors: int | None = 2) -> np.ndarray:
+    features = np.empty((N_NODES, 4, *encoder.output_shape), encoder.dtype)
+    for nodes, encoded in encode_batches_on_ray(node_batches(N_NODES), renderer, encoder, actors=actors):
+        features[nodes.start : nodes.stop] = encoded
+    return features
+
+
+def test_without_ray_the_error_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray then raises ImportError
+    with pytest.raises(
+        ImportError, match=r'build_backend="ray" needs Ray, which is not installed: pip install "sb3-dcqn\[ray\]"'
+    ):
+        encode_batches_on_ray(node_batches(N_NODES), NoiseRenderer(), PixelProjectionEncoder())
+    graph = generate_campus(16, seed=1)
+    with pytest.raises(ValueError, match="build backend must be one of 'local', 'ray', got 'dask'"):
+        ViewSource(graph, "features", "pixels", None, SMALL_VIEWS, 0, None, False, backend="dask")
+    with pytest.raises(ValueError, match="ray_address='auto' is for backend='ray'"):
+        ViewSource(graph, "features", "pixels", None, SMALL_VIEWS, 0, None, False, ray_address="auto")
+
+
+@needs_ray
+@pytest.mark.ray
+def test_actors_build_the_features_of_the_local_build(ray_cluster: Any) -> None:
+    encoder = PixelProjectionEncoder(dim=16)
+    serial = encode_every_node(N_NODES, NoiseRenderer().render_node, encoder, progress=False)
+    np.testing.assert_allclose(on_ray(NoiseRenderer(), encoder), serial, rtol=1e-5, atol=1e-6)
+
+
+@needs_ray
+@pytest.mark.ray
+def test_the_view_source_on_ray_fills_the_local_builds_cache_file(ray_cluster: Any, tmp_path: Path) -> None:
+    graph = generate_campus(16, seed=1)
+
+    def source(cache_dir: Path, **kwargs: Any) -> ViewSource:
+        return ViewSource(graph, "features", "pixels", None, SMALL_VIEWS, 0, cache_dir, False, **kwargs)
+
+    local = source(tmp_path / "local", workers=1).open_views()
+    on_cluster = source(tmp_path / "ray", backend="ray")
+    np.testing.assert_allclose(on_cluster.open_views(), local, rtol=1e-5, atol=1e-6)
+    local_file = cache_path(on_cluster.key_parts, graph.n_nodes, on_cluster.encoder, cache_dir=tmp_path / "local")
+    ray_file = cache_path(on_cluster.key_parts, graph.n_nodes, on_cluster.encoder, cache_dir=tmp_path / "ray")
+    assert ray_file.name == local_file.name and ray_file.is_file()  # same key, same file
+    again = source(tmp_path / "ray", workers=1)  # read by a local build: nothing rendered
+    np.testing.assert_allclose(again.open_views(), local, rtol=1e-5, atol=1e-6)
+    assert again._world is None
+
+
+@needs_ray
+@pytest.mark.ray
+def test_an_actor_killed_mid_build_has_its_batches_retried_on_another(ray_cluster: Any, tmp_path: Path) -> None:
+    encoder = PixelProjectionEncoder(dim=16)
+    marker = tmp_path / "died-once"
+    features = on_ray(NoiseRenderer(exit_once_at=11, marker=marker), encoder)
+    assert marker.exists()  # an actor did die at node 11
+    serial = encode_every_node(N_NODES, NoiseRenderer().render_node, encoder, progress=False)
+    np.testing.assert_allclose(features, serial, rtol=1e-5, atol=1e-6)
+
+
+@needs_ray
+@pytest.mark.ray
+def test_a_failing_node_is_named_and_the_actors_leave_the_driver_a_cpu(ray_cluster: Any) -> None:
+    with pytest.raises(
+        ViewBuildError, match=r"node 13: rendering its views failed: RuntimeError: the renderer crashed"
+    ) as failure:
+        on_ray(NoiseRenderer(fail_at=13), PixelProjectionEncoder())
+    assert failure.value.nodes == (13,)
+    from campusnav_env.features.ray_build import _actor_options
+
+    assert len(_actor_options(ray_cluster, None)) == 1  # two CPUs on the driver's node: one for the actors
+    assert len(_actor_options(ray_cluster, 3)) == 3
