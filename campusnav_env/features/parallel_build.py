@@ -50,6 +50,7 @@ __all__ = [
     "encode_batches_in_workers",
     "encode_views_in_workers",
     "pickle_for_workers",
+    "stop_workers",
 ]
 
 logger = logging.getLogger(__name__)
@@ -58,7 +59,7 @@ logger = logging.getLogger(__name__)
 # take seconds, tens of them on a loaded machine; beyond this a worker hangs or waits for something that never comes.
 DEFAULT_START_TIMEOUT = 300.0
 # Seconds idle workers wait for another build with the same renderer and encoder before they exit (and free the world)
-_IDLE_TIMEOUT = 30
+_IDLE_TIMEOUT = 30  # (said in stop_workers' docstring)
 # For the libraries that read them at import, before the worker sets its thread counts
 _ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 # loky's report of a dead worker ends with its exit code, e.g. "{EXIT(3)}" or "{SIGKILL(-9)}"
@@ -171,6 +172,12 @@ def _run_pool(
     finally:
         if not finished:  # a failure, or the consumer stopped: stop the other workers at once
             executor.shutdown(wait=True, kill_workers=True)
+
+
+def stop_workers() -> None:
+    """Stop the pool's idle workers now, freeing their worlds (else they exit after 30 idle seconds by themselves)."""
+    # A new executor replaces the reusable one, which is shut down; the new one starts no process until used
+    get_reusable_executor(max_workers=1, reuse=False).shutdown(wait=True)
 
 
 def encode_views_in_workers(
