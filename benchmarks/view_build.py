@@ -25,7 +25,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import math
 import sys
 import tempfile
@@ -172,6 +171,7 @@ def plan_lines(rows: list[dict[str, Any]], facts: dict[str, Any], workers: int) 
 
 
 def main(argv: list[str] | None = None) -> None:
+    from campusnav_env.features.ray_build import import_ray
     from campusnav_env.features.view_worker import default_workers
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -185,9 +185,12 @@ def main(argv: list[str] | None = None) -> None:
     th.set_num_threads(1)
     if args.quick:
         args.nodes, args.encoder = 64, PIXELS
-    if any(path.startswith("ray") for path in args.paths) and importlib.util.find_spec("ray") is None:
-        print('ray is not installed (pip install "sb3-dcqn[ray]"): measuring without it', file=sys.stderr)
-        args.paths = [path for path in args.paths if not path.startswith("ray")]
+    if any(path.startswith("ray") for path in args.paths):
+        try:
+            import_ray()
+        except ImportError as e:
+            print(f"{e}: measuring without it", file=sys.stderr)
+            args.paths = [path for path in args.paths if not path.startswith("ray")]
     if "serial" not in args.paths:
         args.paths = ["serial", *args.paths]  # the reference of the features and of the start-up
     rows, facts = measure(args)

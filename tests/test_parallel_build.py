@@ -4,6 +4,7 @@ the encoder consumes (campusnav_env.features.view_source.settings_for_encoder)."
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -190,6 +191,22 @@ def test_the_progress_bar_advances_as_each_batch_finishes(tmp_path: Path, monkey
 def test_a_worker_that_dies_is_reported_with_its_nodes() -> None:
     with pytest.raises(ViewBuildError, match=r"worker died while building nodes from 8 on .*exited with status 3"):
         encode_views_in_workers(N_NODES, NoiseRenderer(exit_at=13), PixelProjectionEncoder(), workers=1)
+
+
+class KilledRenderer(NoiseRenderer):
+    """Node 13's rendering kills its worker with SIGKILL, as the OOM killer does."""
+
+    def render_node(self, node: int) -> np.ndarray:
+        if node == 13:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return super().render_node(node)
+
+
+def test_a_worker_killed_by_a_signal_is_reported_with_the_signal() -> None:
+    with pytest.raises(
+        ViewBuildError, match=r"worker died while building nodes from 8 on .*killed by signal 9 \(SIGKILL\)"
+    ):
+        encode_views_in_workers(N_NODES, KilledRenderer(), PixelProjectionEncoder(), workers=1)
 
 
 def test_a_worker_that_cannot_start_says_why() -> None:

@@ -26,9 +26,16 @@ from campusnav_env.rendering.street_view import RenderSettings
 
 N_NODES = 20
 SMALL_VIEWS = RenderSettings(width=64, height=48)
-needs_ray = pytest.mark.skipif(
-    importlib.util.find_spec("ray") is None, reason='Ray is not installed (pip install "sb3-dcqn[ray]")'
-)
+
+
+def _ray_installed() -> bool:
+    try:
+        return importlib.util.find_spec("ray") is not None
+    except (ImportError, ValueError):  # an import hook that refuses it, or sys.modules["ray"] set to None
+        return False
+
+
+needs_ray = pytest.mark.skipif(not _ray_installed(), reason='Ray is not installed (pip install "sb3-dcqn[ray]")')
 
 
 class NoiseRenderer:
