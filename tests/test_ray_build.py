@@ -17,8 +17,14 @@ import numpy as np
 import pytest
 
 from campusnav_env.features.encoders import PixelProjectionEncoder
-from campusnav_env.features.feature_cache import cache_path, encode_every_node, node_batches
-from campusnav_env.features.ray_build import encode_batches_on_ray, import_ray
+from campusnav_env.features.feature_cache import (
+    cache_path,
+    cached_batched_features,
+    cached_view_features,
+    encode_every_node,
+    node_batches,
+)
+from campusnav_env.features.ray_build import _actor_options, encode_batches_on_ray, import_ray
 from campusnav_env.features.view_source import ViewSource
 from campusnav_env.features.view_worker import ViewBuildError
 from campusnav_env.maps.campus import generate_campus
@@ -45,10 +51,17 @@ class NoiseRenderer:
     :param fail_at: The node whose rendering raises
     :param exit_once_at: The node whose first rendering ends the actor's process (the file ``marker`` then exists)
     :param marker: See ``exit_once_at``
+    :param log: A file to which each rendered node is appended
     """
 
-    def __init__(self, fail_at: int | None = None, exit_once_at: int | None = None, marker: Path | None = None) -> None:
-        self.fail_at, self.exit_once_at, self.marker = fail_at, exit_once_at, marker
+    def __init__(
+        self,
+        fail_at: int | None = None,
+        exit_once_at: int | None = None,
+        marker: Path | None = None,
+        log: Path | None = None,
+    ) -> None:
+        self.fail_at, self.exit_once_at, self.marker, self.log = fail_at, exit_once_at, marker, log
 
     def __call__(self) -> NoiseRenderer:
         return self
@@ -59,6 +72,9 @@ class NoiseRenderer:
         if node == self.exit_once_at and self.marker is not None and not self.marker.exists():
             self.marker.touch()
             os._exit(1)  # the actor's process dies, as under the OOM killer or with its node
+        if self.log is not None:
+            with open(self.log, "a") as f:
+                f.write(f"{node}\n")
         return np.random.default_rng(node).integers(0, 256, (4, 24, 32, 3), dtype=np.uint8)
 
 
@@ -143,7 +159,63 @@ def test_a_failing_node_is_named_and_the_actors_leave_the_driver_a_cpu(ray_clust
     ) as failure:
         on_ray(NoiseRenderer(fail_at=13), PixelProjectionEncoder())
     assert failure.value.nodes == (13,)
-    from campusnav_env.features.ray_build import _actor_options
-
     assert len(_actor_options(ray_cluster, None)) == 1  # two CPUs on the driver's node: one for the actors
     assert len(_actor_options(ray_cluster, 3)) == 3
+
+
+@needs_ray
+@pytest.mark.ray
+def test_a_build_killed_locally_resumes_on_ray_building_only_the_rest(ray_cluster: Any, tmp_path: Path) -> None:
+    encoder, key = PixelProjectionEncoder(dim=16), {"world": "resumed on ray"}
+
+    def stop_at_16(node: int) -> np.ndarray:
+        if node == 16:
+            raise KeyboardInterrupt  # Ctrl-C after two batches
+        return NoiseRenderer().render_node(node)
+
+    with pytest.raises(KeyboardInterrupt):
+        cached_view_features(key, N_NODES, stop_at_16, encoder, cache_dir=tmp_path, progress=False)
+    log = tmp_path / "rendered.log"
+    renderer = NoiseRenderer(log=log)
+    features = cached_batched_features(
+        key,
+        N_NODES,
+        encoder,
+        lambda batches: encode_batches_on_ray(batches, renderer, encoder, actors=2),
+        cache_dir=tmp_path,
+        progress=False,
+    )
+    assert sorted(int(node) for node in log.read_text().split()) == list(range(16, N_NODES))  # the rest only
+    serial = encode_every_node(N_NODES, NoiseRenderer().render_node, encoder, progress=False)
+    np.testing.assert_allclose(features, serial, rtol=1e-5, atol=1e-6)
+
+
+class FakeRay:
+    """What the actor plan reads of Ray: the nodes and their resources, and the driver's node."""
+
+    def __init__(self, nodes: list[dict[str, Any]], driver: str) -> None:
+        self._nodes, self._driver = nodes, driver
+
+    def nodes(self) -> list[dict[str, Any]]:
+        return self._nodes
+
+    def get_runtime_context(self) -> Any:
+        driver = self._driver
+        return type("Context", (), {"get_node_id": lambda self: driver})()
+
+
+@needs_ray
+def test_the_plan_is_one_actor_per_gpu_else_every_cpu_but_one_of_the_drivers_node() -> None:
+    head, other, lost = "a1" * 28, "b2" * 28, "c3" * 28  # Ray's node ids: 28 bytes in hex
+    cpus = [
+        {"NodeID": head, "Alive": True, "Resources": {"CPU": 4.0}},
+        {"NodeID": other, "Alive": True, "Resources": {"CPU": 8.0}},
+        {"NodeID": lost, "Alive": False, "Resources": {"CPU": 8.0}},
+    ]
+    plan = _actor_options(FakeRay(cpus, head), None)  # type: ignore[arg-type]
+    assert len(plan) == 3 + 8  # the head keeps a CPU for the driver; the lost node counts for nothing
+    assert {option["num_cpus"] for option in plan} == {1}
+    assert [option["scheduling_strategy"].node_id for option in plan].count(head) == 3
+    gpus = [{**cpus[0], "Resources": {"CPU": 4.0, "GPU": 2.0}}, {**cpus[1], "Resources": {"CPU": 8.0, "GPU": 1.0}}]
+    plan = _actor_options(FakeRay(gpus, head), None)  # type: ignore[arg-type]
+    assert plan == [{"num_cpus": 1, "num_gpus": 1}] * 3
