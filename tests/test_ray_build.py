@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import shutil
 import sys
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -83,14 +85,20 @@ def ray_cluster() -> Iterator[Any]:
     """A local Ray instance of two CPUs whose workers import this module (as a cluster's nodes import the package)."""
     ray = import_ray()
     path = os.pathsep.join([str(Path(__file__).parent), str(Path(__file__).resolve().parents[1]), *sys.path])
-    ray.init(
-        num_cpus=2,
-        include_dashboard=False,
-        logging_level="ERROR",
-        runtime_env={"env_vars": {"PYTHONPATH": path, "OMP_NUM_THREADS": "1"}},
-    )
-    yield ray
-    ray.shutdown()
+    # Its session (logs, sockets) in a short temp dir of its own, removed after: sockets' paths have a length limit
+    session = tempfile.mkdtemp(prefix="ray-")
+    try:
+        ray.init(
+            num_cpus=2,
+            include_dashboard=False,
+            logging_level="ERROR",
+            runtime_env={"env_vars": {"PYTHONPATH": path, "OMP_NUM_THREADS": "1"}},
+            _temp_dir=session,
+        )
+        yield ray
+    finally:
+        ray.shutdown()
+        shutil.rmtree(session, ignore_errors=True)
 
 
 def on_ray(renderer: NoiseRenderer, encoder: PixelProjectionEncoder, actors: int | None = 2) -> np.ndarray:
