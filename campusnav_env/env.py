@@ -142,6 +142,9 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     - ``render_mode``: ``"rgb_array"`` for :meth:`render`, a map of roads, closures, agent, goal and route so far.
     - ``build_workers``: processes that render and encode the views on a cold cache (default: one per core on maps of
       256 intersections and more, see :class:`~campusnav_env.features.view_source.ViewSource`).
+    - ``build_backend``, ``ray_address``: where a cold cache's views are built: ``"local"`` (default, this machine) or
+      ``"ray"`` (a Ray cluster, ``pip install "sb3-dcqn[ray]"``; ``ray_address`` ``"auto"``, ``"ray://<head>:10001"``,
+      None: ``$RAY_ADDRESS`` or a local Ray; ``build_workers`` then counts actors). Either resumes a killed build.
     - ``fit_views_to_encoder``: render the views at the size the CNN consumes (about 299x224 for EfficientNet-Lite0's
       224x224 input, instead of 640x480 shrunk to it: about 1.8x less work per view, features of a cosine similarity
       of 0.98 to the full-size ones, cached under their own key). Off by default, so that the built-in campus keeps
@@ -172,11 +175,18 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         visible_closures: bool = False,
         build_workers: int | None = None,
         fit_views_to_encoder: bool = False,
+        build_backend: str = "local",
+        ray_address: str | None = None,
     ) -> None:
         graph = resolve_world(world)
         _check_observation_mode(observation_mode)
         # How views are built (kept for the views a subclass builds too, e.g. the goal env's goal pictures)
-        self._view_build = {"workers": build_workers, "fit_views_to_encoder": fit_views_to_encoder}
+        self._view_build = {
+            "workers": build_workers,
+            "fit_views_to_encoder": fit_views_to_encoder,
+            "backend": build_backend,
+            "ray_address": ray_address,
+        }
         source = ViewSource(
             graph.map,
             observation_mode,

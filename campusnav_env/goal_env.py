@@ -118,6 +118,8 @@ class CampusNavGoalEnv(CampusNavEnv):
         render_mode: str | None = None,
         visible_closures: bool = False,
         build_workers: int | None = None,
+        build_backend: str = "local",
+        ray_address: str | None = None,
         fit_views_to_encoder: bool = False,
     ) -> None:
         if observation_mode != "features":
@@ -161,6 +163,8 @@ class CampusNavGoalEnv(CampusNavEnv):
             render_mode=render_mode,
             visible_closures=visible_closures,
             build_workers=build_workers,
+            build_backend=build_backend,
+            ray_address=ray_address,
             fit_views_to_encoder=fit_views_to_encoder,
         )
         self.training_goals: list[int] = training

@@ -1,8 +1,8 @@
 """A script without an ``if __name__ == "__main__":`` guard builds a city's views in worker processes (issue 21).
 
-The view-build workers run ``python -m campusnav_env.features.view_worker`` and never import the script: under
-multiprocessing's ``spawn`` each one ran the script again, built the env again and waited (an hour) for the feature
-cache its parent was building.
+The view-build workers are loky's (fork + exec of a fresh interpreter that does not import the parent's ``__main__``)
+and never run the script: under multiprocessing's ``spawn`` each one ran the script again, built the env again and
+waited (an hour) for the feature cache its parent was building.
 """
 
 from __future__ import annotations

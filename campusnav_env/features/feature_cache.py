@@ -18,6 +18,13 @@ Ctrl-C; the empty lock file may stay behind (the lock is the OS's, not the file'
 ``lock_timeout`` seconds (default :data:`DEFAULT_LOCK_TIMEOUT`, or ``$CAMPUSNAV_CACHE_LOCK_TIMEOUT``) with a
 :class:`TimeoutError` that names the lock file and its owner. Loading a valid file takes no lock, so a read-only cache
 directory works.
+
+A build resumes where a killed one stopped (Ctrl-C, the OOM killer, a lost node): :func:`cached_batched_features`
+stores each batch of nodes as it finishes in ``<cache file>.shards/nodes-<start>-<stop>.npz`` (temp file, then
+:func:`os.replace`; each shard records the cache key, its nodes and a checksum), and the next builder of the same
+file loads the valid shards and builds only the other batches. A torn or foreign shard fails its checks and is built
+again, never read. Once every batch is in, the cache file is written as before (readers see no change) and the shards
+are removed.
 """
 
 from __future__ import annotations
@@ -25,12 +32,15 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import os
+import re
+import shutil
 import socket
 import tempfile
 import time
 import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -44,17 +54,27 @@ __all__ = [
     "CACHE_FORMAT_VERSION",
     "DEFAULT_LOCK_TIMEOUT",
     "LOCK_TIMEOUT_ENV",
+    "BatchBuild",
     "cache_key",
     "cache_path",
+    "cached_batched_features",
     "cached_features",
     "cached_view_features",
+    "collect_batches",
     "default_cache_dir",
+    "encode_batches",
     "encode_every_node",
     "encode_nodes",
     "lock_paths",
     "node_batches",
     "render_nodes",
+    "shard_dir",
 ]
+
+logger = logging.getLogger(__name__)
+
+# A build that yields each finished batch of nodes with its encodings, given the batches to build (in any order)
+BatchBuild = Callable[[Sequence[range]], Iterable[tuple[range, np.ndarray]]]
 
 # Bump when the file layout or the meaning of cached arrays changes: old files then simply stop matching.
 CACHE_FORMAT_VERSION = 1
@@ -145,8 +165,11 @@ def _ensure_writable_dir(directory: Path) -> None:
         raise PermissionError(f"cache directory {directory} is not writable; set $CAMPUSNAV_CACHE or pass cache_dir")
 
 
-def _save_atomic(path: Path, features: np.ndarray, meta: Mapping[str, object]) -> None:
-    """Write the npz to a temp file in the same directory, fsync it, then rename it over ``path``."""
+def _save_atomic(path: Path, features: np.ndarray, meta: Mapping[str, object], *, durable: bool = True) -> None:
+    """
+    Write the npz to a temp file in the same directory, fsync it (where ``durable``), then rename it over ``path``.
+    Shards skip the fsyncs: one lost or torn by a power cut fails its checksum and is built again.
+    """
     tmp_name: str | None = None
     try:
         with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp", delete=False) as tmp:
@@ -154,13 +177,16 @@ def _save_atomic(path: Path, features: np.ndarray, meta: Mapping[str, object]) -
             # Saving to the open handle: given a file name, numpy would append ".npz" to it.
             np.savez(tmp, features=features, meta=np.array(json.dumps(meta, sort_keys=True)))
             tmp.flush()
-            os.fsync(tmp.fileno())
+            if durable:
+                os.fsync(tmp.fileno())
         os.replace(tmp_name, path)
     except BaseException:
         if tmp_name is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp_name)
         raise
+    if not durable:
+        return
     # Make the rename itself durable where the platform allows fsync on a directory.
     with contextlib.suppress(OSError):
         fd = os.open(path.parent, os.O_RDONLY)
@@ -225,6 +251,48 @@ def node_batches(n_nodes: int) -> list[range]:
     return [range(start, min(start + nodes_per_batch, n_nodes)) for start in range(0, n_nodes, nodes_per_batch)]
 
 
+def encode_batches(
+    batches: Sequence[range], render_node: Callable[[int], np.ndarray], encoder: ViewEncoder
+) -> Iterator[tuple[range, np.ndarray]]:
+    """
+    Render and encode batches of nodes in this process (the serial build, a :data:`BatchBuild`).
+
+    :param batches: The batches (of :func:`node_batches`)
+    :param render_node: As for :func:`cached_view_features`
+    :param encoder: Encoder applied to the views
+    :return: Each batch with its ``(len(batch), 4, *encoder.output_shape)`` encodings, as it finishes
+    """
+    view_shape: tuple[int, ...] | None = None
+    for nodes in batches:
+        views = render_nodes(nodes, render_node, view_shape)
+        view_shape = (VIEWS_PER_NODE, *views.shape[1:])
+        yield nodes, encode_nodes(views, encoder)
+
+
+def _progress_bar(n_nodes: int, encoder: ViewEncoder, progress: bool, initial: int = 0) -> tqdm:
+    return tqdm(total=n_nodes, initial=initial, desc=progress_label(encoder), unit="node", disable=not progress)
+
+
+def collect_batches(
+    n_nodes: int, encoder: ViewEncoder, batches: Iterable[tuple[range, np.ndarray]], progress: bool
+) -> np.ndarray:
+    """
+    Fill every node's encodings from a build's batches, advancing a progress bar as each one arrives.
+
+    :param n_nodes: Number of nodes
+    :param encoder: The encoder the batches come from (shape and dtype of the array)
+    :param batches: ``(nodes, encodings)`` pairs covering nodes ``0 .. n_nodes - 1``
+    :param progress: Show a tqdm progress bar
+    :return: ``(n_nodes, 4, *encoder.output_shape)`` array of dtype ``encoder.dtype``
+    """
+    features = np.empty((n_nodes, VIEWS_PER_NODE, *encoder.output_shape), dtype=encoder.dtype)
+    with _progress_bar(n_nodes, encoder, progress) as bar:
+        for nodes, encoded in batches:
+            features[nodes.start : nodes.stop] = encoded
+            bar.update(len(nodes))
+    return features
+
+
 def encode_every_node(
     n_nodes: int, render_node: Callable[[int], np.ndarray], encoder: ViewEncoder, progress: bool
 ) -> np.ndarray:
@@ -237,15 +305,7 @@ def encode_every_node(
     :param progress: Show a tqdm progress bar
     :return: ``(n_nodes, 4, *encoder.output_shape)`` array of dtype ``encoder.dtype``
     """
-    features = np.empty((n_nodes, VIEWS_PER_NODE, *encoder.output_shape), dtype=encoder.dtype)
-    view_shape: tuple[int, ...] | None = None
-    with tqdm(total=n_nodes, desc=progress_label(encoder), unit="node", disable=not progress) as bar:
-        for nodes in node_batches(n_nodes):
-            views = render_nodes(nodes, render_node, view_shape)
-            view_shape = (VIEWS_PER_NODE, *views.shape[1:])
-            features[nodes.start : nodes.stop] = encode_nodes(views, encoder)
-            bar.update(len(nodes))
-    return features
+    return collect_batches(n_nodes, encoder, encode_batches(node_batches(n_nodes), render_node, encoder), progress)
 
 
 def progress_label(encoder: ViewEncoder) -> str:
@@ -323,6 +383,76 @@ def _build_lock(path: Path, timeout: float) -> Iterator[None]:
             lock.release()
 
 
+def shard_dir(path: Path) -> Path:
+    """The directory in which a build of the cache file ``path`` keeps its finished batches until it is done."""
+    return path.with_name(path.name + ".shards")
+
+
+_SHARD_NAME = re.compile(r"nodes-(\d+)-(\d+)\.npz")
+
+
+class _Shards:
+    """
+    A build's finished batches on disk (see the module docstring): each stored as it finishes, loaded by the next
+    builder where the build was killed.
+
+    :param path: The cache file being built
+    :param key: Its key
+    :param encoder: The encoder (shape and dtype of each shard)
+    """
+
+    def __init__(self, path: Path, key: str, encoder: ViewEncoder) -> None:
+        self.directory = shard_dir(path)
+        self.key = key
+        self.encoding = (VIEWS_PER_NODE, *encoder.output_shape)
+        self.dtype = np.dtype(encoder.dtype)
+
+    def _path(self, nodes: range) -> Path:
+        return self.directory / f"nodes-{nodes.start}-{nodes.stop}.npz"
+
+    def _key(self, nodes: range) -> str:
+        return f"{self.key}|nodes={nodes.start}-{nodes.stop}"
+
+    def load(self, batches: Sequence[range]) -> dict[range, np.ndarray]:
+        """The valid shards of ``batches``; torn, damaged or foreign ones are left to be built again."""
+        wanted = set(batches)
+        found: dict[range, np.ndarray] = {}
+        with contextlib.suppress(FileNotFoundError):
+            for entry in os.scandir(self.directory):
+                match = _SHARD_NAME.fullmatch(entry.name)  # temp files of a killed writer do not match
+                nodes = range(int(match[1]), int(match[2])) if match else None
+                if nodes not in wanted:
+                    continue
+                shape = (len(nodes), *self.encoding)
+                try:
+                    found[nodes] = _load(Path(entry.path), self._key(nodes), shape, self.dtype)
+                except ValueError as e:
+                    logger.info("feature cache shard %s is invalid (%s): building its nodes again", entry.path, e)
+        return found
+
+    def save(self, nodes: range, encoded: np.ndarray) -> None:
+        """Store one finished batch (temp file, then rename: a torn shard never has a shard's name)."""
+        self.directory.mkdir(exist_ok=True)
+        meta = {"key": self._key(nodes), "checksum": _checksum(encoded)}
+        _save_atomic(self._path(nodes), encoded, meta, durable=False)
+
+    def remove(self, *, only_if_empty: bool = False) -> None:
+        """Delete the shards (the cache file holds them all), or only an empty directory (a build that failed)."""
+        if only_if_empty:
+            with contextlib.suppress(OSError):
+                self.directory.rmdir()
+        else:
+            shutil.rmtree(self.directory, ignore_errors=True)
+
+
+def _check_batch(nodes: range, encoded: object, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+    want = (len(nodes), *shape[1:])
+    if not isinstance(encoded, np.ndarray) or encoded.shape != want or encoded.dtype != dtype:
+        got = f"{encoded.shape} {encoded.dtype}" if isinstance(encoded, np.ndarray) else type(encoded).__name__
+        raise ValueError(f"the feature build returned {got} for nodes {nodes.start}-{nodes.stop - 1}, expected {want}")
+    return encoded
+
+
 def cached_view_features(
     key_parts: Mapping[str, str],
     n_nodes: int,
@@ -334,7 +464,8 @@ def cached_view_features(
     lock_timeout: float | None = None,
 ) -> np.ndarray:
     """
-    Return the encodings of every node's four views, computing and caching them on first use.
+    Return the encodings of every node's four views, computing and caching them on first use (resuming a build
+    that was killed, see the module docstring).
 
     :param key_parts: Everything besides the encoder that determines the views, as strings (e.g.
         ``{"world": world.fingerprint(), "render": settings.key()}``); order does not matter
@@ -351,14 +482,76 @@ def cached_view_features(
     :raises PermissionError: if the cache directory is not writable (other ``OSError`` if it cannot be created)
     :raises TimeoutError: if another process still holds the file's lock after ``lock_timeout`` seconds
     """
-    return cached_features(
+    return cached_batched_features(
         key_parts,
         n_nodes,
         encoder,
-        lambda: encode_every_node(n_nodes, render_node, encoder, progress),
+        lambda batches: encode_batches(batches, render_node, encoder),
         cache_dir=cache_dir,
+        progress=progress,
         lock_timeout=lock_timeout,
     )
+
+
+def cached_batched_features(
+    key_parts: Mapping[str, str],
+    n_nodes: int,
+    encoder: ViewEncoder,
+    build: BatchBuild,
+    *,
+    cache_dir: str | Path | None = None,
+    progress: bool = True,
+    lock_timeout: float | None = None,
+) -> np.ndarray:
+    """
+    :func:`cached_view_features` with the build given as a :data:`BatchBuild`: ``build(batches)`` yields each of
+    ``batches`` (of :func:`node_batches`) with its encodings as it finishes, in this process, in worker processes
+    (:mod:`campusnav_env.features.parallel_build`) or on a Ray cluster (:mod:`campusnav_env.features.ray_build`).
+    Called only on a cache miss, under the file's lock, with the batches that a killed build left undone; each batch
+    is checked and stored as a shard as it arrives, then the whole array is stored atomically.
+
+    :param key_parts: As for :func:`cached_view_features`
+    :param n_nodes: Number of nodes
+    :param encoder: The encoder the build uses (its name, shape and dtype key the file)
+    :param build: The build
+    :param cache_dir: Cache directory; None uses :func:`default_cache_dir`
+    :param progress: Show a tqdm progress bar while building (starting at the nodes already built)
+    :param lock_timeout: As for :func:`cached_view_features`
+    :return: The cached or computed array
+    :raises ValueError: if the build returned another shape or dtype, or left batches out (and as
+        :func:`cached_view_features`)
+    """
+
+    def compute(path: Path, key: str, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+        shards = _Shards(path, key, encoder)
+        batches = node_batches(shape[0])
+        done = shards.load(batches)
+        todo = [nodes for nodes in batches if nodes not in done]
+        features = np.empty(shape, dtype=dtype)
+        for nodes, encoded in done.items():
+            features[nodes.start : nodes.stop] = encoded
+        if done:
+            logger.info(
+                "resuming the feature build of %s: %d of %d batches already built", path, len(done), len(batches)
+            )
+        try:
+            with _progress_bar(shape[0], encoder, progress, initial=sum(map(len, done))) as bar:
+                for nodes, encoded in build(todo) if todo else ():
+                    if nodes not in todo or nodes in done:
+                        raise ValueError(f"the feature build returned nodes {nodes.start}-{nodes.stop - 1} unasked")
+                    shards.save(nodes, _check_batch(nodes, encoded, shape, dtype))
+                    features[nodes.start : nodes.stop] = encoded
+                    done[nodes] = encoded
+                    bar.update(len(nodes))
+        except BaseException:
+            shards.remove(only_if_empty=True)
+            raise
+        missing = [nodes for nodes in todo if nodes not in done]
+        if missing:
+            raise ValueError(f"the feature build left {len(missing)} batches out, from node {missing[0].start} on")
+        return features
+
+    return _cached(key_parts, n_nodes, encoder, compute, cache_dir=cache_dir, lock_timeout=lock_timeout, shards=True)
 
 
 def cached_features(
@@ -371,9 +564,9 @@ def cached_features(
     lock_timeout: float | None = None,
 ) -> np.ndarray:
     """
-    :func:`cached_view_features` with the computation given whole: ``compute()`` returns every node's encodings
-    (e.g. built by worker processes, :mod:`campusnav_env.features.parallel_build`). It is called only on a cache miss,
-    under the file's lock; its result is checked and stored atomically.
+    :func:`cached_view_features` with the computation given whole: ``compute()`` returns every node's encodings. It is
+    called only on a cache miss, under the file's lock; its result is checked and stored atomically. It does not
+    resume (:func:`cached_batched_features` does).
 
     :param key_parts: As for :func:`cached_view_features`
     :param n_nodes: Number of nodes
@@ -384,6 +577,20 @@ def cached_features(
     :return: The cached or computed array
     :raises ValueError: if ``compute`` returned another shape or dtype (and as :func:`cached_view_features`)
     """
+    return _cached(key_parts, n_nodes, encoder, lambda *_: compute(), cache_dir=cache_dir, lock_timeout=lock_timeout)
+
+
+def _cached(
+    key_parts: Mapping[str, str],
+    n_nodes: int,
+    encoder: ViewEncoder,
+    compute: Callable[[Path, str, tuple[int, ...], np.dtype], np.ndarray],
+    *,
+    cache_dir: str | Path | None,
+    lock_timeout: float | None,
+    shards: bool = False,
+) -> np.ndarray:
+    """Load the cache file, or build it under its lock with ``compute(path, key, shape, dtype)`` and store it."""
     n_nodes = _check_n_nodes(n_nodes)
     timeout = _resolve_lock_timeout(lock_timeout)
     document = _key_document(key_parts, n_nodes, encoder)
@@ -404,10 +611,12 @@ def cached_features(
             try:
                 return _load(path, key, shape, dtype)
             except ValueError as e:
-                warnings.warn(f"feature cache {path} is invalid: {e}; rebuilding it", RuntimeWarning, stacklevel=2)
-        features = compute()
+                warnings.warn(f"feature cache {path} is invalid: {e}; rebuilding it", RuntimeWarning, stacklevel=3)
+        features = compute(path, key, shape, dtype)
         if not isinstance(features, np.ndarray) or features.shape != shape or features.dtype != dtype:
             got = f"{features.shape} {features.dtype}" if isinstance(features, np.ndarray) else type(features).__name__
             raise ValueError(f"the feature build returned {got}, expected {shape} {dtype}")
         _save_atomic(path, features, {**document, "key": key, "checksum": _checksum(features)})
+        if shards:
+            _Shards(path, key, encoder).remove()
         return features

@@ -3,7 +3,8 @@
 :class:`ViewSource` hands out every node's four views of the open map and, for visible closures, one node's views with
 construction barriers on its closed roads (each a one-node cache entry). The 3D world and the renderer are built only
 on a cache miss; a big map's open views are rendered and encoded by worker processes
-(:mod:`campusnav_env.features.parallel_build`).
+(:mod:`campusnav_env.features.parallel_build`) or on a Ray cluster (:mod:`campusnav_env.features.ray_build`), stored
+batch by batch so that a killed build resumes (:func:`~campusnav_env.features.feature_cache.cached_batched_features`).
 
 Views are rendered at the size the encoder consumes (:func:`settings_for_encoder`): a CNN that resizes every view to
 224 x 224 gets it rendered at 299 x 224 instead of 640 x 480 (same camera and field of view, so the same picture up
@@ -17,27 +18,31 @@ import dataclasses
 import functools
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from campusnav_env.features.encoders import ViewEncoder, make_encoder
-from campusnav_env.features.feature_cache import cached_features, cached_view_features, encode_every_node
-from campusnav_env.features.parallel_build import default_workers, encode_views_in_workers, pickle_for_workers
+from campusnav_env.features.feature_cache import cached_batched_features, cached_view_features, encode_batches
+from campusnav_env.features.parallel_build import check_workers, encode_batches_in_workers
+from campusnav_env.features.ray_build import encode_batches_on_ray
+from campusnav_env.features.view_worker import default_workers, pickle_for_workers
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.barriers import BARRIER_VERSION
 from campusnav_env.rendering.scene import WORLD_VERSION, World
 from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
 from campusnav_env.rendering.world import build_world
 
-__all__ = ["IMAGE_MODE_VIEW", "MIN_NODES_FOR_WORKERS", "ViewSource", "settings_for_encoder"]
+__all__ = ["BUILD_BACKENDS", "IMAGE_MODE_VIEW", "MIN_NODES_FOR_WORKERS", "ViewSource", "settings_for_encoder"]
 
 IMAGE_MODE_VIEW = (48, 64)  # (height, width) of each view in image mode
 # Maps smaller than this are built in this process unless workers are asked for: starting a worker (torch, the encoder,
 # the renderer) costs seconds, more than a small map's build saves
 MIN_NODES_FOR_WORKERS = 256
+# Where a cold cache's open views are built: this machine (this process or a local pool), or a Ray cluster
+BUILD_BACKENDS = ("local", "ray")
 
 
 def settings_for_encoder(settings: RenderSettings, encoder: ViewEncoder) -> RenderSettings:
@@ -87,8 +92,12 @@ class ViewSource:
     :param cache_dir: Feature cache directory; None: the default
     :param progress: Show a progress bar while building
     :param workers: Processes that render and encode the open map's views; None: one per available core
-        (:func:`~campusnav_env.features.parallel_build.default_workers`) on maps of at least
-        :data:`MIN_NODES_FOR_WORKERS` nodes, else this process; 1: this process
+        (:func:`~campusnav_env.features.view_worker.default_workers`) on maps of at least
+        :data:`MIN_NODES_FOR_WORKERS` nodes, else this process; 1: this process. With ``backend="ray"``: the number of
+        Ray actors (None: :mod:`~campusnav_env.features.ray_build`'s plan, one per GPU or per CPU but one)
+    :param backend: ``"local"`` (this machine) or ``"ray"`` (a Ray cluster, ``pip install "sb3-dcqn[ray]"``)
+    :param ray_address: The Ray cluster (``"auto"``, ``"ray://<head>:10001"``; None: ``$RAY_ADDRESS`` or a local Ray),
+        where Ray is not initialised in this process yet; only with ``backend="ray"``
     :param fit_views_to_encoder: Render at the size the encoder consumes (:func:`settings_for_encoder`); False renders
         at ``render_settings``' size, as before (the features of the caches made then)
     :param world: The 3D world of ``graph`` and ``world_seed``, where the caller has built it; None: built on a cache
@@ -107,6 +116,8 @@ class ViewSource:
         progress: bool,
         *,
         workers: int | None = None,
+        backend: str = "local",
+        ray_address: str | None = None,
         fit_views_to_encoder: bool = True,
         world: World | None = None,
     ) -> None:
@@ -117,8 +128,11 @@ class ViewSource:
             render_settings = render_settings or RenderSettings(width=4 * width, height=4 * height)
         elif isinstance(encoder, str):
             encoder = make_encoder(encoder, **dict(encoder_kwargs or {}))
-        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-            raise ValueError(f"workers must be an int >= 1 or None, got {workers!r}")
+        check_workers(workers, allow_none=True)
+        if backend not in BUILD_BACKENDS:
+            raise ValueError(f"build backend must be one of {', '.join(map(repr, BUILD_BACKENDS))}, got {backend!r}")
+        if ray_address is not None and backend != "ray":
+            raise ValueError(f"ray_address={ray_address!r} is for backend='ray', but the backend is {backend!r}")
         self.graph = graph
         self.encoder = encoder
         self.requested_settings = render_settings or RenderSettings()
@@ -130,6 +144,8 @@ class ViewSource:
         self.cache_dir = cache_dir
         self.progress = progress
         self.workers = workers
+        self.backend = backend
+        self.ray_address = ray_address
         self._world = world
         self._renderer: StreetViewRenderer | None = None
         # Keyed without building the world: its inputs (graph, seed, generator version) determine it
@@ -153,38 +169,40 @@ class ViewSource:
         return self._renderer
 
     def build_workers(self) -> int:
-        """The number of processes that build the open map's views (1: this process)."""
+        """The number of processes that build the open map's views on this machine (1: this process)."""
         if self.workers is not None:
             return self.workers
         return default_workers() if self.graph.n_nodes >= MIN_NODES_FOR_WORKERS else 1
 
     def open_views(self) -> np.ndarray:
         """``(N, 4, *encoding)``: every node's views of the open map."""
-        return cached_features(
-            self.key_parts, self.graph.n_nodes, self.encoder, self._build_open_views, cache_dir=self.cache_dir
+        return cached_batched_features(
+            self.key_parts,
+            self.graph.n_nodes,
+            self.encoder,
+            self._build_open_views,
+            cache_dir=self.cache_dir,
+            progress=self.progress,
         )
 
-    def _build_open_views(self) -> np.ndarray:
-        """Render and encode every node's open views, in worker processes where :meth:`build_workers` says so."""
+    def _build_open_views(self, batches: Sequence[range]) -> Iterable[tuple[range, np.ndarray]]:
+        """Render and encode batches of open views: on Ray, in worker processes where :meth:`build_workers` says so."""
+        make_renderer = functools.partial(StreetViewRenderer, self.world, self.settings)
+        if self.backend == "ray":
+            return encode_batches_on_ray(
+                batches, make_renderer, self.encoder, address=self.ray_address, actors=self.workers
+            )
         workers = self.build_workers()
         if workers > 1 and self.workers is None and not _picklable(self.encoder):
             warnings.warn(
                 f"encoder {self.encoder.name!r} cannot be pickled for worker processes; building in this process",
                 RuntimeWarning,
-                stacklevel=3,
+                stacklevel=4,
             )
             workers = 1
         if workers > 1:
-            return encode_views_in_workers(
-                self.graph.n_nodes,
-                functools.partial(StreetViewRenderer, self.world, self.settings),
-                self.encoder,
-                workers=workers,
-                progress=self.progress,
-            )
-        return encode_every_node(
-            self.graph.n_nodes, lambda node: self.renderer.render_node(node), self.encoder, self.progress
-        )
+            return encode_batches_in_workers(batches, make_renderer, self.encoder, workers=workers)
+        return encode_batches(batches, lambda node: self.renderer.render_node(node), self.encoder)
 
     def views_with(self, node: int, closed_roads: frozenset[tuple[int, int]]) -> np.ndarray:
         """``(4, *encoding)``: one node's views with barriers on ``closed_roads`` (a one-node cache entry)."""
