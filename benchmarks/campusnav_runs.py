@@ -130,15 +130,21 @@ VARIANTS = {
     for variant in (
         Variant("DCQN"),
         # The critics read the heading like any other input: the network SB3's DQN can have too
-        Variant("DCQN, no heading_key", drop_policy_kwargs=("heading_key",)),
+        Variant("DCQN, no heading_key", policy_overrides={"heading_key": None}),
+        # The route memory on an entry without it (CampusNavMulti-v0's has it: "DCQN, critics alone" leaves it out)
+        Variant("DCQN, route memory", overrides={"route_memory": True}),
+        Variant("DCQN, critics alone", overrides={"route_memory": False}),
         Variant("DQN", algo="DQN", drop_policy_kwargs=("heading_key", "share_features_extractor")),
         Variant("DCQN, paper settings", paper=True),
         # The CampusNav-v0 entry before the learning-speed work: full 1280-d features, width 256, lr 1e-4
         Variant(
             "DCQN, previous settings",
-            drop_policy_kwargs=("heading_key",),
             overrides={"learning_rate": 1e-4},
-            policy_overrides={"features_extractor_kwargs": {"embed_dim": 256, "features_dim": 256}, "net_arch": [256]},
+            policy_overrides={
+                "features_extractor_kwargs": {"embed_dim": 256, "features_dim": 256},
+                "net_arch": [256],
+                "heading_key": None,
+            },
             env_overrides={"view_dim": None},
         ),
     )

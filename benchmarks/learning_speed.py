@@ -49,7 +49,12 @@ DEFAULT_VARIANTS = ("DCQN", "DCQN, no heading_key", "DQN")
 
 
 def run_one(
-    task_name: str, variant_name: str, seed: int, budget_seconds: float | None = None, max_steps: int | None = None
+    task_name: str,
+    variant_name: str,
+    seed: int,
+    budget_seconds: float | None = None,
+    max_steps: int | None = None,
+    eval_freq: int | None = None,
 ) -> dict[str, Any]:
     """Train one agent on one task to the threshold (or its caps) and return the run's record."""
     task, variant = TASKS[task_name], VARIANTS[variant_name]
@@ -57,6 +62,7 @@ def run_one(
         task,
         budget_seconds=budget_seconds or task.budget_seconds,
         max_steps=max_steps or task.max_steps,
+        eval_freq=eval_freq or task.eval_freq,
     )
     entry = variant.entry(task)
     env = task.make_env(entry)
@@ -77,6 +83,7 @@ def run_one(
         "wall_seconds": result.wall_seconds,
         "budget_seconds": task.budget_seconds,
         "max_steps": task.max_steps,
+        "eval_freq": task.eval_freq,
         "curve": result.curve(),
     }
 
@@ -222,6 +229,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--budget-seconds", type=float, help="training-time cap per run (default: the task's)")
     parser.add_argument("--max-steps", type=int, help="env-step cap per run (default: the task's)")
+    parser.add_argument("--eval-freq", type=int, help="env steps between route evaluations (default: the task's)")
     parser.add_argument(
         "--profile", action="store_true", help="measure where the training time goes (CampusNav-v0, each --variants)"
     )
@@ -246,7 +254,7 @@ def main(argv: list[str] | None = None) -> None:
     ]
     print(f"{len(done)} runs already in {args.runs_file}, {len(todo)} to do", flush=True)
     for job in todo:
-        run = run_one(*job, budget_seconds=args.budget_seconds, max_steps=args.max_steps)
+        run = run_one(*job, budget_seconds=args.budget_seconds, max_steps=args.max_steps, eval_freq=args.eval_freq)
         append_run(args.runs_file, run)
         print(
             f"{run['task']:<10} {run['variant']:<22} seed {run['seed']}: {_seconds(run)} s, {run['steps']} steps, "

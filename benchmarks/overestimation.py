@@ -74,7 +74,7 @@ AGENTS: dict[str, Variant] = {
     "DCQN, single-critic target": Variant("DCQN, single-critic target", overrides=SINGLE),
     "DCQN, no heading_key": VARIANTS["DCQN, no heading_key"],
     "DCQN, no heading_key, single-critic target": Variant(
-        "DCQN, no heading_key, single-critic target", drop_policy_kwargs=("heading_key",), overrides=SINGLE
+        "DCQN, no heading_key, single-critic target", policy_overrides={"heading_key": None}, overrides=SINGLE
     ),
     "DQN": VARIANTS["DQN"],
 }

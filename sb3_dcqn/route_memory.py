@@ -26,8 +26,9 @@ read when a frame is declared; without one, ``achieved_goal`` pictures attach go
 
 **A closed road is a fact with an age.** Each ``(state, slot)`` keeps its latest outcome and when it was last tried
 (the memory's clock counts transitions). Evaluation never drives a road seen closed; training's rollouts may route
-through a road blocked ``retry_after`` transitions ago or more when that route is shorter (Dyna-Q+'s bonus for time
-since last tried, D* Lite's replanning after one failed traversal): a reopened road is found again. A terminated
+through a road blocked ``retry_after`` transitions ago or more when that route is shorter, and try it when passing by
+(Dyna-Q+'s bonus for time since last tried, D* Lite's replanning after one failed traversal): a reopened road is found
+again, for every goal at once. A terminated
 transition that is no success (FrozenLake's holes) is a dead end: tried, never routed through.
 
 What it holds (its own store, not the replay buffer's): per state a 16-byte digest, per (state, slot) an int32 target,
@@ -83,7 +84,7 @@ DEAD_END = 4  # its episode ended without success
 OUTSIDE = 5  # led to a state past max_states
 NO_ROUTE = -1  # hops of a state with no remembered route
 ACHIEVED_GOAL_KEY = "achieved_goal"
-DEFAULT_RETRY_AFTER = 200  # transitions after which a blocked road may be tried again where it shortens a route
+DEFAULT_RETRY_AFTER = 50  # transitions after which a blocked road may be tried again where it shortens a route
 DEFAULT_CACHE_BYTES = 64 * 2**20
 MAX_GOALS_SHOWN = 20_000  # distinct goal pictures kept for a place matcher (their conditions' statistics)
 _NEVER = np.iinfo(np.int64).max
@@ -698,8 +699,9 @@ class RouteMemory:
         :param staleness: Reuse a goal's hops computed up to this many changes of the memory ago (training's
             rollouts: one search per many steps on a large map; the current edges are still read, so a road seen
             closed is never taken again unless ``retry``); 0: exact
-        :param retry: Routes may go through roads blocked ``retry_after`` transitions ago or more (training's
-            rollouts: a reopened road is found again; evaluation never drives a road seen closed)
+        :param retry: Routes may go through roads blocked ``retry_after`` transitions ago or more, and a state next to
+            such a road tries it (training's rollouts: a reopened road is found again, a still closed one costs a
+            bump per ``retry_after`` transitions; evaluation never drives a road seen closed)
         """
         states = self.states_of(observations)
         goals = self.goal_digests(observations)
@@ -712,7 +714,26 @@ class RouteMemory:
             hops = self._goal_hops(goal, observations, indices[0], staleness, retry)
             is_target = self._goal_targets(goal, observations, indices[0], retry)
             slots[rows] = self._first_slots(states[rows], hops, is_target, retry)
+        if retry:  # passing by a road blocked long enough ago: try it (one bump per retry_after, where still closed)
+            aged = self._aged_blocked(states)
+            slots = np.where(aged >= 0, aged, slots)
         return self._actions(self._frames(observations), slots)
+
+    def _aged_blocked(self, states: np.ndarray) -> np.ndarray:
+        """Per state, the lowest slot blocked ``retry_after`` transitions ago or more whose road led somewhere (-1)."""
+        slots = np.full(states.size, -1, dtype=np.int64)
+        known = states >= 0
+        if not known.any():
+            return slots
+        rows = states[known]
+        aged = (
+            (self.outcome[rows] == BLOCKED)
+            & (self.target[rows] >= 0)
+            & (self.target[rows] != rows[:, None])
+            & (self.clock - self.last_tried[rows] >= self.retry_after)
+        )
+        slots[known] = np.where(aged.any(axis=1), aged.argmax(axis=1), -1)
+        return slots
 
     def _goal_targets(self, goal: bytes, batch: Any, index: int, retry: bool = False) -> Any:
         goal_states = self._goal_states(goal, batch, index)

@@ -14,8 +14,17 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 import torch as th
+from gymnasium import spaces
 
-from sb3_dcqn.place_recognition import NOT_IN_MEMORY, NearestPlace, PlaceEmbedding, PlaceMatcher, fit_place_matcher
+from sb3_dcqn.place_frame import PlaceFrame
+from sb3_dcqn.place_recognition import (
+    NOT_IN_MEMORY,
+    AlignedNearestPlace,
+    NearestPlace,
+    PlaceEmbedding,
+    fit_place_matcher,
+)
+from sb3_dcqn.route_memory import RouteMemory
 
 D, N_PLACES, R = 64, 60, 8
 NOISE = 0.02
@@ -63,22 +72,27 @@ def accuracy(rows: np.ndarray, labels: np.ndarray, truth: np.ndarray) -> float:
     return float(np.mean((rows >= 0) & (labels[np.maximum(rows, 0)] == truth)))
 
 
-def test_both_matchers_follow_the_protocol():
-    campus = Campus()
-    nodes = np.arange(N_PLACES)
-    references, labels = references_of(campus, nodes, [1, 2], strength=0.3)
-    assert isinstance(NearestPlace(), PlaceMatcher)
-    assert isinstance(fit_place_matcher(references, labels, learned=True, seed=0), PlaceMatcher)
-    rows = NearestPlace().match(references[:5], references, labels)
-    assert rows.dtype == np.int64 and rows.shape == (5,)
-
-
 @pytest.mark.parametrize("learned", [False, True])
-def test_exact_copies_match_themselves(learned: bool):
+def test_a_route_memory_finds_a_goal_photo_in_a_new_condition_through_its_matcher(learned: bool):
     campus = Campus()
-    references, labels = references_of(campus, np.arange(N_PLACES), [1, 2], strength=0.3)
+    space = spaces.Dict({"place": spaces.Box(-9, 9, (D,)), "goal": spaces.Box(-9, 9, (D,))})
+    frame = PlaceFrame.from_declaration(
+        {"place_keys": ["place"], "goal_pictures": {"goal": "place"}}, space, spaces.Discrete(2)
+    )
+    photos = campus.condition(1, strength=0.1)
+
+    pictures = photos(np.arange(5))  # a line of places 0 - 1 - 2 - 3 - 4, driven forward (action 0)
+    goal = campus.condition(7, strength=0.1)(np.array([3]))[0]  # place 3, pictured in a condition never seen
+    places = [{"place": picture, "goal": goal} for picture in pictures]
+    bare = RouteMemory(2, space, place_frame=frame)
+    references, labels = references_of(campus, np.arange(N_PLACES), [1, 2], strength=0.1)
     matcher = fit_place_matcher(references, labels, learned=learned, seed=0)
-    np.testing.assert_array_equal(matcher.match(references, references, labels), np.arange(len(references)))
+    matched = RouteMemory(2, space, place_frame=frame, place_matcher=matcher)
+    for memory in (bare, matched):
+        for node in range(4):
+            memory.add(places[node], 0, places[node + 1], 0.0, False)
+    assert bare.route_from(places[0]) == []  # no picture of place 3 equals the goal photo
+    assert matched.route_from(places[0]) == [0, 0, 0]
 
 
 def test_a_slightly_distorted_photo_matches_its_place():
@@ -103,12 +117,13 @@ def test_an_absent_place_is_not_in_memory_after_calibration():
         assert accuracy(matcher.match(unseen(remembered), references, labels), labels, remembered) >= 0.95, learned
 
 
-def test_without_a_threshold_every_query_is_answered():
+def test_without_a_threshold_an_absent_place_is_answered_with_a_wrong_one_and_calibration_refuses_it():
     campus = Campus()
     references, labels = references_of(campus, np.arange(40), [1], strength=0.1)
-    queries = campus.condition(3, strength=0.1)(np.arange(40, N_PLACES))
-    assert np.all(NearestPlace().match(queries, references, labels) >= 0)
-    assert np.all(NearestPlace(threshold=1.0).match(queries, references, labels) == NOT_IN_MEMORY)
+    queries = campus.condition(3, strength=0.1)(np.arange(40, N_PLACES))  # places the memory never saw
+    assert np.all(NearestPlace().match(queries, references, labels) >= 0)  # each gets some remembered place
+    calibrated = NearestPlace().calibrate(references, labels)
+    assert np.mean(calibrated.match(queries, references, labels) == NOT_IN_MEMORY) >= 0.95
 
 
 def test_calibration_splits_impostors_from_genuine_rows():
@@ -216,3 +231,27 @@ def test_bad_training_data_names_the_problem():
         embedding.transform(np.ones((3, 32), np.float32))
     with pytest.raises(RuntimeError, match=r"call fit"):
         PlaceEmbedding().transform(references)
+
+
+def test_aligned_matching_finds_goal_photos_of_another_domain_against_one_condition_of_references():
+    rng = np.random.default_rng(0)
+    places = rng.normal(size=(N_PLACES, D))
+    # The goal photos' domain: every feature rescaled and shifted (night: darker, another colour balance), plus noise
+    scale, shift = rng.uniform(0.3, 3.0, size=D), rng.normal(scale=10.0, size=D)
+    photos = places * scale + shift + 0.05 * rng.normal(size=places.shape)
+    references, labels = places.astype(np.float32), np.arange(N_PLACES)
+    held = np.arange(10)  # goals never shown: found by aligning the domains with the other goals' photos
+    shown = photos[10:].astype(np.float32)
+    aligned = AlignedNearestPlace(views=4).match(photos[held].astype(np.float32), references, labels, shown)
+    raw = NearestPlace().match(photos[held].astype(np.float32), references, labels)
+    assert np.mean(aligned == held) >= 0.9 > np.mean(raw == held) + 0.3
+    # Too few goal photos to estimate a domain: no alignment, the raw similarity
+    few = AlignedNearestPlace(views=4).match(photos[held].astype(np.float32), references, labels, shown[:3])
+    np.testing.assert_array_equal(
+        few, AlignedNearestPlace(views=4).match(photos[held].astype(np.float32), references, labels)
+    )
+
+
+def test_aligned_matching_names_a_picture_that_does_not_split_into_its_views():
+    with pytest.raises(ValueError, match="do not split into 3 views"):
+        AlignedNearestPlace(views=3).match(np.zeros((1, 8)), np.ones((2, 8)), np.arange(2))

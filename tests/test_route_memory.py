@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium import spaces
+from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.envs import BitFlippingEnv
 
@@ -19,6 +20,9 @@ from campusnav_env.rendering.street_view import RenderSettings
 from campusnav_env.route_evaluation import evaluate_routes
 from sb3_dcqn import DCQN
 from sb3_dcqn.place_frame import PlaceFrame, place_frame_of
+from sb3_dcqn.place_recognition import AlignedNearestPlace
+from sb3_dcqn.replay import DCQNHerReplayBuffer
+from sb3_dcqn.replay.revision import RevisionReplay
 from sb3_dcqn.route_memory import (
     BLOCKED,
     DEAD_END,
@@ -261,6 +265,21 @@ def test_a_barrier_in_the_views_leaves_a_place_the_place_it_was() -> None:
     assert {memory.state_of(closed_view, add=True)} == states and memory.n_states == 1
 
 
+def test_training_tries_an_aged_closure_when_passing_by_it_whatever_the_goal(plain_env: CampusNavEnv) -> None:
+    _, dreese = plain_env.resolve_goal("Dreese Lab")
+    memory = RouteMemory.for_env(plain_env, retry_after=50)
+    explore_fully(plain_env, memory, dreese)
+    u, v = next(road for road in plain_env.graph.map.roads if dreese not in road)
+    slot = int(np.flatnonzero(plain_env.graph.map.slots[u] == v)[0])
+    heading = plain_env.headings_at(u)[0]
+    here = plain_env.observation_at(u, heading, dreese)
+    memory.add(here, (slot - heading) % 4, here, plain_env.collision_penalty, False)
+    memory.clock += 50
+    aged = memory.route_actions(_batch(here), retry=True)[0]
+    assert aged == (slot - heading) % 4  # the closed road next to it, although the route to Dreese Lab is elsewhere
+    assert memory.route_actions(_batch(here))[0] != aged  # evaluation never drives it
+
+
 class AliasedLine(gym.Env):
     """A line of places 0-1-2-3 where places 1 and 3 picture the same: one slot leads to two places."""
 
@@ -478,6 +497,19 @@ def test_dcqn_passes_the_memorys_settings_and_reads_the_envs_frame(plain_env: Ca
     assert model.policy.q_net.heading_key == "heading"  # the critics score compass slots, from the same declaration
     opted_out = DCQN("MultiInputPolicy", plain_env, policy_kwargs={"heading_key": None})
     assert opted_out.policy.q_net.heading_key is None
+
+
+def test_dcqn_matches_goals_pictured_otherwise_and_its_hindsight_buffer_revises() -> None:
+    night = CampusNavGoalEnv(goal_render_settings=RenderSettings(64, 48, time_of_day=19.5), **SMALL)
+    assert place_frame_of(night).goals_pictured_otherwise
+    model = DCQN("MultiInputPolicy", night, route_memory=True, replay_buffer_class=HerReplayBuffer, learning_starts=250)
+    assert isinstance(model.memory.place_matcher, AlignedNearestPlace)
+    # A closure the memory learns stops the stale transitions through it voting in the critics' replay too
+    assert isinstance(model.replay_buffer, RevisionReplay) and isinstance(model.replay_buffer, DCQNHerReplayBuffer)
+    model.learn(300)
+    assert len(model.memory.goal_pictures()) > 0  # the goal photos shown: the matcher's sample of their conditions
+    day = DCQN("MultiInputPolicy", CampusNavEnv(**SMALL), route_memory=True, learning_starts=10)
+    assert day.memory.place_matcher is None  # goals pictured as the views are: exact matches
 
 
 def test_dcqn_route_memory_on_bit_flipping_reaches_visited_goals_in_hamming_steps() -> None:
