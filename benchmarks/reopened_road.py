@@ -27,7 +27,6 @@ if not __package__:  # run as `python benchmarks/NAME.py`: the package imports f
     sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 import torch as th
-from stable_baselines3.common.callbacks import StopTrainingOnMaxEpisodes
 
 from benchmarks.campusnav_runs import TASKS, VARIANTS, quick_env_kwargs
 from benchmarks.report import RESULTS_DIR, append_run, machine_line, markdown_table, publish, read_runs
@@ -79,8 +78,15 @@ def run_one(seed: int, window: int, quick: bool, max_episodes: int = 100) -> dic
     used = {goal: count for goal, count in before.items() if count > 0}
     reopened = run.closures.apply(ClosureEvent(at=model.num_timesteps, unit="step", reopen=(road,)))
     back = solved = None
-    for episodes in range(1, max_episodes + 1):  # one training episode, then the routes from every start
-        model.learn(window, callback=StopTrainingOnMaxEpisodes(1), reset_num_timesteps=False)
+    start_episode = model._episode_num
+    while model._episode_num - start_episode < max_episodes:
+        # A few steps at a time (a stopping callback would drop the step it stops at: SB3 stores it after on_step),
+        # and the routes from every start after each episode that ended
+        episode = model._episode_num
+        model.learn(model.train_freq.frequency, reset_num_timesteps=False)
+        if model._episode_num == episode:
+            continue
+        episodes = model._episode_num - start_episode
         run.evaluation.evaluate()
         evaluation = run.evaluation.evaluations[-1]
         if back is None and all(routes_on(evaluation, road).get(g, 0) >= n for g, n in used.items()):

@@ -22,7 +22,9 @@ Levers (``--levers``, for the ablation table; each one option of the product): `
 dones on relabelled transitions: what the terminal fix buys); ``relabel8`` (8 relabelled goals per transition instead
 of 4); ``goal_dropout`` (each goal view hidden with probability 0.25 in training: partial goal pictures);
 ``revision_blocked`` (experience revision, with the goal left out of the match, and the blocked-action target: for
-re-adaptation); ``goal_photos`` (training goals pictured at noon, 7:00, 16:00 and 20:30, one condition per episode).
+re-adaptation); ``goal_photos`` (training goals pictured at noon, 7:00, 16:00 and 20:30, one condition per episode);
+``night_goals`` (every goal pictured at 19:30 with passing cars, the agent's views at noon: held-out goals found by the
+memory's place matcher against the agent's own views, never through ``achieved_goal``).
 
 With ``--after`` (both, or ``--after appearance`` / ``--after readapt``) the ``all`` runs go on, once trained:
 **appearance change** (the trained policy evaluated on every intersection with the goals pictured at 8:30, 17:30,
@@ -118,6 +120,13 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
         "route memory + exploration toward the untried",
         {"route_memory": True},
         {},
+    ),
+    # Every goal (held-out ones too) pictured at night with passing cars, the agent's own views at noon: the memory
+    # matches the photos against its own views (the env declares goals_pictured_otherwise: AlignedNearestPlace)
+    "night_goals": (
+        "goals pictured at 19:30 with passing cars (the memory's matcher)",
+        {},
+        {"goal_render_settings": APPEARANCES["night + cars"]},
     ),
 }
 

@@ -12,9 +12,9 @@ driven road also records its **reverse** (marked inferred until driven or bumped
 not untried), and a bump closes the slot for every heading **and the reverse direction**, for every goal at once. A
 place whose views change in a few of its blocks (a closure's barrier in one view) is still the same place: unseen
 pictures are matched by their per-view digests (at least half of the views equal and one place alone voting). Two
-places that picture the same (aliasing) are detected, a slot that led to one place and then to another, counted in
-:attr:`RouteMemory.aliased`, and never routed from. **Poses, where it declares nothing**: a state is the observation
-without its goal keys, and slots are the actions (the memory before places).
+places that picture the same (aliasing) are detected, a slot that led to two different places, each at least twice,
+counted in :attr:`RouteMemory.aliased`, and never routed from. **Poses, where it declares nothing**: a state is the
+observation without its goal keys, and slots are the actions (the memory before places).
 
 **Goals** are sets of states: the states a terminated success (``info["is_success"]`` where the env gives it, else a
 reward above ``success_reward``) reached under that goal, and, where the env declares goal pictures (CampusNav's
@@ -206,7 +206,8 @@ class RouteMemory:
         self.arrival = np.full((capacity, n_actions), -1, dtype=np.int8)  # the frame on arrival (-1 unknown)
         self.last_tried = np.zeros((capacity, n_actions), dtype=np.int32)
         self.clock = 0  # transitions remembered
-        self.aliased: set[int] = set()  # states that led to two different states through one slot
+        self.aliased: set[int] = set()  # states that led to two different states through one slot, each twice
+        self._disputes: dict[tuple[int, int], dict[int, int]] = {}  # (state, slot) -> times each outcome was seen
         # Goals given by success transitions: goal digest -> states reached, and the goal vectors seen
         self._reached: dict[bytes, set[int]] = {}
         self._goal_vectors: dict[bytes, np.ndarray] = {}
@@ -495,21 +496,32 @@ class RouteMemory:
     def _drive(self, state: int, slot: int, following: int, arrival: int) -> None:
         """A move; with two-way roads the way back is inferred; a slot that led elsewhere before marks an alias."""
         known = int(self.target[state, slot])
-        if known >= 0 and known != following and self.outcome[state, slot] in (*_ROUTES, BLOCKED):
-            self.aliased.add(state)
-            self.version += 1
+        contradicts = known >= 0 and known != following and self.outcome[state, slot] in (*_ROUTES, BLOCKED)
+        if contradicts or (state, slot) in self._disputes:
+            self._dispute(state, slot, known, following)
         self._set(state, slot, DRIVEN, following, arrival)
         back = self._back_slot(state, slot)
         if back is None:
             return
         far_outcome, far_target = int(self.outcome[following, back]), int(self.target[following, back])
         if far_target >= 0 and far_target != state and far_outcome in (*_ROUTES, BLOCKED):
-            self.aliased.add(following)  # the way back led elsewhere: two places picture the same
-            self.version += 1
+            self._dispute(following, back, far_target, state)  # the way back led elsewhere
         elif far_outcome in (UNTRIED, BLOCKED, OUTSIDE):
             # Arriving back here the agent would face away from the road, so that "back" again leads along it
             reverse = self.place_frame.reverse_action  # type: ignore[union-attr]
             self._set(following, back, INFERRED, state, (slot - reverse) % self.n_actions)
+
+    def _dispute(self, state: int, slot: int, known: int, following: int) -> None:
+        """
+        A slot that led to ``known`` now leads to ``following``. Two places that picture the same make it flip between
+        them again and again: once two outcomes were each seen at least twice, the state is aliased. One odd
+        transition (a glitch: a step the caller skipped) leaves it alone, and the latest outcome wins.
+        """
+        counts = self._disputes.setdefault((state, slot), {known: 1} if known >= 0 else {})
+        counts[following] = counts.get(following, 0) + 1
+        if sum(count >= 2 for count in counts.values()) >= 2 and state not in self.aliased:
+            self.aliased.add(state)
+            self.version += 1
 
     def _suspect_moves_into(self, lost: int) -> None:
         """
