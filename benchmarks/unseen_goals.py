@@ -126,7 +126,7 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "night_goals": (
         "goals pictured at 19:30 with passing cars (the memory's matcher)",
         {},
-        {"goal_render_settings": APPEARANCES["night + cars"]},
+        {"goal_render_settings": (APPEARANCES["night + cars"],)},
     ),
 }
 

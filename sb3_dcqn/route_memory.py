@@ -360,7 +360,8 @@ class RouteMemory:
         for name, fill in _SLOT_ARRAYS.items():
             array = getattr(self, name)
             grown = np.full((rows, self.n_actions), fill, dtype=array.dtype)
-            grown[: self._size] = array[: self._size]
+            kept = min(len(array), rows)
+            grown[:kept] = array[:kept]
             setattr(self, name, grown)
 
     def _frames(self, observations: Any) -> np.ndarray:

@@ -362,6 +362,16 @@ def test_a_full_memory_does_not_send_the_explorer_back_to_the_same_move_forever(
     assert memory.path_to_untried(0) is None and UntriedExplorer(memory).actions(np.stack(line[:2]))[1] == -1
 
 
+def test_the_memory_grows_past_its_first_thousand_states_and_keeps_them() -> None:
+    memory = RouteMemory(n_actions=1)
+    line = np.arange(3_000, dtype=np.float64)[:, None]
+    memory.add_batch(line[:-1], np.zeros(2_999, dtype=np.int64), line[1:], np.zeros(2_999), np.zeros(2_999, bool))
+    assert memory.n_states == 3_000 and len(memory.route_from(line[0])) == 0  # no goal: no route
+    assert (memory.target[: memory.n_states - 1, 0] == np.arange(1, 3_000)).all()
+    copy = pickle.loads(pickle.dumps(memory))
+    assert copy.n_states == 3_000 and (copy.target[:2_999, 0] == memory.target[:2_999, 0]).all()
+
+
 def test_the_route_cache_is_bounded_in_bytes(goal_env: CampusNavGoalEnv) -> None:
     memory = RouteMemory.for_env(goal_env, max_cache_bytes=4096)
     explore_fully(goal_env, memory, goal=3, through_goal=True)
