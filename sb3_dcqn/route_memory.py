@@ -914,8 +914,26 @@ class RouteMemory:
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
+        if "next_state" in state:  # saved before places (one next-state table over poses): loaded as poses
+            self._load_pose_table(state)
+            return
         self.__dict__.update(state)
         self._resize(max(1024, 2 * self._size))
+
+    def _load_pose_table(self, state: dict[str, Any]) -> None:
+        """A memory saved as one ``next_state`` table (-1 untried, -2 dead end, the state itself a collision)."""
+        keys = ("n_actions", "observation_space", "goal_keys", "success_reward", "max_states", "place_matcher")
+        self.__init__(*(state[key] for key in keys))  # type: ignore[misc]
+        table = np.asarray(state["next_state"], dtype=np.int64)[: len(state["_state_of"])]
+        self._state_of, self._size = dict(state["_state_of"]), len(table)
+        self._resize(max(1024, 2 * self._size))
+        rows = np.arange(self._size)[:, None]
+        outcome = np.select([table == -1, table == -2, table == rows], [UNTRIED, DEAD_END, BLOCKED], DRIVEN)
+        self.outcome[: self._size] = outcome
+        self.target[: self._size] = np.where(outcome == DRIVEN, table, -1)
+        self._reached = {goal: set(states) for goal, states in state["_reached"].items()}
+        self._picture_of, self._pictures = dict(state["_place_of"]), list(state["_place_vectors"])
+        self._picture_states = [set(states) for states in state["_place_states"]]
 
 
 class UntriedExplorer:

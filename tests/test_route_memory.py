@@ -30,6 +30,7 @@ from sb3_dcqn.route_memory import (
     INFERRED,
     NO_ROUTE,
     OUTSIDE,
+    UNTRIED,
     RouteMemory,
     UntriedExplorer,
 )
@@ -454,6 +455,21 @@ def test_the_memory_pickles_and_answers_the_same(goal_env: CampusNavGoalEnv) -> 
     assert copy.n_states == memory.n_states and copy.nbytes() == memory.nbytes()
     assert (memory.route_actions(batch) != NO_ROUTE).all()
     copy.add_batch(*transitions(goal_env, 3, np.array([0]), np.array([1])))  # and it grows on
+
+
+def test_a_memory_saved_as_one_pose_table_before_places_loads_as_poses() -> None:
+    a, b, c = (np.array([float(i)]) for i in range(3))
+    saved = {  # what RouteMemory.__getstate__ wrote before places (next_state: -1 untried, -2 dead end, s: collision)
+        "n_actions": 2, "observation_space": None, "goal_keys": (), "success_reward": 0.0, "max_states": 100,
+        "place_matcher": None, "next_state": np.array([[1, 0], [2, -1], [-2, -2]], dtype=np.int32),
+        "_state_of": {digest: i for i, digest in enumerate(RouteMemory(2)._digests(np.stack([a, b, c])))},
+        "_reached": {b"": {2}}, "_place_of": {}, "_place_vectors": [], "_place_states": [],
+    }  # fmt: skip
+    memory = RouteMemory.__new__(RouteMemory)
+    memory.__setstate__(saved)
+    assert memory.place_frame is None and memory.n_states == 3
+    assert memory.outcome[:3].tolist() == [[DRIVEN, BLOCKED], [DRIVEN, UNTRIED], [DEAD_END, DEAD_END]]
+    assert memory.route_from(a) == [0, 0]  # to the goal reached at c, over the remembered moves
 
 
 def test_bad_arguments_name_what_is_wrong() -> None:
