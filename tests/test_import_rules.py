@@ -30,6 +30,7 @@ ALGORITHM_MODULES = (
     "observation_table",
     "route_memory",
     "place_recognition",
+    "place_frame",
     "fusion",
     "targets",
     "adaptation_boost",
