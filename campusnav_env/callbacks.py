@@ -241,6 +241,8 @@ class RouteEvaluationCallback(_TrainingProgress):
         """Evaluate now, record the result, log it and return it (its time does not count as training)."""
         assert self.eval_env is not None, "the callback is not initialised"
         start = time.perf_counter()
+        # Read before evaluating: the evaluation's own time is subtracted only once it has finished
+        train_seconds = self.train_seconds
         model = self.model
 
         def greedy(observations: Any) -> np.ndarray:
@@ -263,7 +265,7 @@ class RouteEvaluationCallback(_TrainingProgress):
         evaluation = RouteEvaluation(
             step=step,
             episode=self.episodes,
-            train_seconds=self.train_seconds,
+            train_seconds=train_seconds,
             report=report,
             others=others,
             critics=critics,

@@ -7,6 +7,7 @@ that routes well, the evaluation uses a scripted shortest-path policy, which mak
 from __future__ import annotations
 
 import itertools
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -211,3 +212,30 @@ def test_a_schedule_continues_over_several_learn_calls(env_kwargs) -> None:
     model.learn(200, callback=callback, reset_num_timesteps=False)
     assert [r.reopened for r in callback.records] == [(), (road,)]
     assert callback.records[1].step == 250 and env.get_attr("closed_roads") == [frozenset()]
+
+
+def test_training_seconds_never_count_the_evaluations_own_time(env_kwargs, monkeypatch) -> None:
+    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
+    model = explorer(env)
+    model.predict = shortest_path_policy(env.envs[0].unwrapped)
+    import campusnav_env.callbacks as callbacks
+
+    evaluate_routes = callbacks.evaluate_routes
+
+    def slow_evaluation(*args: Any, **kwargs: Any) -> Any:
+        time.sleep(0.3)  # an evaluation far slower than the training around it
+        return evaluate_routes(*args, **kwargs)
+
+    monkeypatch.setattr(callbacks, "evaluate_routes", slow_evaluation)
+    evaluation = RouteEvaluationCallback(eval_freq=20)
+    schedule = [ClosureEvent(at=40, unit="step", close_on_route="busiest")]
+    closures = RoadClosureCallback(schedule, evaluation=evaluation, recovery_eval_freq=1)
+    started = time.perf_counter()
+    model.learn(100, callback=closures)
+    wall = time.perf_counter() - started
+    seconds = [e.train_seconds for e in evaluation.evaluations]
+    assert len(seconds) >= 6 and seconds == sorted(seconds) and seconds[0] >= 0
+    # Every evaluation slept 0.3 s; none of it is training time
+    assert seconds[-1] <= wall - 0.3 * len(seconds) + 0.05
+    recovery = closures.recoveries[0]
+    assert recovery.recovered and recovery.seconds >= 0
