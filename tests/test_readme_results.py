@@ -1,0 +1,118 @@
+"""README's figures: every row of its Results table names the command that made it and the results file it wrote.
+
+The table is the one place README states measured figures. A row with no command, a command whose script does not
+exist, a results file that does not exist, or a results file written by another script (its ``Command:`` line) fails
+here; so does a machine that the results file does not name.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from importlib.metadata import distribution
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+COLUMNS = ("measure", "figure", "memory", "machine", "command", "results file")
+MEMORY = {"yes", "no", "floor", "matcher only", "-"}
+# How a results file's Machine line spells the CPUs the table names
+CPU_SPELLINGS = {"AMD EPYC": ("AMD EPYC",), "Intel Xeon": ("Intel(R) Xeon(R)", "Intel Xeon"), "x86_64": ("x86_64",)}
+
+
+@dataclass(frozen=True)
+class Row:
+    cells: dict[str, str]
+
+    @property
+    def commands(self) -> list[str]:
+        return re.findall(r"`([^`]+)`", self.cells["command"])
+
+    @property
+    def results_files(self) -> list[str]:
+        return re.findall(r"`([^`]+)`", self.cells["results file"])
+
+
+def split_row(line: str) -> list[str]:
+    """A Markdown table row's cells (a ``|`` inside backticks is text, not a border)."""
+    cells, current, in_code = [], "", False
+    for char in line.strip()[1:-1]:
+        if char == "`":
+            in_code = not in_code
+        if char == "|" and not in_code:
+            cells.append(current.strip())
+            current = ""
+        else:
+            current += char
+    cells.append(current.strip())
+    return cells
+
+
+def results_table(text: str) -> list[Row]:
+    """The rows of the table under README's ``## Results`` heading."""
+    section = text.split("\n## Results\n", 1)[1].split("\n## ", 1)[0]
+    lines = [line for line in section.splitlines() if line.startswith("|")]
+    header = tuple(split_row(lines[0]))
+    assert header == COLUMNS, f"README's Results table has the columns {header}, expected {COLUMNS}"
+    return [Row(dict(zip(COLUMNS, split_row(line), strict=True))) for line in lines[2:]]
+
+
+def console_scripts() -> set[str]:
+    return {entry.name for entry in distribution("sb3-dcqn").entry_points if entry.group == "console_scripts"}
+
+
+def script_of(command: str) -> str:
+    """The program a command runs: a file of the repository (``benchmarks/x.py``) or a console script."""
+    words = [word for word in command.split() if not re.match(r"^[A-Z_]+=", word)]  # environment variables apart
+    files = [word for word in words if word.endswith(".py")]
+    if files:
+        return files[0]
+    assert words, f"no program in {command!r}"
+    return words[0].removeprefix(".venv/bin/")
+
+
+ROWS = results_table(README.read_text())
+
+
+def test_readme_has_a_results_table_with_rows() -> None:
+    assert len(ROWS) >= 20
+
+
+@pytest.mark.parametrize("row", ROWS, ids=[row.cells["measure"][:60] for row in ROWS])
+def test_every_figure_names_its_command_machine_memory_and_results_file(row: Row) -> None:
+    assert row.cells["figure"], "a row without a figure"
+    assert row.cells["memory"] in MEMORY, f"memory must be one of {sorted(MEMORY)}, got {row.cells['memory']!r}"
+    assert row.cells["machine"] in CPU_SPELLINGS, f"machine must be one of {sorted(CPU_SPELLINGS)}"
+    assert row.commands, "a figure without the command that made it"
+    assert row.results_files, "a figure without its results file"
+    scripts = {script_of(command) for command in row.commands}
+    for script in scripts:
+        assert script in console_scripts() or (ROOT / script).is_file(), f"the command runs {script}, which is missing"
+    for name in row.results_files:
+        path = ROOT / name
+        assert path.is_file(), f"results file {name} does not exist"
+        text = path.read_text()
+        written_by = re.findall(r"Command: `(?:[A-Z_]+=\S+ )?(?:python |pytest )?([^\s`]+)", text)
+        benchmark_scripts = {s for s in scripts if s.startswith("benchmarks/")}
+        if written_by and benchmark_scripts:
+            assert set(written_by) & benchmark_scripts, f"{name} was written by {written_by}, not by {scripts}"
+        machine = re.search(r"Machine: (.*)", text)
+        if machine is not None:
+            spellings = CPU_SPELLINGS[row.cells["machine"]]
+            assert any(s in machine.group(1) for s in spellings), f"{name} was measured on: {machine.group(1)}"
+
+
+def test_the_table_parser_sees_a_missing_command_and_a_pipe_inside_code() -> None:
+    text = (
+        "intro\n\n## Results\n\n| " + " | ".join(COLUMNS) + " |\n|---|---|---|---|---|---|\n"
+        "| a | 1 | no | x86_64 |  | `benchmarks/results/scale.md` |\n"
+        "| b | 2 | no | x86_64 | `python benchmarks/scale.py --x 'a|b'` | `benchmarks/results/scale.md` |\n"
+        "\n## Layout\n"
+    )
+    first, second = results_table(text)
+    assert first.commands == [] and second.commands == ["python benchmarks/scale.py --x 'a|b'"]
+    assert script_of(second.commands[0]) == "benchmarks/scale.py"
+    assert script_of("SOAK_REPORT=x.md pytest -m slow -s tests/test_soak.py") == "tests/test_soak.py"
+    assert script_of(".venv/bin/dcqn-campusnav") == "dcqn-campusnav"
