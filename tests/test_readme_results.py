@@ -98,6 +98,12 @@ def test_every_figure_names_its_command_machine_memory_and_results_file(row: Row
         benchmark_scripts = {s for s in scripts if s.startswith("benchmarks/")}
         if written_by and benchmark_scripts:
             assert set(written_by) & benchmark_scripts, f"{name} was written by {written_by}, not by {scripts}"
+        for command in row.commands:
+            if script_of(command).startswith("benchmarks/"):
+                # The file the command writes today: its --out, else the script's own name
+                out = re.search(r"--out (\S+)", command)
+                expected = out.group(1) if out else f"benchmarks/results/{Path(script_of(command)).stem}.md"
+                assert expected == name, f"{command!r} writes {expected}, not {name}"
         machine = re.search(r"Machine: (.*)", text)
         if machine is not None:
             spellings = CPU_SPELLINGS[row.cells["machine"]]
