@@ -18,6 +18,7 @@ from campusnav_env.maps.campus import default_campus
 from campusnav_env.maps.compass import ACTION_NAMES, BACK, COMPASS
 from campusnav_env.maps.extent import check_map_extent
 from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.maps.osm import load_graphml
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.rendering.street_view import RenderSettings
@@ -707,8 +708,11 @@ def resolve_world(
     """
     if map_coords not in MAP_COORDS:
         raise ValueError(f"map_coords must be one of {MAP_COORDS}, got {map_coords!r}")
-    is_file = isinstance(world, PathLike) or (isinstance(world, str) and world != "campus")
-    if map_coords != "auto" and not is_file:
+    if isinstance(world, PathLike) or (isinstance(world, str) and world != "campus"):
+        graph = load_graphml(world, coords=map_coords)
+        assert isinstance(graph, RoadGraph)  # no return_mapping
+        return NavigationGraph(graph)
+    if map_coords != "auto":
         raise ValueError(f"map_coords={map_coords!r} says how to read a GraphML file; world is not one ({world!r})")
     if isinstance(world, NavigationGraph):
         return world.copy()
@@ -716,12 +720,6 @@ def resolve_world(
         return NavigationGraph(world)
     if world == "campus":
         return NavigationGraph(default_campus())
-    if is_file:
-        from campusnav_env.maps.osm import load_graphml
-
-        graph = load_graphml(world, coords=map_coords)  # type: ignore[arg-type]
-        assert isinstance(graph, RoadGraph)  # no return_mapping
-        return NavigationGraph(graph)
     raise ValueError(f"world must be 'campus', a RoadGraph, a NavigationGraph or a GraphML file's path, got {world!r}")
 
 
