@@ -5,7 +5,7 @@ Example inputs shipped with the package, for README's commands and quick tries:
   (a ``MultiDiGraph``, two-way streets as two edges, a bent road as a WKT ``geometry``, street names), in UTM zone 17N
   metres (``crs`` EPSG:32617); landmarks *Library*, *Town hall*, *Station* and *Market*.
 - ``closures.yml``: a closure schedule for it (:mod:`campusnav_env.closures` format): a road beside the Library
-  closes after 2,000 env steps, the busiest road of the learned routes after 4,000, and all reopen after 6,000.
+  closes after 2,000 env steps, the busiest road of the learned routes after 4,000.
 
 Example::
 
