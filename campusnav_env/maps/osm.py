@@ -8,15 +8,16 @@ edge's ``u`` to its ``v``), ``oneway`` and ``name``. networkx itself is only nee
 The import, step by step:
 
 * **Coordinates.** ``x`` / ``y`` are projected metres or longitude / latitude degrees. The graph's ``crs`` attribute
-  (osmnx writes one) decides: a geographic system (EPSG:4326, "longlat") means degrees, any other means metres. Without
-  a ``crs`` the values decide, and a :class:`CoordinatesWarning` says which reading was chosen and why: degrees only
-  when every node has ``|x| <= 180`` and ``|y| <= 90`` *and*, read so, the map spans at most
-  :data:`~campusnav_env.maps.extent.MAX_MAP_SPAN_M` (100 km, a road map); otherwise metres. (The two readings never
-  compete: a map of at most 100 km in degrees spans less than a metre read as metres.) So 10 intersections laid out
-  over 0-100 m are metres, not roads of 11,000 km. ``coords="lonlat"`` or ``coords="projected"`` overrides both the
-  ``crs`` and the guess; values out of the degree ranges under a geographic ``crs`` or ``coords="lonlat"`` are an
-  error. Degrees are projected with a local equirectangular projection (scale taken at the mean latitude), with the
-  origin at the south-west corner of the nodes' bounding box. Projected coordinates are kept as they are.
+  (osmnx writes one) decides: a geographic system (EPSG:4326, "longlat") means degrees, any other means metres.
+  Without a ``crs`` the values decide: beyond ``|x| <= 180``, ``|y| <= 90`` they are metres; within those ranges they
+  are degrees only if, read so, the map spans at most :data:`~campusnav_env.maps.extent.MAX_MAP_SPAN_M` (100 km, a
+  road map), else metres, and a :class:`CoordinatesWarning` says which reading was chosen and why. (The two readings
+  hardly compete: a map of at most 100 km in degrees spans a few degrees at most, which as metres would be a map a few
+  metres across.) So 10 intersections laid out over 0-100 m are metres, not roads of 11,000 km.
+  ``coords="lonlat"`` or ``coords="projected"`` overrides both the ``crs`` and the guess; values beyond the degree
+  ranges under a geographic ``crs`` or ``coords="lonlat"`` are an error. Degrees are projected with a local
+  equirectangular projection (scale taken at the mean latitude), with the origin at the south-west corner of the
+  nodes' bounding box. Projected coordinates are kept as they are.
 * **Edges.** Self-loops are dropped. Among several edges between the same two nodes (multi-edges, the two
   directions of a two-way street) the shortest is kept. Roads are undirected: the agent is a navigator on foot, so a
   one-way street is walkable both ways. The tag is not lost: a road is recorded as one-way in
