@@ -160,6 +160,15 @@ def test_graphs_without_compass_slots_keep_the_compass_bearings():
     np.testing.assert_array_equal(view_bearings(graph), np.tile(SLOT_BEARINGS, (2, 1)))
 
 
+def test_view_bearings_read_only_the_node_count_and_the_slot_bearings_of_a_map():
+    # The compass needs no road graph (which is built on the compass): any map with these two will do
+    class Slotted:
+        n_nodes = 1
+        slot_bearings = np.array([[10.0, 100.0, 190.0, 280.0]])
+
+    np.testing.assert_array_equal(view_bearings(Slotted()), [[10.0, 100.0, 190.0, 280.0]])
+
+
 def test_view_bearings_are_read_only_and_checked():
     renderer = _bare_renderer(generate_campus(37, seed=0))
     with pytest.raises(ValueError, match="read-only"):
