@@ -113,7 +113,7 @@ def test_views_of_an_osm_import_look_down_the_roads_their_actions_take():
     # degrees off. The road to C bends right after A and repeats its first point (the first segment is degenerate);
     # the road to E runs through the degree-2 node F, which the import merges away.
     layout = {"A": (0, 0), "B": (35, 200), "C": (250, 60), "D": (200, -35), "E": (-300, 200), "F": (-190, 70)}
-    source = nx.MultiDiGraph(name="osm-bearings")
+    source = nx.MultiDiGraph(name="osm-bearings", crs="epsg:4326")  # lon/lat, as osmnx says
     for node, (x, y) in layout.items():
         lon, lat = _lonlat(x, y)
         source.add_node(node, x=lon, y=lat)
