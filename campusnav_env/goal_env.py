@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
+from os import PathLike
 from pathlib import Path
 from typing import Any
 
@@ -85,7 +86,7 @@ class CampusNavGoalEnv(CampusNavEnv):
       conditions (``None`` among them: as the agent's views) pictures each episode's goal in one drawn uniformly
       (``reset(options={"goal_condition": k})`` picks one): training on goals photographed in several conditions.
       Between episodes, :meth:`observations_at` uses the last episode's condition.
-    - every other argument as in :class:`~campusnav_env.env.CampusNavEnv` (``world``, ``view_dim``,
+    - every other argument as in :class:`~campusnav_env.env.CampusNavEnv` (``world``, ``map_coords``, ``view_dim``,
       ``visible_closures``, ``encoder``, ...); ``observation_mode`` must be ``"features"``.
 
     ## Information
@@ -98,7 +99,7 @@ class CampusNavGoalEnv(CampusNavEnv):
 
     def __init__(
         self,
-        world: str | RoadGraph | NavigationGraph = "campus",
+        world: str | PathLike[str] | RoadGraph | NavigationGraph = "campus",
         goals: Sequence[str | int] | None = None,
         held_out_goals: Sequence[str | int] = (),
         goal_render_settings: RenderSettings | Sequence[RenderSettings | None] | None = None,
@@ -121,13 +122,14 @@ class CampusNavGoalEnv(CampusNavEnv):
         build_backend: str = "local",
         ray_address: str | None = None,
         fit_views_to_encoder: bool = False,
+        map_coords: str = "auto",
     ) -> None:
         if observation_mode != "features":
             raise ValueError(
                 f"CampusNavGoal needs observation_mode='features' (goals are compared as feature vectors), "
                 f"got {observation_mode!r}"
             )
-        graph = resolve_world(world)
+        graph = resolve_world(world, map_coords)
         every_node = list(range(graph.n_nodes))
         _, held_out = resolve_goals(graph.map, list(held_out_goals)) if len(held_out_goals) else ([], [])
         if goals is None:
@@ -145,7 +147,7 @@ class CampusNavGoalEnv(CampusNavEnv):
         if isinstance(encoder, str) and any(settings is not None for settings in conditions):
             encoder = make_encoder(encoder, **dict(encoder_kwargs or {}))  # one CNN for the views and every condition
         super().__init__(
-            world=graph,
+            world=graph,  # a file's map is read once, here: map_coords has done its work
             goals=every_node,  # every intersection can be asked for (reset options, evaluation); draws use `goals`
             observation_mode=observation_mode,
             encoder=encoder,

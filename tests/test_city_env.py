@@ -185,7 +185,9 @@ def test_world_takes_a_real_map_instead(env_kwargs: dict[str, Any]) -> None:
     assert env.max_steps == 200  # the same cap rule: 4 x 9 hops is under the floor
     with pytest.raises(ValueError, match=r"n_intersections and map_seed .* must not be given"):
         CampusNavCityEnv(world=graph, n_intersections=30, goals="Library", **env_kwargs)
-    with pytest.raises(TypeError, match="world must be a RoadGraph or a NavigationGraph, got str"):
+    with pytest.raises(
+        TypeError, match="world must be a RoadGraph, a NavigationGraph or a GraphML file's path, got str 'campus'"
+    ):
         CampusNavCityEnv(world="campus", **env_kwargs)
     with pytest.raises(KeyError, match="unknown goal 'Dreese Lab'"):
         CampusNavCityEnv(world=graph, **env_kwargs)  # the default goal is the generated city's

@@ -94,8 +94,13 @@ def test_view_dim_projects_every_view_onto_its_leading_principal_axes(cache_dir:
     full = make_env(cache_dir).observations_at(np.arange(101), np.zeros(101, dtype=int), "Dreese Lab")["views"]
     distinct_full = np.unique(full.reshape(404, -1).round(4), axis=0).shape[0]
     assert np.unique(projected.round(4), axis=0).shape[0] == distinct_full
-    with pytest.raises(ValueError, match="view_dim must be an int"):
-        make_env(cache_dir, view_dim=100_000)
+    # More than the views span (no more axes than the 64 features of the pixels encoder): fitted to that, and said
+    # (tests/test_small_maps.py: a map with fewer views than features)
+    message = r"view_dim 100000 is more than this map's 404 views of 64 features span \(at most 64 axes\): using .* 64"
+    with pytest.warns(UserWarning, match=message):
+        assert make_env(cache_dir, view_dim=100_000).observation_space["views"].shape == (4 * 64,)
+    with pytest.raises(ValueError, match="view_dim must be an int of at least 1"):
+        make_env(cache_dir, view_dim=0)
     with pytest.raises(ValueError, match="does not apply to observation mode 'image'"):
         make_env(cache_dir, view_dim=16, observation_mode="image")
 

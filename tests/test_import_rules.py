@@ -142,3 +142,54 @@ def test_the_rule_sees_a_lazy_import_against_the_flow() -> None:
     modules = modules_imported_by(source, package=("campusnav_env", "maps"))
     assert "campusnav_env.env" in modules
     assert module_stage("campusnav_env.env") == 3 > stage_of("maps/road_graph.py") == 0
+
+
+def package_modules() -> dict[str, Path]:
+    """Every module of the two packages, by dotted name (a package by its ``__init__``)."""
+    modules = {}
+    for package in ("campusnav_env", "sb3_dcqn"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return modules
+
+
+def import_circles(imports: dict[str, set[str]]) -> list[list[str]]:
+    """The circles of an import graph: its strongly connected components of more than one module (Tarjan's)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    circles: list[list[str]] = []
+
+    def visit(module: str) -> None:
+        index[module] = low[module] = len(index)
+        stack.append(module)
+        for other in imports[module]:
+            if other not in index:
+                visit(other)
+                low[module] = min(low[module], low[other])
+            elif other in stack:
+                low[module] = min(low[module], index[other])
+        if low[module] == index[module]:
+            component = [stack.pop()]
+            while component[-1] != module:
+                component.append(stack.pop())
+            if len(component) > 1:
+                circles.append(sorted(component))
+
+    for module in sorted(imports):
+        if module not in index:
+            visit(module)
+    return circles
+
+
+def test_the_packages_have_no_import_circles() -> None:
+    # Every import counts, those for type hints and those inside functions too: a circle is a circle of knowledge
+    modules = package_modules()
+    imports = {name: (imported_modules(path) & modules.keys()) - {name} for name, path in modules.items()}
+    assert not import_circles(imports), f"import circles: {import_circles(imports)}"
+
+
+def test_the_circle_rule_finds_a_circle_and_only_circles() -> None:
+    assert import_circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert import_circles({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []

@@ -13,6 +13,7 @@ import pytest
 
 from campusnav_env.maps.campus import generate_campus
 from campusnav_env.maps.osm import (
+    CoordinatesWarning,
     OsmImportWarning,
     graph_from_networkx,
     import_networkx,
@@ -56,7 +57,7 @@ def osm_like_graph() -> nx.MultiDiGraph:
     two-way streets stored as two directed edges, a one-way street, a multi-edge (a straight street and a WKT detour
     between the same nodes), a self-loop, a named node and a detached piece.
     """
-    graph = nx.MultiDiGraph(name="osm-test")
+    graph = nx.MultiDiGraph(name="osm-test", crs="epsg:4326")  # as osmnx saves one
     for node, (x, y) in LAYOUT.items():
         lon, lat = lonlat(x, y)
         graph.add_node(node, x=lon, y=lat)
@@ -163,10 +164,41 @@ def test_projected_coordinates_are_kept_as_they_are() -> None:
     assert not import_networkx(graph).lonlat
     graph.graph["crs"] = "epsg:4326"
     assert import_networkx(graph).lonlat
-    # Without a crs, small numbers would look like degrees: coords= settles it
+    # Without a crs, numbers that fit degrees but would span 6,672 km as such are metres, and the import says so
     graph.graph.pop("crs")
-    assert import_networkx(graph).lonlat
-    assert not import_networkx(graph, coords="projected").lonlat
+    with pytest.warns(CoordinatesWarning, match=r"graph 'osm' has no crs: x/y read as metres .* 6,672 km"):
+        assert not import_networkx(graph).lonlat
+    # coords= settles it, silently
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert import_networkx(graph, coords="lonlat").lonlat
+        assert not import_networkx(graph, coords="projected").lonlat
+
+
+def test_degrees_without_a_crs_are_read_as_degrees_when_they_span_a_road_map() -> None:
+    graph = osm_like_graph()  # lon/lat around Columbus, 1.1 km across
+    del graph.graph["crs"]
+    with pytest.warns(CoordinatesWarning, match=r"'osm-test' has no crs: x/y read as longitude/latitude .* 1\.1 km"):
+        warnings.simplefilter("ignore", OsmImportWarning)
+        assert import_networkx(graph).lonlat
+
+
+def test_degrees_out_of_range_under_a_geographic_crs_are_an_error_naming_the_fix(tmp_path: Path) -> None:
+    graph = nx.Graph(crs="epsg:4326")
+    graph.add_node("a", x=500.0, y=20.0)
+    graph.add_node("b", x=500.0, y=80.0)
+    graph.add_edge("a", "b")
+    path = tmp_path / "metres.graphml"
+    nx.write_graphml(graph, path)
+    message = (
+        r"metres.graphml: its crs 'epsg:4326' says x/y are longitude/latitude, but they reach \|x\| = 500, "
+        r"\|y\| = 80 \(degrees stay within 180 and 90\); if they are metres, pass coords='projected'"
+    )
+    with pytest.raises(ValueError, match=message):
+        load_graphml(path)
+    with pytest.raises(ValueError, match=r"graph 'osm': coords='lonlat' says x/y are longitude/latitude"):
+        import_networkx(nx.Graph(graph, crs=None), coords="lonlat")
+    assert load_graphml(path, coords="projected").n_nodes == 2
 
 
 def test_two_one_way_edges_in_opposite_directions_make_a_two_way_road() -> None:

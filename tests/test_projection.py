@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
-from campusnav_env.features.projection import ViewProjection, pca_project
+from campusnav_env.features.projection import FeatureTransform, ViewProjection, fit_view_dim, pca_project
 
 
 def _views(seed: int = 0, n: int = 30, d: int = 50) -> np.ndarray:
@@ -43,6 +45,30 @@ def test_projection_is_deterministic_up_to_the_axis_sign_rule() -> None:
 def test_projection_rejects_a_bad_dimension(dim: object) -> None:
     with pytest.raises(ValueError, match="view_dim must be an int"):
         pca_project(_views(), dim)  # type: ignore[arg-type]
+
+
+def test_the_refusal_says_why_the_dimension_is_too_large() -> None:
+    views = _views(n=5)  # 20 views of 50 features: 19 axes
+    n_views = views.shape[0] * views.shape[1]
+    with pytest.raises(ValueError, match=rf"in \[1, {n_views - 1}\] .* \(they span at most one axis fewer than there"):
+        pca_project(views, n_views)
+
+
+def test_the_env_s_view_dim_is_fitted_to_what_the_views_span_and_said() -> None:
+    views = _views(n=5)  # 20 views of 50 features span 19 axes
+    n_views, n_features = views.shape[0] * views.shape[1], views.shape[2]
+    limit = min(n_views - 1, n_features)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # within the limit: kept, without a word
+        assert fit_view_dim(limit, views) == limit
+    with pytest.warns(UserWarning, match=rf"view_dim 64 is more than this map's {n_views} views of {n_features} "):
+        assert fit_view_dim(64, views) == limit
+    with pytest.warns(UserWarning, match=rf"using view_dim {limit}"):
+        transform = FeatureTransform.fit(views, "features", True, 64)
+    assert transform.projection is not None and transform.projection.dim == limit
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match="view_dim must be an int of at least 1"):
+            fit_view_dim(bad, views)  # type: ignore[arg-type]
 
 
 def test_a_fitted_projection_applies_the_same_transform_to_new_views() -> None:

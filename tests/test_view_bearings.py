@@ -113,7 +113,7 @@ def test_views_of_an_osm_import_look_down_the_roads_their_actions_take():
     # degrees off. The road to C bends right after A and repeats its first point (the first segment is degenerate);
     # the road to E runs through the degree-2 node F, which the import merges away.
     layout = {"A": (0, 0), "B": (35, 200), "C": (250, 60), "D": (200, -35), "E": (-300, 200), "F": (-190, 70)}
-    source = nx.MultiDiGraph(name="osm-bearings")
+    source = nx.MultiDiGraph(name="osm-bearings", crs="epsg:4326")  # lon/lat, as osmnx says
     for node, (x, y) in layout.items():
         lon, lat = _lonlat(x, y)
         source.add_node(node, x=lon, y=lat)
@@ -158,6 +158,15 @@ def test_graphs_without_compass_slots_keep_the_compass_bearings():
     )
     assert graph.slot_bearings is None
     np.testing.assert_array_equal(view_bearings(graph), np.tile(SLOT_BEARINGS, (2, 1)))
+
+
+def test_view_bearings_read_only_the_node_count_and_the_slot_bearings_of_a_map():
+    # The compass needs no road graph (which is built on the compass): any map with these two will do
+    class Slotted:
+        n_nodes = 1
+        slot_bearings = np.array([[10.0, 100.0, 190.0, 280.0]])
+
+    np.testing.assert_array_equal(view_bearings(Slotted()), [[10.0, 100.0, 190.0, 280.0]])
 
 
 def test_view_bearings_are_read_only_and_checked():

@@ -9,15 +9,20 @@ sees) and is deterministic: the sign of each axis is fixed so that its largest l
 
 The fit is kept (:class:`ViewProjection`), so that views rendered later (a closed road's barrier, see the env's
 ``visible_closures``) go through exactly the transform the original views went through.
+
+``V`` views span at most ``V - 1`` axes (one is spent on their mean), and no more than their features: a small map
+cannot fill a large ``view_dim``. :class:`ViewProjection` refuses such a request; the env's :class:`FeatureTransform`
+fits it to the limit (:func:`fit_view_dim`) with one warning, since the axes beyond it would carry no variance.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FeatureTransform", "ViewProjection", "pca_project"]
+__all__ = ["FeatureTransform", "ViewProjection", "fit_view_dim", "pca_project"]
 
 
 @dataclass(frozen=True)
@@ -49,10 +54,10 @@ class ViewProjection:
             raise ValueError(f"views must have shape (N, V, D), got {views.shape}")
         flat = views.reshape(-1, views.shape[-1])
         limit = min(flat.shape[0] - 1, flat.shape[1])
-        if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or not 1 <= dim <= limit:
+        if not _is_int(dim) or not 1 <= dim <= limit:
             raise ValueError(
-                f"view_dim must be an int in [1, {limit}] for {flat.shape[0]} views of {flat.shape[1]} features, "
-                f"got {dim!r}"
+                f"view_dim must be an int in [1, {limit}] for {flat.shape[0]} views of {flat.shape[1]} features "
+                f"(they span at most one axis fewer than there are views), got {dim!r}"
             )
         n_rows, n_features = flat.shape
         if flat.size >= _SCATTER_MIN_VALUES and n_rows >= _SCATTER_ROWS_PER_FEATURE * n_features:
@@ -130,6 +135,34 @@ def _scatter_axes(flat: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray, n
     return mean, np.sqrt(np.maximum(eigenvalues[top], 0.0)), eigenvectors[:, top].T
 
 
+def _is_int(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def fit_view_dim(view_dim: int, views: np.ndarray) -> int:
+    """
+    ``view_dim``, or the most axes the views span when it asks for more (with a ``UserWarning`` naming both).
+
+    :param view_dim: The number of axes asked for
+    :param views: Features of shape ``(N, V, D)``
+    :return: ``min(view_dim, N * V - 1, D)``
+    :raises ValueError: if ``view_dim`` is not an int of at least 1
+    """
+    if not _is_int(view_dim) or view_dim < 1:
+        raise ValueError(f"view_dim must be an int of at least 1, got {view_dim!r}")
+    n_views, n_features = int(np.prod(views.shape[:-1])), int(views.shape[-1])
+    limit = min(n_views - 1, n_features)
+    if view_dim <= limit:
+        return int(view_dim)
+    warnings.warn(
+        f"view_dim {view_dim} is more than this map's {n_views} views of {n_features} features span (at most "
+        f"{limit} axes): using view_dim {limit}, which keeps all their variance",
+        UserWarning,
+        stacklevel=2,
+    )
+    return limit
+
+
 def pca_project(views: np.ndarray, dim: int) -> np.ndarray:
     """
     Project every view's features onto the ``dim`` leading principal axes of all views, whitened.
@@ -172,7 +205,7 @@ class FeatureTransform:
             views -= mean
             views /= scale
         if view_dim is not None:
-            projection = ViewProjection.fit(views, view_dim)
+            projection = ViewProjection.fit(views, fit_view_dim(view_dim, views))
         return cls(mode, mean, scale, projection)
 
     def transform(self, node_views: np.ndarray) -> np.ndarray:

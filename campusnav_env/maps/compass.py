@@ -27,12 +27,9 @@ compass bearing where the slot is empty (:func:`view_bearings`), so the road see
 from __future__ import annotations
 
 import itertools
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from campusnav_env.maps.road_graph import RoadGraph
 
 __all__ = [
     "ACTION_NAMES",
@@ -43,6 +40,7 @@ __all__ = [
     "LEFT",
     "RIGHT",
     "SLOT_BEARINGS",
+    "SlottedMap",
     "bearing_degrees",
     "compass_slots",
     "initial_bearing",
@@ -61,6 +59,19 @@ ACTION_SLOT.flags.writeable = False
 # All injective road -> slot maps for k roads, in lexicographic order (ties go to the first one)
 _SLOT_MAPS = {k: np.array(list(itertools.permutations(range(4), k)), dtype=np.int64) for k in range(1, 5)}
 _COST_DECIMALS = 7
+
+
+class SlottedMap(Protocol):
+    """
+    What :func:`view_bearings` reads of a map (a :class:`~campusnav_env.maps.road_graph.RoadGraph` has both): a
+    protocol rather than the class, so that this module, which the road graph builds on, never imports it back.
+    """
+
+    @property
+    def n_nodes(self) -> int: ...
+
+    @property
+    def slot_bearings(self) -> np.ndarray | None: ...
 
 
 def bearing_degrees(dx: np.ndarray | float, dy: np.ndarray | float) -> np.ndarray:
@@ -120,7 +131,7 @@ def compass_slots(bearings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return slots, best[:, 0]
 
 
-def view_bearings(graph: RoadGraph) -> np.ndarray:
+def view_bearings(graph: SlottedMap) -> np.ndarray:
     """
     The bearing each view of each node looks along (degrees clockwise from north, in ``[0, 360)``).
 

@@ -7,11 +7,17 @@ edge's ``u`` to its ``v``), ``oneway`` and ``name``. networkx itself is only nee
 
 The import, step by step:
 
-* **Coordinates.** ``x`` / ``y`` are taken as projected metres, unless they are longitude / latitude: when the graph's
-  ``crs`` attribute names a geographic system (EPSG:4326, "longlat"), or, with no ``crs``, when every node has
-  ``|x| <= 180`` and ``|y| <= 90``. Those are projected with a local equirectangular projection (scale taken at the
-  mean latitude), with the origin at the south-west corner of the nodes' bounding box. Projected coordinates are
-  kept as they are. Pass ``coords="lonlat"`` or ``coords="projected"`` to override the guess.
+* **Coordinates.** ``x`` / ``y`` are projected metres or longitude / latitude degrees. The graph's ``crs`` attribute
+  (osmnx writes one) decides: a geographic system (EPSG:4326, "longlat") means degrees, any other means metres.
+  Without a ``crs`` the values decide: beyond ``|x| <= 180``, ``|y| <= 90`` they are metres; within those ranges they
+  are degrees only if, read so, the map spans at most :data:`~campusnav_env.maps.extent.MAX_MAP_SPAN_M` (100 km, a
+  road map), else metres, and a :class:`CoordinatesWarning` says which reading was chosen and why. (The two readings
+  hardly compete: a map of at most 100 km in degrees spans a few degrees at most, which as metres would be a map a few
+  metres across.) So 10 intersections laid out over 0-100 m are metres, not roads of 11,000 km.
+  ``coords="lonlat"`` or ``coords="projected"`` overrides both the ``crs`` and the guess; values beyond the degree
+  ranges under a geographic ``crs`` or ``coords="lonlat"`` are an error. Degrees are projected with a local
+  equirectangular projection (scale taken at the mean latitude), with the origin at the south-west corner of the
+  nodes' bounding box. Projected coordinates are kept as they are.
 * **Edges.** Self-loops are dropped. Among several edges between the same two nodes (multi-edges, the two
   directions of a two-way street) the shortest is kept. Roads are undirected: the agent is a navigator on foot, so a
   one-way street is walkable both ways. The tag is not lost: a road is recorded as one-way in
@@ -51,6 +57,7 @@ import numpy as np
 
 from campusnav_env.maps.compass import compass_slots, initial_bearing
 from campusnav_env.maps.disjoint_set import DisjointSet
+from campusnav_env.maps.extent import MAX_MAP_SPAN_M, describe_length, span_m
 from campusnav_env.maps.road_graph import RoadGraph, require_networkx, road_key
 
 EARTH_RADIUS_M = 6_371_008.8
@@ -63,6 +70,10 @@ _TRUE_STRINGS = frozenset({"true", "yes", "1", "-1"})
 
 class OsmImportWarning(UserWarning):
     """Part of the input network was dropped on import (crowded intersections, disconnected pieces)."""
+
+
+class CoordinatesWarning(UserWarning):
+    """A graph without a ``crs`` whose x / y could be degrees: how they were read (degrees or metres), and why."""
 
 
 @dataclass(frozen=True)
@@ -144,6 +155,7 @@ def load_graphml(path: str | PathLike[str], **kwargs: Any) -> RoadGraph | tuple[
     if nodes and all(isinstance(n, str) and re.fullmatch(r"-?\d+", n) for n in nodes):
         graph = nx.relabel_nodes(graph, {n: int(n) for n in nodes}, copy=True)
     kwargs.setdefault("name", path.stem)
+    kwargs.setdefault("source", str(path))
     return graph_from_networkx(graph, **kwargs)
 
 
@@ -155,6 +167,7 @@ def graph_from_networkx(
     landmarks: Mapping[str, Hashable] | None = None,
     coords: Literal["auto", "lonlat", "projected"] = "auto",
     return_mapping: bool = False,
+    source: str | None = None,
 ) -> RoadGraph | tuple[RoadGraph, dict[Hashable, int]]:
     """
     Convert an osmnx-style networkx graph into a :class:`RoadGraph` (see the module docstring for the rules).
@@ -163,11 +176,12 @@ def graph_from_networkx(
     :param simplify: Merge chains of degree-2 nodes into polyline roads
     :param name: Name of the road graph; defaults to the graph's ``name`` attribute, else ``"osm"``
     :param landmarks: Extra landmarks, name -> original node id
-    :param coords: ``"auto"`` (guess), ``"lonlat"`` or ``"projected"`` (metres)
+    :param coords: ``"auto"`` (the ``crs``, else a guess), ``"lonlat"`` or ``"projected"`` (metres)
     :param return_mapping: Also return the mapping original node id -> new node id
+    :param source: What to call the input in warnings and errors (:func:`load_graphml`: the file); default: the name
     :return: The road graph, or ``(graph, mapping)`` with ``return_mapping=True``
     """
-    result = import_networkx(graph, simplify=simplify, name=name, landmarks=landmarks, coords=coords)
+    result = import_networkx(graph, simplify=simplify, name=name, landmarks=landmarks, coords=coords, source=source)
     if return_mapping:
         return result.graph, result.node_ids
     return result.graph
@@ -180,13 +194,14 @@ def import_networkx(
     name: str | None = None,
     landmarks: Mapping[str, Hashable] | None = None,
     coords: Literal["auto", "lonlat", "projected"] = "auto",
+    source: str | None = None,
 ) -> OsmImport:
     """
     Like :func:`graph_from_networkx`, but return the full :class:`OsmImport` record (mapping, one-way roads, road
     names and what was dropped).
 
     :raises KeyError: if a node has no ``x`` or ``y``, or a landmark names a node that is not in the graph
-    :raises ValueError: on unusable coordinates or geometries, or if no road is left
+    :raises ValueError: on unusable coordinates or geometries (degrees out of range), or if no road is left
     """
     if coords not in ("auto", "lonlat", "projected"):
         raise ValueError(f"coords must be 'auto', 'lonlat' or 'projected', got {coords!r}")
@@ -195,7 +210,8 @@ def import_networkx(
         raise ValueError("the graph has no nodes")
     index_of = {node: i for i, node in enumerate(original_ids)}
     raw = _node_coordinates(graph, original_ids)
-    lonlat = _is_lonlat(graph, raw) if coords == "auto" else coords == "lonlat"
+    where = source or f"graph {name if name is not None else str(graph.graph.get('name') or 'osm')!r}"
+    lonlat = _read_as_lonlat(graph, raw, coords, where)
     project = _local_projection(raw) if lonlat else None
     positions = project(raw) if project is not None else raw
 
@@ -287,10 +303,35 @@ def _node_coordinates(graph: Any, nodes: list[Hashable]) -> np.ndarray:
     return coordinates
 
 
-def _is_lonlat(graph: Any, raw: np.ndarray) -> bool:
+def _read_as_lonlat(graph: Any, raw: np.ndarray, coords: str, where: str) -> bool:
+    """Whether x / y are longitude / latitude (the rule in the module docstring); ``where`` names the input."""
     crs = graph.graph.get("crs")
-    if crs is not None:
-        return _GEOGRAPHIC_CRS.search(str(crs).strip()) is not None
+    if coords != "auto" or crs is not None:
+        lonlat = coords == "lonlat" if coords != "auto" else _GEOGRAPHIC_CRS.search(str(crs).strip()) is not None
+        if lonlat and not _fit_degrees(raw):
+            said = "coords='lonlat'" if coords != "auto" else f"its crs {str(crs)!r}"
+            raise ValueError(
+                f"{where}: {said} says x/y are longitude/latitude, but they reach |x| = {np.abs(raw[:, 0]).max():g}, "
+                f"|y| = {np.abs(raw[:, 1]).max():g} (degrees stay within 180 and 90); if they are metres, pass "
+                "coords='projected'"
+            )
+        return lonlat
+    if not _fit_degrees(raw):
+        return False  # not degrees: no guess to make
+    as_degrees = max(span_m(_local_projection(raw)(raw)))
+    lonlat = as_degrees <= MAX_MAP_SPAN_M
+    if lonlat:
+        reading = f"longitude/latitude (read so, the map spans {describe_length(as_degrees)}); pass coords='projected'"
+    else:
+        reading = (
+            f"metres (as degrees the map would span {describe_length(as_degrees)}, more than a road map's "
+            f"{describe_length(MAX_MAP_SPAN_M)}); pass coords='lonlat'"
+        )
+    warnings.warn(f"{where} has no crs: x/y read as {reading} if that is wrong", CoordinatesWarning, stacklevel=4)
+    return lonlat
+
+
+def _fit_degrees(raw: np.ndarray) -> bool:
     return bool(np.all(np.abs(raw[:, 0]) <= 180.0) and np.all(np.abs(raw[:, 1]) <= 90.0))
 
 

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from campusnav_env.maps.extent import check_map_extent
 from campusnav_env.maps.geometry import point_segment_distances, polygon_segment_distances
 from campusnav_env.rendering.palette import landmark_colour
 from campusnav_env.rendering.placement import (
@@ -75,9 +76,12 @@ def build_world(graph: RoadGraph, *, seed: int = 0) -> World:
     :param seed: Placement seed; the same graph and seed always give the same world
     :return: The :class:`World`
     :raises ValueError: if ``seed`` is not an int
+    :raises ~campusnav_env.maps.extent.MapExtentError: if the map is too large to build (its placement's work grows
+        with the road length and the area, see :mod:`campusnav_env.maps.extent`)
     """
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
         raise ValueError(f"seed must be an int, got {seed!r}")
+    check_map_extent(graph)
     site = PlacementSite.around(graph, int(seed))
     # The order matters: each step claims ground the later ones must keep clear of, and draws from the same rng
     landmarks, sports_fields, signs = place_landmarks(site)
