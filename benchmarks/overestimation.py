@@ -38,15 +38,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 import numpy as np
 import torch as th
@@ -56,7 +52,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks.campusnav_runs import TASKS, VARIANTS, Variant, quick_env_kwargs
-from benchmarks.closures_one_at_a_time import busiest_closures
+from benchmarks.closure_runs import busiest_closures
 from benchmarks.report import RESULTS_DIR, append_run, machine_line, publish, read_runs
 from benchmarks.workers import run_in_workers, workers_argument
 from campusnav_env.env import CampusNavEnv

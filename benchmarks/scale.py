@@ -35,15 +35,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
-
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 from benchmarks import scale_feature_transform, scale_replay, scale_training, scale_vec_env, scale_world_build
 from benchmarks.report import RESULTS_DIR, append_run, markdown_table, publish, read_runs

@@ -4,11 +4,6 @@ Per size: map, 3D world, render + encode of every view into a cold cache, the ca
 from the warm cache, peak RSS. EfficientNet-Lite0 (640x480 views, the default) up to ``--effnet-max-nodes``; above,
 its cost is measured on ``--effnet-sample`` nodes and extrapolated, and the map is built with the cheap ``"pixels"``
 encoder on 64x48 views (every size gets a pixel build, for a like-for-like line).
-import sys
-from pathlib import Path
-
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 The EfficientNet build runs the way the env builds (``"workers"``: views rendered at the size the CNN consumes, 299x224
 for 640x480, by one worker process per core, :mod:`campusnav_env.features.parallel_build`) and, with
