@@ -40,9 +40,8 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from benchmarks.campusnav_runs import quick_env_kwargs
+from benchmarks.campusnav_runs import APPEARANCES, HELD_OUT_FRACTION, TRAINING_PHOTOS, quick_env_kwargs
 from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish, write_results
-from benchmarks.unseen_goals import APPEARANCES, HELD_OUT_FRACTION, TRAINING_PHOTOS
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
 from sb3_dcqn.place_recognition import NOT_IN_MEMORY, NearestPlace, fit_place_matcher
 from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
