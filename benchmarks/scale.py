@@ -41,10 +41,14 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from benchmarks import scale_feature_transform, scale_replay, scale_training, scale_vec_env, scale_world_build
 from benchmarks.report import RESULTS_DIR, markdown_table, publish, run_missing
 from benchmarks.scale_common import EFFNET, GAMMA, MB, PIXELS, Plan, fmt, records_by_size
-from benchmarks.scale_world_build import build_peak_mb
+from benchmarks.scale_stages import feature_transform as scale_feature_transform
+from benchmarks.scale_stages import replay as scale_replay
+from benchmarks.scale_stages import training as scale_training
+from benchmarks.scale_stages import vec_env as scale_vec_env
+from benchmarks.scale_stages import world_build as scale_world_build
+from benchmarks.scale_stages.world_build import build_peak_mb
 from benchmarks.workers import run_in_fresh_process
 
 STAGES = (
