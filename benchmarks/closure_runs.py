@@ -444,6 +444,52 @@ def time_text(runs: Runs, shown: Sequence[dict[str, Any]]) -> str:
     )
 
 
+# ------------------------------------------------------------------------------------------------ table cells
 def episodes_header(title: str, eval_every: int) -> str:
     """A column of recovery episodes, with the evaluation period that is its floor."""
     return f"{title} (evaluated every {eval_every})"
+
+
+def median_columns(eval_every: int) -> list[str]:
+    """The summary tables' median columns (over a lever's closures)."""
+    return [episodes_header("median episodes", eval_every), "median env steps", "median training s"]
+
+
+def recovery_columns(eval_every: int) -> list[str]:
+    """The per-closure tables' recovery columns."""
+    return [episodes_header("recovery episodes", eval_every), "env steps", "training s"]
+
+
+def lever_cells(lever: str, mine: Sequence[dict[str, Any]]) -> tuple[list[Any], float, list[dict[str, Any]]]:
+    """
+    The first cells of a lever's summary row (the lever, its seeds, their solves, the closures recovered, then
+    :func:`median_columns`), its median recovery episodes and its closure records.
+    """
+    closures = [c for r in mine for c in r["recoveries"]]
+    episodes, steps, seconds = medians(closures)
+    cells = [
+        LEVER_SETS[lever].name,
+        len(mine),
+        "; ".join(solve_text(r) for r in mine),
+        f"{sum(c['recovered'] for c in closures)} / {len(closures)}",
+        number(episodes),
+        number(steps),
+        number(seconds, 1),
+    ]
+    return cells, episodes, closures
+
+
+def recovery_cells(closure: dict[str, Any]) -> list[str]:
+    """A closure record's :func:`recovery_columns`."""
+    return [number(closure["episodes"]), number(closure["steps"]), number(closure["seconds"], 1)]
+
+
+def window_cell(closure: dict[str, Any]) -> str:
+    """A closure record's success / SPL at the end of its window, and the episodes in it."""
+    return f"{end_of_window(closure)} ({closure['window_episodes']})"
+
+
+def runs_by_lever(runs: Sequence[dict[str, Any]], levers: Sequence[str]) -> list[tuple[str, list[dict[str, Any]]]]:
+    """Each lever that has runs, with them (in the order of ``runs``)."""
+    grouped = [(lever, [r for r in runs if r["lever"] == lever]) for lever in levers]
+    return [(lever, mine) for lever, mine in grouped if mine]

@@ -40,18 +40,21 @@ from benchmarks.closure_runs import (
     closure_benchmark_parser,
     closure_jobs,
     eleven_roads,
-    end_of_window,
-    episodes_header,
     figures_text,
-    medians,
+    lever_cells,
+    median_columns,
     number,
+    recovery_cells,
+    recovery_columns,
     roads_text,
     run_closure_jobs,
+    runs_by_lever,
     shown_runs,
     solve_text,
     time_text,
+    window_cell,
 )
-from benchmarks.report import command_line, machine_line, markdown_table, write_results
+from benchmarks.report import machine_line, markdown_table, publish
 from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD
 
@@ -105,66 +108,30 @@ def recovery_curves(runs: Sequence[dict[str, Any]], levers: Sequence[str], title
 
 
 def summary_table(runs: Sequence[dict[str, Any]], levers: Sequence[str], eval_every: int) -> list[str]:
-    header = [
-        "lever",
-        "seeds",
-        "solved before the closure at (per seed)",
-        "recovered",
-        episodes_header("median episodes", eval_every),
-        "median env steps",
-        "median training s",
-        f"goal (median <= {GOAL_EPISODES} ep)",
-        f"paper (< {PAPER_EPISODES} ep)",
-    ]
+    header = ["lever", "seeds", "solved before the closure at (per seed)", "recovered", *median_columns(eval_every)]
+    header += [f"goal (median <= {GOAL_EPISODES} ep)", f"paper (< {PAPER_EPISODES} ep)"]
     rows = []
-    for lever in levers:
-        mine = [r for r in runs if r["lever"] == lever]
-        if not mine:
-            continue
-        closures = [c for r in mine for c in r["recoveries"]]
-        episodes, steps, seconds = medians(closures)
-        rows.append(
-            [
-                LEVER_SETS[lever].name,
-                len(mine),
-                "; ".join(solve_text(r) for r in mine),
-                f"{sum(c['recovered'] for c in closures)} / {len(closures)}",
-                number(episodes),
-                number(steps),
-                number(seconds, 1),
-                "met" if episodes <= GOAL_EPISODES else "**missed**",
-                "met" if episodes < PAPER_EPISODES else "**missed**",
-            ]
-        )
+    for lever, mine in runs_by_lever(runs, levers):
+        cells, episodes, _ = lever_cells(lever, mine)
+        met = [
+            "met" if episodes <= GOAL_EPISODES else "**missed**",
+            "met" if episodes < PAPER_EPISODES else "**missed**",
+        ]
+        rows.append([*cells, *met])
     return markdown_table(header, rows)
 
 
 def run_table(runs: Sequence[dict[str, Any]], levers: Sequence[str], eval_every: int) -> list[str]:
-    header = [
-        "lever",
-        "seed",
-        "routes affected",
-        "success / SPL right after",
-        episodes_header("recovery episodes", eval_every),
-        "env steps",
-        "training s",
-        "success / SPL at the end of the window (episodes in it)",
-    ]
+    header = ["lever", "seed", "routes affected", "success / SPL right after", *recovery_columns(eval_every)]
+    header.append("success / SPL at the end of the window (episodes in it)")
     rows = []
-    for lever in levers:
-        for run in sorted((r for r in runs if r["lever"] == lever), key=lambda r: r["seed"]):
+    for lever, mine in runs_by_lever(runs, levers):
+        for run in sorted(mine, key=lambda r: r["seed"]):
             for c in run["recoveries"]:
+                right_after = "-" if c["success_after"] is None else f"{c['success_after']:.3f} / {c['spl_after']:.3f}"
+                affected = "-" if c["routes_affected"] is None else c["routes_affected"]
                 rows.append(
-                    [
-                        LEVER_SETS[lever].name,
-                        run["seed"],
-                        "-" if c["routes_affected"] is None else c["routes_affected"],
-                        "-" if c["success_after"] is None else f"{c['success_after']:.3f} / {c['spl_after']:.3f}",
-                        number(c["episodes"]),
-                        number(c["steps"]),
-                        number(c["seconds"], 1),
-                        f"{end_of_window(c)} ({c['window_episodes']})",
-                    ]
+                    [LEVER_SETS[lever].name, run["seed"], affected, right_after, *recovery_cells(c), window_cell(c)]
                 )
     return markdown_table(header, rows)
 
@@ -235,12 +202,8 @@ def main(argv: list[str] | None = None) -> None:
         ),
         "",
         time_text(stored, runs),
-        "",
-        command_line(SCRIPT, argv),
     ]
-    print("\n".join(lines))
-    write_results(setup.out, "\n".join(lines))
-    print(f"wrote {setup.out}")
+    publish(setup.out, lines, SCRIPT, argv)
 
 
 if __name__ == "__main__":

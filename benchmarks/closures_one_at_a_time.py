@@ -42,19 +42,23 @@ from benchmarks.closure_runs import (
     busiest_closures,
     closure_benchmark_parser,
     closure_jobs,
-    end_of_window,
-    episodes_header,
     figures_text,
+    lever_cells,
+    median_columns,
     median_episodes,
     medians,
     number,
+    recovery_cells,
+    recovery_columns,
     roads_text,
     run_closure_jobs,
+    runs_by_lever,
     shown_runs,
     solve_text,
     time_text,
+    window_cell,
 )
-from benchmarks.report import command_line, machine_line, markdown_table, write_results
+from benchmarks.report import machine_line, markdown_table, publish
 from campusnav_env.figures import figure_image, write_figure
 
 SCRIPT = "closures_one_at_a_time.py"
@@ -131,25 +135,13 @@ def recovery_bars(
 def summary_table(
     runs: Sequence[dict[str, Any]], levers: Sequence[str], goal_episodes: float, eval_every: int
 ) -> list[str]:
-    header = [
-        "lever",
-        "seeds",
-        "solved before the closures at (per seed)",
-        "closures recovered",
-        episodes_header("median episodes", eval_every),
-        "median env steps",
-        "median training s",
-        "closures within the goal",
-        f"goal (median <= {goal_episodes:.0f} ep and <= {GOAL_SECONDS:.0f} s)",
-        f"paper (< {PAPER_EPISODES} ep)",
-    ]
+    header = ["lever", "seeds", "solved before the closures at (per seed)", "closures recovered"]
+    header += [*median_columns(eval_every), "closures within the goal"]
+    header += [f"goal (median <= {goal_episodes:.0f} ep and <= {GOAL_SECONDS:.0f} s)", f"paper (< {PAPER_EPISODES} ep)"]
     rows = []
-    for lever in levers:
-        mine = [r for r in runs if r["lever"] == lever]
-        if not mine:
-            continue
-        closures = [c for r in mine for c in r["recoveries"]]
-        episodes, steps, seconds = medians(closures)
+    for lever, mine in runs_by_lever(runs, levers):
+        cells, episodes, closures = lever_cells(lever, mine)
+        seconds = medians(closures)[2]
         within = sum(
             c["episodes"] is not None and c["episodes"] <= goal_episodes and c["seconds"] <= GOAL_SECONDS
             for c in closures
@@ -157,13 +149,7 @@ def summary_table(
         met = episodes <= goal_episodes and seconds <= GOAL_SECONDS
         rows.append(
             [
-                LEVER_SETS[lever].name,
-                len(mine),
-                "; ".join(solve_text(r) for r in mine),
-                f"{sum(c['recovered'] for c in closures)} / {len(closures)}",
-                number(episodes),
-                number(steps),
-                number(seconds, 1),
+                *cells,
                 f"{within} / {len(closures)}",
                 "met" if met else "**missed**",
                 "met" if episodes < PAPER_EPISODES else "**missed**",
@@ -173,21 +159,11 @@ def summary_table(
 
 
 def closure_table(runs: Sequence[dict[str, Any]], levers: Sequence[str], eval_every: int) -> list[str]:
-    header = [
-        "lever",
-        "seed",
-        "closure",
-        "road",
-        "routes affected",
-        "success right after",
-        episodes_header("recovery episodes", eval_every),
-        "env steps",
-        "training s",
-        "success / SPL at the end of the window (episodes in it)",
-    ]
+    header = ["lever", "seed", "closure", "road", "routes affected", "success right after"]
+    header += [*recovery_columns(eval_every), "success / SPL at the end of the window (episodes in it)"]
     rows = []
-    for lever in levers:
-        for run in sorted((r for r in runs if r["lever"] == lever), key=lambda r: r["seed"]):
+    for lever, mine in runs_by_lever(runs, levers):
+        for run in sorted(mine, key=lambda r: r["seed"]):
             for c in run["recoveries"]:
                 rows.append(
                     [
@@ -197,10 +173,8 @@ def closure_table(runs: Sequence[dict[str, Any]], levers: Sequence[str], eval_ev
                         roads_text(c["roads"]),
                         "-" if c["routes_affected"] is None else c["routes_affected"],
                         "-" if c["success_after"] is None else f"{c['success_after']:.3f}",
-                        number(c["episodes"]),
-                        number(c["steps"]),
-                        number(c["seconds"], 1),
-                        f"{end_of_window(c)} ({c['window_episodes']})",
+                        *recovery_cells(c),
+                        window_cell(c),
                     ]
                 )
     return markdown_table(header, rows)
@@ -278,12 +252,8 @@ def main(argv: list[str] | None = None) -> None:
         ),
         "",
         time_text(stored, runs),
-        "",
-        command_line(SCRIPT, argv),
     ]
-    print("\n".join(lines))
-    write_results(setup.out, "\n".join(lines))
-    print(f"wrote {setup.out}")
+    publish(setup.out, lines, SCRIPT, argv)
 
 
 if __name__ == "__main__":
