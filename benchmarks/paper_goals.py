@@ -41,7 +41,7 @@ import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from benchmarks.campusnav_runs import TASKS, VARIANTS, Task, quick_env_kwargs
-from benchmarks.report import RESULTS_DIR, command_line, machine_line, run_missing, write_results
+from benchmarks.report import RESULTS_DIR, machine_line, publish, run_missing
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.figures import figure_image, training_curves, write_figure
 from campusnav_env.maps.campus import GOALS
@@ -397,12 +397,8 @@ def main(argv: list[str] | None = None) -> None:
         "",
         f"Time: {len(runs)} agents, {np.sum(seconds):.0f} s in all (training with evaluations, then the tests); "
         + ran.invocation_text("trained"),
-        "",
-        command_line(SCRIPT, argv),
     ]
-    print("\n".join(lines))
-    write_results(out, "\n".join(lines))
-    print(f"wrote {out}")
+    publish(out, lines, SCRIPT, argv)
 
 
 def _evaluation(point: dict[str, float]) -> Any:
