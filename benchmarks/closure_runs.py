@@ -285,7 +285,6 @@ class ClosureSetup:
     """
     What a closure benchmark's command line asks for, a smoke run's cuts applied.
 
-    :param name: The script's stem (its results file's, ``_quick`` added for a smoke run)
     :param out: The results file
     :param runs_file: Its runs file
     :param levers: Lever keys to run
@@ -297,7 +296,6 @@ class ClosureSetup:
     :param quick: A smoke run
     """
 
-    name: str
     out: Path
     runs_file: Path
     levers: list[str]
@@ -310,7 +308,13 @@ class ClosureSetup:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace, name: str, default_levers: Sequence[str]) -> ClosureSetup:
-        """The setup of :func:`closure_benchmark_parser`'s flags (``--quick``: small views, tiny budgets, one seed)."""
+        """
+        The setup of :func:`closure_benchmark_parser`'s flags (``--quick``: small views, tiny budgets, one seed).
+
+        :param args: The parsed flags
+        :param name: The script's stem: the default results file is ``results/<name>.md`` (``<name>_quick.md``)
+        :param default_levers: The script's default levers (a smoke run replaces them by :data:`QUICK_LEVERS`)
+        """
         out: Path = args.out or RESULTS_DIR / f"{name}{'_quick' if args.quick else ''}.md"
         levers = QUICK_LEVERS if args.quick and args.levers == list(default_levers) else args.levers
         task, env_kwargs, window, seeds = TASKS["campus"], {}, args.window, args.seeds
@@ -318,8 +322,7 @@ class ClosureSetup:
             task = dataclasses.replace(task, max_steps=1_500, budget_seconds=20, eval_freq=500)
             env_kwargs, window, seeds = quick_env_kwargs(), min(window, 300), seeds[:1]
         runs_file = args.runs_file or out.with_name(f"{out.stem}_runs.jsonl")
-        eval_every = args.eval_every
-        return cls(name, out, runs_file, list(levers), list(seeds), task, env_kwargs, window, eval_every, args.quick)
+        return cls(out, runs_file, list(levers), list(seeds), task, env_kwargs, window, args.eval_every, args.quick)
 
     @property
     def settings(self) -> dict[str, Any]:
