@@ -1,14 +1,14 @@
 """A closed road reopened: training episodes until every goal's greedy routes use it again.
 
-DCQN from the shipped ``CampusNavMulti-v0`` entry (the paper's four goals, the route memory on) trains until the map
-is solved, then the road the shortest routes to the four goals use most is closed and training goes on for
-``--window`` env steps (the memory learns the closure from its bumps), then the road is reopened and training goes on
-for another window. After the reopening a route evaluation runs every ``--eval-every`` training episodes (1, the
-default: after every episode; the counts below are multiples of it). Counted: the
-training episodes from the reopening to the first evaluation in which, for every goal, as many greedy routes travel
-the road as in the last evaluation before it closed (the routes took it again), and, as a bar, the episodes until
-every goal is back at success >= 0.99 and SPL >= 0.98 (solved again). A memory that keeps a closed road blocked
-forever never gets there (the reopening is only found by trying the road again: DCQN's ``retry_after``).
+DCQN from the shipped ``CampusNavMulti-v0`` entry (the paper's four goals, the route memory on) trains until the map is
+solved, then the road the shortest routes to the four goals use most is closed and training goes on for ``--window`` env
+steps (the memory learns the closure from its bumps), then the road is reopened and training goes on for another window.
+After the reopening a route evaluation runs every ``--eval-every`` training episodes (1, the default: after every
+episode; a count is where it reached a multiple of it, or passed one by the episodes that end within the same few
+steps). Counted: the training episodes from the reopening to the first evaluation in which, for every goal, as many
+greedy routes travel the road as in the last evaluation before it closed (the routes took it again), and, as a bar, the
+episodes until every goal is back at success >= 0.99 and SPL >= 0.98 (solved again). A memory that keeps a closed road
+blocked forever never gets there (the reopening is only found by trying the road again: DCQN's ``retry_after``).
 Usage::
 
     python benchmarks/reopened_road.py --seeds 2 5 11
@@ -88,7 +88,7 @@ def run_one(seed: int, window: int, quick: bool, eval_every: int = 1, max_episod
         episodes = model._episode_num - start_episode
         if episodes < due:
             continue
-        due = episodes + eval_every
+        due = (episodes // eval_every + 1) * eval_every
         run.evaluation.evaluate()
         evaluation = run.evaluation.evaluations[-1]
         if back is None and all(routes_on(evaluation, road).get(g, 0) >= n for g, n in used.items()):
