@@ -1,4 +1,5 @@
-"""What the CampusNav benchmarks share: the tasks, the agents compared, and the lever sets of the closure benchmarks.
+"""What the CampusNav benchmarks share: the tasks, the agents compared, the lever sets of the closure benchmarks, and
+the goal conditions of the any-goal benchmarks (``unseen_goals.py``, ``goal_pictures.py``).
 
 A *task* is a map and its goals (the built-in campus with one or four goals, or a generated campus of a few hundred
 intersections) with the shipped YAML entry that trains on it. A *variant* is an agent: DCQN as shipped, DCQN without
@@ -196,3 +197,18 @@ def quick_env_kwargs() -> dict[str, Any]:
     from campusnav_env.rendering.street_view import RenderSettings
 
     return {"encoder": "pixels", "render_settings": RenderSettings(width=64, height=48)}
+
+
+# ------------------------------------------------------------------------------------------------ any-goal benchmarks
+# The share of intersections held out of training as goals (campusnav_env.goal_env.held_out_split)
+HELD_OUT_FRACTION = 0.2
+# The conditions the goal_photos lever pictures training goals in (None: as the agent's views, noon), and those the
+# appearance test pictures them in: none of the test's is a training condition
+TRAINING_PHOTOS = (None, *(RenderSettings(time_of_day=hour) for hour in (7.0, 16.0, 20.5)))
+APPEARANCES = {
+    "morning (8:30)": RenderSettings(time_of_day=8.5),
+    "evening (17:30)": RenderSettings(time_of_day=17.5),
+    "night (19:30)": RenderSettings(time_of_day=19.5),
+    "passing cars": RenderSettings(cars=True),
+    "night + cars": RenderSettings(time_of_day=19.5, cars=True),
+}

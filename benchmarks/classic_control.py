@@ -15,18 +15,14 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
-
 import numpy as np
 
-from benchmarks.report import RESULTS_DIR, append_run, machine_line, publish, read_runs
+from benchmarks.report import RESULTS_DIR, machine_line, publish, run_missing
+from benchmarks.workers import workers_argument
 
 HYPERPARAMS = Path(__file__).resolve().parents[1] / "sb3_dcqn" / "hyperparams" / "dcqn.yml"
 ALGOS = ("DQN", "DCQN")
@@ -67,6 +63,11 @@ def run_one(algo_name: str, env_id: str, seed: int, n_eval_episodes: int = 20) -
     }
 
 
+def run_job(job: tuple[str, str, int]) -> dict[str, Any]:
+    """:func:`run_one` of an ``(algorithm, env, seed)`` job."""
+    return run_one(*job)
+
+
 def summarise(results: list[dict[str, Any]], envs: list[str]) -> list[str]:
     lines = [
         "| env | algo | seeds | final eval reward (mean +- std over seeds) | train time per run (s) "
@@ -93,31 +94,22 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--envs", nargs="+", default=["CartPole-v1", "Acrobot-v1"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--algos", nargs="+", default=list(ALGOS), choices=ALGOS)
-    parser.add_argument("--workers", type=int, default=2)
+    workers_argument(parser, default=2)
     parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "classic_control_runs.jsonl")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "classic_control.md")
     args = parser.parse_args(argv)
 
-    args.runs_file.parent.mkdir(parents=True, exist_ok=True)
-    done = {(r["algo"], r["env"], r["seed"]) for r in read_runs(args.runs_file)}
-    todo = [
-        (algo, env_id, seed)
-        for env_id in args.envs
-        for seed in args.seeds
-        for algo in args.algos
-        if (algo, env_id, seed) not in done
-    ]
-    print(f"{len(done)} runs already in {args.runs_file}, {len(todo)} to do with {args.workers} workers", flush=True)
-    with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        futures = {pool.submit(run_one, *job): job for job in todo}
-        for future in as_completed(futures):
-            result = future.result()
-            append_run(args.runs_file, result)
-            print(
-                f"{result['algo']:>4} {result['env']:<12} seed {result['seed']}: "
-                f"{result['mean_reward']:8.1f} in {result['train_seconds']:.0f} s",
-                flush=True,
-            )
+    jobs = [(algo, env_id, seed) for env_id in args.envs for seed in args.seeds for algo in args.algos]
+    runs = run_missing(
+        args.runs_file,
+        jobs,
+        run_job,
+        key=lambda r: (r["algo"], r["env"], r["seed"]),
+        workers=args.workers,
+        describe=lambda r: (
+            f"{r['algo']:>4} {r['env']:<12} seed {r['seed']}: {r['mean_reward']:8.1f} in {r['train_seconds']:.0f} s"
+        ),
+    )
 
     lines = [
         "# Classic control: DCQN vs DQN with the RL Zoo's DQN hyperparameters",
@@ -126,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
         + " Final evaluation: 20 deterministic episodes after training.",
         "Hyperparameters: `hyperparams/dcqn.yml` (identical to rl_zoo3's `dqn.yml` entries) for both algorithms.",
         "",
-        *summarise(read_runs(args.runs_file), args.envs),
+        *summarise(runs.records, args.envs),
     ]
     publish(args.out, lines, "classic_control.py", argv)
 

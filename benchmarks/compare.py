@@ -40,16 +40,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
-
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 import numpy as np
 import torch as th
@@ -61,8 +57,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 
 from benchmarks.campusnav_runs import TASKS, VARIANTS, Task
-from benchmarks.report import RESULTS_DIR, append_run, machine_line, publish, read_runs
-from benchmarks.workers import run_in_workers, workers_argument
+from benchmarks.report import RESULTS_DIR, machine_line, publish, run_missing
+from benchmarks.workers import workers_argument
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.maps.campus import GOALS
@@ -363,6 +359,11 @@ class Job:
         return (self.agent, goal_label(self.goal), self.seed, self.budget, self.quick)
 
 
+def record_key(record: dict[str, Any]) -> tuple[Any, ...]:
+    """The :meth:`Job.key` of a record's run."""
+    return (record["agent"], record["goal"], record["seed"], record["budget"], record["quick"])
+
+
 def task_for(quick: bool) -> Task:
     task = TASKS["quick"] if quick else TASKS["campus"]
     return replace(task, max_steps=NO_STEP_CAP)
@@ -563,19 +564,19 @@ def main(argv: Sequence[str] | None = None) -> None:
         for goal in goals
         for agent in args.agents
     ]
-    done = {
-        (run["agent"], run["goal"], run["seed"], run["budget"], run["quick"]): run for run in read_runs(args.runs_file)
-    }
-    todo = [job for job in jobs if job.key() not in done]
-    print(f"{len(jobs)} runs, {len(jobs) - len(todo)} already in {args.runs_file}, {args.workers} worker(s)")
-    for record in run_in_workers(run_job, todo, args.workers):
-        append_run(args.runs_file, record)
-        done[(record["agent"], record["goal"], record["seed"], record["budget"], record["quick"])] = record
-        print(
+    stored = run_missing(
+        args.runs_file,
+        jobs,
+        run_job,
+        key=record_key,
+        job_key=Job.key,
+        workers=args.workers,
+        describe=lambda record: (
             f"{record['agent']:<24} {record['goal']:<18} seed {record['seed']}: {record['env_steps']:>7} steps, "
-            f"test success {record['test']['success']:.2f}, mean steps {record['test']['steps']:.1f}",
-            flush=True,
-        )
+            f"test success {record['test']['success']:.2f}, mean steps {record['test']['steps']:.1f}"
+        ),
+    )
+    done = {record_key(record): record for record in stored.records}
     runs = [done[job.key()] for job in jobs]
     image = args.out.with_suffix(".png")
     draw(runs, image)

@@ -35,19 +35,16 @@ step cap); the table is rebuilt from the file. Usage::
 from __future__ import annotations
 
 import argparse
+import functools
 import statistics
-import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
-
 import numpy as np
 
-from benchmarks.report import RESULTS_DIR, append_run, machine_line, markdown_table, measured_on, publish, read_runs
+from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, measured_on, publish, run_missing
 from benchmarks.scale_common import GOAL, PIXELS, env_kwargs_for, fmt, make_graph
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.recovery import RouteEvaluation
@@ -316,6 +313,12 @@ def memory_of(run: dict[str, Any]) -> str:
     return str(run.get("memory", "poses"))
 
 
+def run_key(run: dict[str, Any]) -> tuple[Any, ...]:
+    """What tells a run apart: memory, size, map seed, seed, evaluation period, smoke run, step cap."""
+    fields = (run["size"], run.get("map_seed", 0), run["seed"], run["eval_every"], run["quick"], run["max_env_steps"])
+    return (memory_of(run), *fields)
+
+
 def _median_range(values: list[float], digits: int = 0) -> str:
     """``median (min-max)``, ``-`` where there are none."""
     if not values:
@@ -361,30 +364,37 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     sizes = args.sizes or ([101] if args.quick else [101, 1000])
     seeds = args.seeds or ([0] if args.quick else [0, 1, 2])
-    done = {
-        (memory_of(r), r["size"], r.get("map_seed", 0), r["seed"], r["eval_every"], r["quick"], r["max_env_steps"])
-        for r in read_runs(args.runs_file)
-    }
-    for size in sizes:
-        eval_every = args.eval_every or default_eval_every(size)
-        todo = [
-            (memory, seed)
-            for memory in args.memory
-            for seed in seeds
-            if (memory, size, args.map_seed, seed, eval_every, args.quick, args.max_env_steps) not in done
-        ]
-        print(f"{size} intersections: {len(todo)} runs to do ({args.runs_file} has the others)")
-        env = make_env(size, args.map_seed) if todo else None
-        for memory, seed in todo:
-            record = run_one(size, seed, eval_every, args.quick, args.max_env_steps, env, args.map_seed, memory)
-            append_run(args.runs_file, record)
-            print(
-                f"{memory}, {size} nodes seed {seed}: {'solved' if record['solved'] else 'NOT solved'} at "
-                f"{record['env_steps']:,} env steps, {record['episodes']:,} episodes, {record['wall_seconds']:.1f} s "
-                f"(success {record['success']:.3f}, SPL {record['spl']:.3f})",
-                flush=True,
-            )
-    write_report(read_runs(args.runs_file), args.out, argv)
+    # One env per map, built when its first run is due (the jobs come map by map)
+    env_of = functools.lru_cache(maxsize=1)(make_env)
+    jobs = [
+        (memory, size, seed, args.eval_every or default_eval_every(size))
+        for size in sizes
+        for memory in args.memory
+        for seed in seeds
+    ]
+
+    def run_job(job: tuple[str, int, int, int]) -> dict[str, Any]:
+        memory, size, seed, eval_every = job
+        env = env_of(size, args.map_seed)
+        return run_one(size, seed, eval_every, args.quick, args.max_env_steps, env, args.map_seed, memory)
+
+    def describe(record: dict[str, Any]) -> str:
+        return (
+            f"{memory_of(record)}, {record['size']} nodes seed {record['seed']}: "
+            f"{'solved' if record['solved'] else 'NOT solved'} at {record['env_steps']:,} env steps, "
+            f"{record['episodes']:,} episodes, {record['wall_seconds']:.1f} s "
+            f"(success {record['success']:.3f}, SPL {record['spl']:.3f})"
+        )
+
+    runs = run_missing(
+        args.runs_file,
+        jobs,
+        run_job,
+        key=run_key,
+        job_key=lambda job: (*job[:2], args.map_seed, *job[2:], args.quick, args.max_env_steps),
+        describe=describe,
+    )
+    write_report(runs.records, args.out, argv)
 
 
 if __name__ == "__main__":

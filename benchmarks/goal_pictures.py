@@ -32,21 +32,16 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
-
 import numpy as np
 import torch as th
 
-from benchmarks.campusnav_runs import quick_env_kwargs
+from benchmarks.campusnav_runs import APPEARANCES, HELD_OUT_FRACTION, TRAINING_PHOTOS, quick_env_kwargs
 from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish, write_results
-from benchmarks.unseen_goals import APPEARANCES, HELD_OUT_FRACTION, TRAINING_PHOTOS
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
 from sb3_dcqn.place_recognition import NOT_IN_MEMORY, NearestPlace, fit_place_matcher
 from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry

@@ -26,21 +26,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
-
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 import numpy as np
 import torch as th
 from matplotlib.figure import Figure
 
 from benchmarks.campusnav_runs import TASKS, VARIANTS
-from benchmarks.report import RESULTS_DIR, append_run, machine_line, publish, read_runs, write_results
+from benchmarks.report import RESULTS_DIR, machine_line, publish, run_missing, write_results
 from campusnav_env.figures import figure_image, write_figure
 from sb3_dcqn.campusnav.experiments import train_until_solved
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
@@ -238,31 +234,26 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     th.set_num_threads(1)
 
-    args.runs_file.parent.mkdir(parents=True, exist_ok=True)
     profile_file = args.runs_file.with_name("learning_speed_profile.json")
     if args.profile:
         profiles = {variant: profile_costs("campus", variant) for variant in args.variants}
         write_results(profile_file, json.dumps(profiles, indent=2))
         print("\n".join(profile_table(profiles)), flush=True)
-    done = {(r["task"], r["variant"], r["seed"]) for r in read_runs(args.runs_file)}
-    todo = [
-        (task, variant, seed)
-        for task in args.tasks
-        for seed in args.seeds
-        for variant in args.variants
-        if (task, variant, seed) not in done
-    ]
-    print(f"{len(done)} runs already in {args.runs_file}, {len(todo)} to do", flush=True)
-    for job in todo:
-        run = run_one(*job, budget_seconds=args.budget_seconds, max_steps=args.max_steps, eval_freq=args.eval_freq)
-        append_run(args.runs_file, run)
-        print(
-            f"{run['task']:<10} {run['variant']:<22} seed {run['seed']}: {_seconds(run)} s, {run['steps']} steps, "
-            f"{run['episodes']} episodes (wall {run['wall_seconds']:.0f} s)",
-            flush=True,
-        )
+    jobs = [(task, variant, seed) for task in args.tasks for seed in args.seeds for variant in args.variants]
 
-    runs = read_runs(args.runs_file)
+    def run_job(job: tuple[str, str, int]) -> dict[str, Any]:
+        return run_one(*job, budget_seconds=args.budget_seconds, max_steps=args.max_steps, eval_freq=args.eval_freq)
+
+    runs = run_missing(
+        args.runs_file,
+        jobs,
+        run_job,
+        key=lambda r: (r["task"], r["variant"], r["seed"]),
+        describe=lambda run: (
+            f"{run['task']:<10} {run['variant']:<22} seed {run['seed']}: {_seconds(run)} s, {run['steps']} steps, "
+            f"{run['episodes']} episodes (wall {run['wall_seconds']:.0f} s)"
+        ),
+    ).records
     all_tasks = [t for t in TASKS if any(r["task"] == t for r in runs)]
     all_variants = [v for v in VARIANTS if any(r["variant"] == v for r in runs)]
     picture = args.out.with_suffix(".png")

@@ -34,18 +34,14 @@ from __future__ import annotations
 import argparse
 import copy
 import statistics
-import sys
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
-
-from benchmarks.report import RESULTS_DIR, append_run, machine_line, markdown_table, measured_on, publish, read_runs
+from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, measured_on, publish, read_runs, run_missing
 from benchmarks.scale_common import buffer_arrays, peak_memory
-from benchmarks.workers import run_in_workers, workers_argument
+from benchmarks.workers import workers_argument
 
 GOAL = "Dreese Lab"
 PIXELS = "pixels"
@@ -370,24 +366,24 @@ def main(argv: list[str] | None = None) -> None:
     eval_freq = args.eval_freq or (1_000 if args.size <= 200 else 5_000 if args.size <= 2_000 else 20_000)
     max_steps = args.max_steps or (3_000 if args.quick else 2_000_000)
     runs_file = args.runs_file or args.out.with_name(args.out.stem + "_runs.jsonl")
-    done = {
-        (r["row"], r["size"], r.get("map_seed", 0), r["seed"], r["encoder"], r["max_steps"])
-        for r in read_runs(runs_file)
-    }
     jobs = [
         Job(row, args.size, seed, args.budget, max_steps, eval_freq, args.encoder, args.quick, args.map_seed)
         for row in args.rows
         for seed in args.seeds
-        if (row, args.size, args.map_seed, seed, args.encoder, max_steps) not in done
     ]
-    for run in run_in_workers(run_one, jobs, args.workers):
-        append_run(runs_file, run)
-        print(
+    runs = run_missing(
+        runs_file,
+        jobs,
+        run_one,
+        key=lambda r: (r["row"], r["size"], r.get("map_seed", 0), r["seed"], r["encoder"], r["max_steps"]),
+        job_key=lambda job: (job.row, job.size, job.map_seed, job.seed, job.encoder, job.max_steps),
+        workers=args.workers,
+        describe=lambda run: (
             f"{run['row']} seed {run['seed']}: solved {run['solved']} at {run['steps']:,} steps, "
-            f"{run['seconds']:.0f} s (success {run['final_success']:.3f}, SPL {run['final_spl']:.3f})",
-            flush=True,
-        )
-    write_report(read_runs(runs_file), args.out, argv, args.floor_runs_file)
+            f"{run['seconds']:.0f} s (success {run['final_success']:.3f}, SPL {run['final_spl']:.3f})"
+        ),
+    )
+    write_report(runs.records, args.out, argv, args.floor_runs_file)
 
 
 if __name__ == "__main__":

@@ -38,15 +38,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 import numpy as np
 import torch as th
@@ -56,9 +52,9 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks.campusnav_runs import TASKS, VARIANTS, Variant, quick_env_kwargs
-from benchmarks.closures_one_at_a_time import busiest_closures
-from benchmarks.report import RESULTS_DIR, append_run, machine_line, publish, read_runs
-from benchmarks.workers import run_in_workers, workers_argument
+from benchmarks.closure_runs import busiest_closures
+from benchmarks.report import RESULTS_DIR, machine_line, publish, run_missing
+from benchmarks.workers import workers_argument
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.optimal_values import optimal_q_values
@@ -549,27 +545,27 @@ def main(argv: list[str] | None = None) -> None:
     print(f"closure: road {closure[0]}-{closure[1]} (goal node {goal})", flush=True)
 
     settings = {"steps": steps, "after": after, "every": every, "quick": args.quick, "closure": list(closure)}
-    stored = [r for r in read_runs(runs_file) if all(r.get(k) == v for k, v in settings.items())]
-    done = {(r["agent"], r["seed"]) for r in stored}
-    jobs = [
-        Job(agent, seed, steps, after, every, closure, args.quick)
-        for seed in seeds
-        for agent in agents
-        if (agent, seed) not in done
-    ]
-    print(f"{len(done)} runs already in {runs_file}, {len(jobs)} to do ({args.workers} workers)", flush=True)
-    started = time.perf_counter()
-    for record in run_in_workers(run_one, jobs, args.workers):
-        append_run(runs_file, record)
-        stored.append(record)
+    jobs = [Job(agent, seed, steps, after, every, closure, args.quick) for seed in seeds for agent in agents]
+
+    def describe(record: dict[str, Any]) -> str:
         end = next(p for p in record["points"] if p["phase"] == "before" and p["step"] == steps)
-        print(
+        return (
             f"{record['agent']}, seed {record['seed']}: at {steps} steps success {end['success']:.3f}, Q - Q* "
             f"{end['signed_all']:+.4f} (visited {end['signed_visited']:+.4f}), max Q - V* {end['greedy']:+.4f}; "
-            f"{record['wall_seconds']:.0f} s",
-            flush=True,
+            f"{record['wall_seconds']:.0f} s"
         )
-    total = time.perf_counter() - started
+
+    ran = run_missing(
+        runs_file,
+        jobs,
+        run_one,
+        key=lambda r: (r["agent"], r["seed"]),
+        job_key=lambda job: (job.agent, job.seed),
+        settings=settings,
+        workers=args.workers,
+        describe=describe,
+    )
+    stored = ran.records
 
     shown = [a for a in AGENTS if a in agents or any(r["agent"] == a and r["seed"] in seeds for r in stored)]
     runs = [r for r in stored if r["agent"] in shown and r["seed"] in seeds]
@@ -639,8 +635,7 @@ def main(argv: list[str] | None = None) -> None:
         f"![signed errors vs env steps]({picture.name})",
         "",
         f"Time: {len(runs)} runs, {np.sum(wall):.0f} s of run time in all (per run {min(wall, default=0):.0f}-"
-        f"{max(wall, default=0):.0f} s, measurements included); "
-        + (f"this invocation ran {len(jobs)} of them in {total:.0f} s." if jobs else "all read from the runs file."),
+        f"{max(wall, default=0):.0f} s, measurements included); " + ran.invocation_text(),
     ]
     publish(out, lines, SCRIPT, argv)
 

@@ -31,21 +31,17 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
-
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from benchmarks.campusnav_runs import TASKS, VARIANTS, Task, quick_env_kwargs
-from benchmarks.report import RESULTS_DIR, append_run, command_line, machine_line, read_runs, write_results
+from benchmarks.report import RESULTS_DIR, machine_line, publish, run_missing
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.figures import figure_image, training_curves, write_figure
 from campusnav_env.maps.campus import GOALS
@@ -327,26 +323,27 @@ def main(argv: list[str] | None = None) -> None:
     runs_file: Path = args.runs_file or out.with_name(f"{out.stem}_runs.jsonl")
     n_episodes = min(args.test_episodes, 10) if args.quick else args.test_episodes
     env_kwargs = quick_env_kwargs() if args.quick else {}
-    stored = [r for r in read_runs(runs_file) if r["quick"] == args.quick and r["test_episodes"] == n_episodes]
-    done = {(r["agent"], r["seed"]) for r in stored}
-    todo = [(agent, seed) for seed in args.seeds for agent in args.agents if (agent, seed) not in done]
-    print(f"{len(done)} agents already in {runs_file}, {len(todo)} to do", flush=True)
-    started = time.perf_counter()
-    for agent, seed in todo:
-        record = train_and_test(agent, seed, args.quick, n_episodes, env_kwargs)
-        append_run(runs_file, record)
-        stored.append(record)
-        print(
-            f"{_agent_name(agent)}, seed {seed}: {_solve_text(record)}; test success "
+
+    def describe(record: dict[str, Any]) -> str:
+        return (
+            f"{_agent_name(record['agent'])}, seed {record['seed']}: {_solve_text(record)}; test success "
             + ", ".join(f"{g} {t['success']:.2f}" for g, t in record["tests"].items())
-            + f"; {record['wall_seconds'] + record['test_seconds']:.0f} s",
-            flush=True,
+            + f"; {record['wall_seconds'] + record['test_seconds']:.0f} s"
         )
-    total = time.perf_counter() - started
+
+    ran = run_missing(
+        runs_file,
+        [(agent, seed) for seed in args.seeds for agent in args.agents],
+        lambda job: train_and_test(*job, args.quick, n_episodes, env_kwargs),
+        key=lambda r: (r["agent"], r["seed"]),
+        settings={"quick": args.quick, "test_episodes": n_episodes},
+        describe=describe,
+        noun="agents",
+    )
 
     order = {agent: k for k, agent in enumerate([MULTI, *GOALS])}
     runs = sorted(
-        (r for r in stored if r["agent"] in args.agents and r["seed"] in args.seeds),
+        (r for r in ran.records if r["agent"] in args.agents and r["seed"] in args.seeds),
         key=lambda r: (r["seed"], order[r["agent"]]),
     )
     prefix = out.with_name(out.stem)
@@ -399,15 +396,9 @@ def main(argv: list[str] | None = None) -> None:
         "moving average of 100: every agent; the multi-goal agent's with its route evaluations).",
         "",
         f"Time: {len(runs)} agents, {np.sum(seconds):.0f} s in all (training with evaluations, then the tests); "
-        + (
-            f"this invocation trained {len(todo)} of them in {total:.0f} s." if todo else "all read from the runs file."
-        ),
-        "",
-        command_line(SCRIPT, argv),
+        + ran.invocation_text("trained"),
     ]
-    print("\n".join(lines))
-    write_results(out, "\n".join(lines))
-    print(f"wrote {out}")
+    publish(out, lines, SCRIPT, argv)
 
 
 def _evaluation(point: dict[str, float]) -> Any:

@@ -1,5 +1,6 @@
 """What every benchmark script does with its results: the results folder, the machine they were measured on, Markdown
-tables, the command that made them, atomic writes, and the JSON-lines files of finished runs."""
+tables, the command that made them, atomic writes, and the JSON-lines files of finished runs with the loop that fills
+them (:func:`run_missing`: the runs not there yet, each appended as it finishes)."""
 
 from __future__ import annotations
 
@@ -8,15 +9,19 @@ import os
 import platform
 import shlex
 import sys
-from collections.abc import Iterable, Sequence
+import time
+from collections.abc import Callable, Hashable, Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
+from benchmarks.workers import run_in_workers
 from campusnav_env.atomic_files import write_text_atomic
 
 # Every script's results files (and their runs files) go here unless --out / --runs-file say otherwise
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 CPUINFO = Path("/proc/cpuinfo")
+Job = TypeVar("Job")
 
 
 def cpu_model() -> str:
@@ -124,3 +129,75 @@ def append_run(path: Path, run: dict[str, Any]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a") as file:
         file.write(json.dumps(run) + "\n")
+
+
+# ------------------------------------------------------------------------------------------------ the runs loop
+@dataclass
+class Runs:
+    """
+    A benchmark's runs: the records of its runs file made with the settings asked for (read back, then the new ones
+    in the order they finished), and what this invocation ran.
+
+    :param records: The records, stored and new
+    :param ran: Runs this invocation ran
+    :param seconds: Wall time of those runs (all of them, from the first start to the last finish)
+    """
+
+    records: list[dict[str, Any]]
+    ran: int = 0
+    seconds: float = 0.0
+
+    def machine(self, out: Path, default: str) -> str:
+        """The ``Machine:`` line: this machine's when this invocation ran something, else the one of ``out``."""
+        return default if self.ran else measured_on(out, default)
+
+    def invocation_text(self, verb: str = "ran") -> str:
+        """The end of a results file's time line: how many runs this invocation made, and in how long."""
+        return (
+            f"this invocation {verb} {self.ran} of them in {self.seconds:.0f} s."
+            if self.ran
+            else ("all read from the runs file.")
+        )
+
+
+def run_missing(
+    runs_file: Path,
+    jobs: Iterable[Job],
+    run: Callable[[Job], dict[str, Any]],
+    key: Callable[[dict[str, Any]], Hashable],
+    *,
+    job_key: Callable[[Job], Hashable] | None = None,
+    settings: dict[str, Any] | None = None,
+    workers: int = 1,
+    describe: Callable[[dict[str, Any]], str] | None = None,
+    noun: str = "runs",
+) -> Runs:
+    """
+    The loop of every benchmark that keeps its runs in a JSON-lines file: read the runs already there, run the jobs
+    that have none (in ``workers`` processes, :func:`benchmarks.workers.run_in_workers`), append each record as it
+    finishes (an interrupted benchmark keeps what it finished, a rerun skips it), and return them all.
+
+    :param runs_file: The JSON-lines file of finished runs
+    :param jobs: Every job asked for, done or not
+    :param run: Runs one job and returns its record (module-level, to be pickled to workers, if ``workers > 1``)
+    :param key: What tells a record's run apart from the others with the same settings
+    :param job_key: The key of a job's record, from the job (default: the job is its key)
+    :param settings: Fields every record kept must have with these values (others are runs of other settings)
+    :param workers: Worker processes; 1 runs the jobs here, in order
+    :param describe: A progress line for a finished record (default: none)
+    :param noun: What a run is called in the progress line ("runs", "agents", "stages")
+    :return: the records with ``settings`` (stored, then new), and what this invocation ran
+    """
+    wanted = settings or {}
+    stored = [r for r in read_runs(runs_file) if all(r.get(name) == value for name, value in wanted.items())]
+    done = {key(record) for record in stored}
+    todo = [job for job in jobs if (job if job_key is None else job_key(job)) not in done]
+    workers_text = f" with {workers} workers" if workers > 1 and todo else ""
+    print(f"{len(done)} {noun} already in {runs_file}, {len(todo)} to do{workers_text}", flush=True)
+    started = time.perf_counter()
+    for record in run_in_workers(run, todo, workers):
+        append_run(runs_file, record)
+        stored.append(record)
+        if describe is not None:
+            print(describe(record), flush=True)
+    return Runs(stored, len(todo), time.perf_counter() - started)

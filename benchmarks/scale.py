@@ -35,20 +35,20 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
-
-from benchmarks import scale_feature_transform, scale_replay, scale_training, scale_vec_env, scale_world_build
-from benchmarks.report import RESULTS_DIR, append_run, markdown_table, publish, read_runs
+from benchmarks.report import RESULTS_DIR, markdown_table, publish, run_missing
 from benchmarks.scale_common import EFFNET, GAMMA, MB, PIXELS, Plan, fmt, records_by_size
-from benchmarks.scale_world_build import build_peak_mb
+from benchmarks.scale_stages import feature_transform as scale_feature_transform
+from benchmarks.scale_stages import replay as scale_replay
+from benchmarks.scale_stages import training as scale_training
+from benchmarks.scale_stages import vec_env as scale_vec_env
+from benchmarks.scale_stages import world_build as scale_world_build
+from benchmarks.scale_stages.world_build import build_peak_mb
 from benchmarks.workers import run_in_fresh_process
 
 STAGES = (
@@ -348,6 +348,15 @@ def make_plan(args: argparse.Namespace) -> Plan:
     )
 
 
+def run_stage(stage: tuple[str, int, Callable[..., Any], tuple]) -> dict[str, Any]:
+    """Run a planned stage in a fresh process (its peak memory its own); its record, with the stage's wall time."""
+    _, _, function, function_args = stage
+    begin = time.perf_counter()
+    record = run_in_fresh_process(function, *function_args)
+    record["stage_wall_seconds"] = time.perf_counter() - begin
+    return record
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", nargs="+", type=int, help="intersections (default 101 1000 10000; quick: 101 300)")
@@ -366,17 +375,17 @@ def main(argv: list[str] | None = None) -> None:
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[name] = "1"
     plan = make_plan(args)
-    done = {(r["stage"], r["size"]) for r in read_runs(args.runs_file)}
-    print(f"{len(done)} stages already in {args.runs_file}; plan: {asdict(plan)}", flush=True)
-    for stage, size, function, function_args in planned_stages(plan, tuple(args.stages)):
-        if (stage, size) in done:
-            continue
-        begin = time.perf_counter()
-        record = run_in_fresh_process(function, *function_args)
-        record["stage_wall_seconds"] = time.perf_counter() - begin
-        append_run(args.runs_file, record)
-        print(f"{stage} {size}: done in {record['stage_wall_seconds']:.0f} s", flush=True)
-    write_report(plan, read_runs(args.runs_file), args.out, argv)
+    print(f"plan: {asdict(plan)}", flush=True)
+    runs = run_missing(
+        args.runs_file,
+        planned_stages(plan, tuple(args.stages)),
+        run_stage,
+        key=lambda r: (r["stage"], r["size"]),
+        job_key=lambda stage: stage[:2],
+        describe=lambda r: f"{r['stage']} {r['size']}: done in {r['stage_wall_seconds']:.0f} s",
+        noun="stages",
+    )
+    write_report(plan, runs.records, args.out, argv)
 
 
 if __name__ == "__main__":

@@ -1,8 +1,8 @@
 """What the scale benchmarks share: the plan of a run, the generated maps, the two feature builds, and measuring the
 time and peak memory of a block of code.
 
-``scale.py`` runs the stages of ``scale_replay.py``, ``scale_world_build.py``, ``scale_feature_transform.py``,
-``scale_vec_env.py`` and ``scale_training.py`` (each in a fresh process) and writes ``results/scale.md``.
+``scale.py`` runs the stages of :mod:`benchmarks.scale_stages` (replay, world build, feature transform, vector envs,
+training; each in a fresh process) and writes ``results/scale.md``; ``scale_<stage>.py`` runs one of them alone.
 """
 
 from __future__ import annotations
@@ -189,7 +189,7 @@ def records_by_size(runs: list[dict[str, Any]], stage: str) -> dict[int, dict[st
 def run_scale(argv: list[str]) -> None:
     """
     Run ``scale.py``'s command line with ``argv``: how a stage script (``scale_replay.py``, ...) runs its stage alone.
-    By module name, not by import: ``scale.py`` imports the stage scripts, which never import it back.
+    By module name, not by import: no benchmark script imports another.
 
     :param argv: The arguments after the script's name (``["--stages", STAGE, ...]``)
     """

@@ -18,9 +18,10 @@ Every evaluation runs the greedy policy from every (start, heading) to every goa
 intersections), logged to TensorBoard as ``eval/unseen_goals/*`` (``eval/all_goals/*`` for ``all``) and, for 20
 training goals drawn with the run's seed, ``eval/train_goals/*``. Training seconds exclude evaluations.
 
-Levers (``--levers``, for the ablation table; each one option of the product): ``shipped``; ``sb3_dones`` (SB3's
-dones on relabelled transitions: what the terminal fix buys); ``relabel8`` (8 relabelled goals per transition instead
-of 4); ``goal_dropout`` (each goal view hidden with probability 0.25 in training: partial goal pictures);
+Levers (``--levers``, for the ablation table; each one option of the product): ``shipped`` (the entry as it is: its
+route memory on); ``critics_alone`` (the route memory off: the critics' own figures); ``sb3_dones`` (SB3's dones on
+relabelled transitions: what the terminal fix buys); ``relabel8`` (8 relabelled goals per transition instead of 4);
+``goal_dropout`` (each goal view hidden with probability 0.25 in training: partial goal pictures);
 ``revision_blocked`` (experience revision, with the goal left out of the match, and the blocked-action target: for
 re-adaptation); ``goal_photos`` (training goals pictured at noon, 7:00, 16:00 and 20:30, one condition per episode);
 ``night_goals`` (every goal pictured at 19:30 with passing cars, the agent's views at noon: held-out goals found by the
@@ -46,21 +47,17 @@ from __future__ import annotations
 import argparse
 import copy
 import statistics
-import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
-
 import numpy as np
 import torch as th
 
-from benchmarks.campusnav_runs import VARIANTS, Task, quick_env_kwargs
-from benchmarks.report import RESULTS_DIR, append_run, machine_line, markdown_table, measured_on, publish, read_runs
-from benchmarks.workers import run_in_workers, workers_argument
+from benchmarks.campusnav_runs import APPEARANCES, HELD_OUT_FRACTION, TRAINING_PHOTOS, VARIANTS, Task, quick_env_kwargs
+from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, measured_on, publish, run_missing
+from benchmarks.workers import workers_argument
 from campusnav_env.callbacks import RouteEvaluationCallback
 from campusnav_env.closures import ClosureEvent
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
@@ -73,7 +70,6 @@ from sb3_dcqn.campusnav.settings import campus_of
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 from sb3_dcqn.replay import RevisionHerReplayBuffer
 
-HELD_OUT_FRACTION = 0.2
 ALL_GOALS_SPL = 0.97  # the issue's bar for every intersection as the goal (success SOLVED_SUCCESS)
 STRICT_SUCCESS, STRICT_SPL = 0.95, 0.90  # the issue's bar for goals never trained on (strict)
 RECOVERED_SUCCESS, RECOVERED_SPL = 0.99, 0.95
@@ -86,16 +82,6 @@ RUNS_LINE = "two or three runs at once, each in its own process (so 120 s of tra
 
 PROTOCOLS = ("all", "lenient", "strict")
 AFTER = ("appearance", "readapt")  # what --after runs once an 'all' agent is trained
-# The conditions the goal_photos lever pictures training goals in (None: as the agent's views, noon), and those the
-# appearance test pictures them in: none of the test's is a training condition
-TRAINING_PHOTOS = (None, *(RenderSettings(time_of_day=hour) for hour in (7.0, 16.0, 20.5)))
-APPEARANCES = {
-    "morning (8:30)": RenderSettings(time_of_day=8.5),
-    "evening (17:30)": RenderSettings(time_of_day=17.5),
-    "night (19:30)": RenderSettings(time_of_day=19.5),
-    "passing cars": RenderSettings(cars=True),
-    "night + cars": RenderSettings(time_of_day=19.5, cars=True),
-}
 # Each lever is one option of the product: (what it is, changes to the algorithm's keyword arguments, env arguments)
 LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "shipped": ("as shipped", {}, {}),
@@ -119,6 +105,12 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "route_memory": (
         "route memory + exploration toward the untried",
         {"route_memory": True},
+        {},
+    ),
+    # The shipped entry turns the route memory on: the critics' own figures need it turned off
+    "critics_alone": (
+        "critics alone (route memory off)",
+        {"route_memory": False},
         {},
     ),
     # Every goal (held-out ones too) pictured at night with passing cars, the agent's own views at noon: the memory
@@ -341,6 +333,7 @@ def goals_table(runs: list[dict[str, Any]]) -> list[str]:
                 + _median_worst([f["spl"] for f in finals], 3, False),
                 ">= 0.95 / >= 0.90",
                 _seeds(strict),
+                memory_text(strict),
             ]
         )
     if by["lenient"]:
@@ -350,6 +343,7 @@ def goals_table(runs: list[dict[str, Any]]) -> list[str]:
                 _median_worst([r["solved_seconds"] for r in by["lenient"]]),
                 "<= 60 s",
                 _seeds(by["lenient"]),
+                memory_text(by["lenient"]),
             ]
         )
     if by["all"]:
@@ -359,6 +353,7 @@ def goals_table(runs: list[dict[str, Any]]) -> list[str]:
                 _median_worst([r["solved_seconds"] for r in by["all"]]),
                 "<= 120 s",
                 _seeds(by["all"]),
+                memory_text(by["all"]),
             ]
         )
         rows.append(
@@ -367,6 +362,7 @@ def goals_table(runs: list[dict[str, Any]]) -> list[str]:
                 _median_worst([r.get("paper_goals_seconds") for r in by["all"]]),
                 "<= 30 s",
                 _seeds(by["all"]),
+                memory_text(by["all"]),
             ]
         )
     for lever, (description, _, _) in LEVERS.items():
@@ -376,14 +372,15 @@ def goals_table(runs: list[dict[str, Any]]) -> list[str]:
             values = [r["appearance"][name][0] for r in seen if name in r["appearance"]]
             if values:
                 rows.append([f"goals pictured otherwise, {name} ({description}): success",
-                             _median_worst(values, 3, False), ">= 0.90", _seeds(seen)])  # fmt: skip
+                             _median_worst(values, 3, False), ">= 0.90", _seeds(seen), memory_text(seen)])  # fmt: skip
         readapted = [r for r in group if "readapt" in r]
         if readapted:
             rows.append([
                 f"one closure, every goal of the sample (4 paper + 10 random) back at 0.99 / 0.95 ({description}): "
                 "episodes", _median_worst([r["readapt"]["episodes"] for r in readapted]), "<= 50", _seeds(readapted),
+                memory_text(readapted),
             ])  # fmt: skip
-    return markdown_table(["measure", "median (worst)", "goal", "seeds"], rows)
+    return markdown_table(["measure", "median (worst)", "goal", "seeds", "route memory"], rows)
 
 
 def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
@@ -405,6 +402,7 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
                 _median_worst(per_goal, 2, False),
                 _median_worst(train, 3, False),
                 _median_worst([r["train_seconds"] for r in group]),
+                memory_text(group),
             ])  # fmt: skip
     header = [
         "protocol",
@@ -416,8 +414,18 @@ def ablation_table(runs: list[dict[str, Any]]) -> list[str]:
         "worst goal's success",
         "train/paper goals success",
         "train s",
+        "route memory",
     ]
     return markdown_table(header, rows)
+
+
+def memory_text(runs: list[dict[str, Any]]) -> str:
+    """
+    Whether the runs' agents planned over a route memory: its evaluations then score the critics alone beside
+    (``critics_success`` in the curve), which is how a stored run tells, whatever the entry said when it ran.
+    """
+    used = {any("critics_success" in point for point in run["curve"]) for run in runs}
+    return "on" if used == {True} else "off" if used == {False} else "on in some runs"
 
 
 def _seeds(runs: list[dict[str, Any]]) -> str:
@@ -444,6 +452,10 @@ def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None) 
         *goals_table(runs),
         "",
         "## Levers (ablation)",
+        "",
+        "Route memory: *on* where the agents planned their greedy actions over the route memory (the shipped entry "
+        "turns it on, so every lever but `critics_alone` has it unless the runs predate that), *off* where the figures "
+        "are the critics' alone (`--levers critics_alone`).",
         "",
         *ablation_table(runs),
     ]
@@ -472,25 +484,31 @@ def main(argv: list[str] | None = None) -> None:
     th.set_num_threads(1)
     budget = args.budget if args.budget is not None else (5.0 if args.quick else 60.0)
     after = () if args.after is None else tuple(args.after or AFTER)
-    done = {(r["protocol"], r["lever"], r["seed"], r["budget"], r["quick"]) for r in read_runs(args.runs_file)}
     jobs = [
         Job(protocol, lever, seed, budget, after, args.quick)
         for protocol in args.protocols
         for lever in args.levers
         for seed in args.seeds
-        if (protocol, lever, seed, budget, args.quick) not in done
     ]
-    print(f"{len(done)} runs already in {args.runs_file}, {len(jobs)} to do", flush=True)
-    for record in run_in_workers(run_one, jobs, args.workers):
-        append_run(args.runs_file, record)
+
+    def describe(record: dict[str, Any]) -> str:
         final = record["curve"][-1]
-        print(
+        return (
             f"{record['protocol']:<8} {record['lever']:<13} seed {record['seed']}: {record['steps']} steps, "
             f"{record['train_seconds']:.0f} s, success {final['success']:.3f}, SPL {final['spl']:.3f}, "
-            f"solved at {_fmt(record['solved_seconds'])} s",
-            flush=True,
+            f"solved at {_fmt(record['solved_seconds'])} s"
         )
-    write_report(read_runs(args.runs_file), args.out, argv)
+
+    runs = run_missing(
+        args.runs_file,
+        jobs,
+        run_one,
+        key=lambda r: (r["protocol"], r["lever"], r["seed"], r["budget"], r["quick"]),
+        job_key=lambda job: (job.protocol, job.lever, job.seed, job.budget, job.quick),
+        workers=args.workers,
+        describe=describe,
+    )
+    write_report(runs.records, args.out, argv)
 
 
 if __name__ == "__main__":

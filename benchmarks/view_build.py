@@ -32,9 +32,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-if not __package__:  # run as `python benchmarks/NAME.py`: the package imports from the repository root
-    sys.path[0] = str(Path(__file__).resolve().parents[1])
-
 import numpy as np
 import torch as th
 

@@ -11,24 +11,20 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-import sys
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from pathlib import Path
 from typing import Any, TypeVar
 
 Job = TypeVar("Job")
 Result = TypeVar("Result")
 
 
-def _init_worker(repository_root: str) -> None:
+def _init_worker() -> None:
+    # The jobs' functions unpickle from the benchmarks package by name: a spawned child has its parent's sys.path,
+    # so it finds the package where the parent did (benchmarks/benchmarks.py for a script run as a file)
     import torch
 
     torch.set_num_threads(1)
-    # The jobs' functions unpickle from the benchmarks package (a spawned child has its parent's sys.path; this
-    # covers a parent that imported the package some other way)
-    if repository_root not in sys.path:
-        sys.path.insert(0, repository_root)
 
 
 def default_workers() -> int:
@@ -48,17 +44,14 @@ def run_in_workers(function: Callable[[Job], Result], jobs: Sequence[Job], worke
     """
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")
-    repository_root = str(Path(__file__).resolve().parents[1])
     if workers == 1 or len(jobs) <= 1:
-        _init_worker(repository_root)
+        _init_worker()
         for job in jobs:
             yield function(job)
         return
     # spawn: a fresh interpreter per worker (fork would copy this process's torch thread pool and open files)
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(
-        max_workers=min(workers, len(jobs)), mp_context=context, initializer=_init_worker, initargs=(repository_root,)
-    ) as pool:
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context, initializer=_init_worker) as pool:
         futures = [pool.submit(function, job) for job in jobs]
         for future in as_completed(futures):
             yield future.result()
@@ -70,8 +63,7 @@ def run_in_fresh_process(function: Callable[..., Result], *args: Any) -> Result:
     (its peak memory included) is its own, and nothing of it stays in this process.
     """
     context = multiprocessing.get_context("spawn")
-    repository_root = str(Path(__file__).resolve().parents[1])
-    with ProcessPoolExecutor(1, mp_context=context, initializer=_init_worker, initargs=(repository_root,)) as pool:
+    with ProcessPoolExecutor(1, mp_context=context, initializer=_init_worker) as pool:
         return pool.submit(function, *args).result()
 
 

@@ -38,7 +38,7 @@ def package_imports(path: Path) -> set[str]:
 
 def test_no_script_imports_one_that_imports_it_back() -> None:
     graph = {path.stem: package_imports(path) for path in SCRIPTS}
-    assert graph["scale"] >= {"scale_replay", "scale_world_build", "scale_feature_transform", "scale_vec_env"}
+    assert graph["scale"] >= {"scale_stages", "scale_common", "report"}
 
     def reaches(start: str, target: str, seen: set[str]) -> bool:
         following = graph.get(start, set()) - seen
@@ -105,3 +105,39 @@ def test_a_script_runs_both_as_a_module_and_as_a_file(form: str, tmp_path: Path)
     )
     assert result.returncode == 0, result.stderr
     assert "--rows" in result.stdout and "--max-steps" in result.stdout
+
+
+def _square(job: int) -> dict[str, int]:
+    return {"n": job, "square": job * job, "quick": 0}
+
+
+def test_the_runs_loop_runs_only_what_the_runs_file_lacks_and_appends_each_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    runs_file = tmp_path / "runs.jsonl"
+    report.append_run(runs_file, {"n": 2, "square": 4, "quick": 0})
+    report.append_run(runs_file, {"n": 3, "square": 9, "quick": 1})  # another setting: not one of these runs
+    runs = report.run_missing(
+        runs_file, [1, 2, 3], _square, key=lambda r: r["n"], settings={"quick": 0}, describe=lambda r: f"n={r['n']}"
+    )
+    assert [r["n"] for r in runs.records] == [2, 1, 3] and runs.ran == 2
+    assert "1 runs already in" in capsys.readouterr().out
+    assert [r["n"] for r in report.read_runs(runs_file)] == [2, 3, 1, 3]
+    # A second call finds everything done: it runs nothing, and the results keep the machine that measured them
+    again = report.run_missing(runs_file, [1, 2, 3], _square, key=lambda r: r["n"], settings={"quick": 0})
+    assert again.ran == 0 and len(again.records) == 3
+    assert again.invocation_text() == "all read from the runs file."
+    (tmp_path / "out.md").write_text("# x\n\nMachine: the one that ran them\n")
+    assert again.machine(tmp_path / "out.md", "Machine: this one") == "Machine: the one that ran them"
+    assert runs.machine(tmp_path / "out.md", "Machine: this one") == "Machine: this one"
+    # Jobs of another shape than their records name their key
+    by_job = report.run_missing(
+        runs_file, [(4, "x")], lambda job: _square(job[0]), key=lambda r: r["n"], job_key=lambda job: job[0]
+    )
+    assert by_job.ran == 1 and by_job.records[-1]["square"] == 16
+
+
+def test_the_runs_loop_runs_jobs_in_worker_processes(tmp_path: Path) -> None:
+    runs = report.run_missing(tmp_path / "runs.jsonl", [5, 6], _square, key=lambda r: r["n"], workers=2)
+    assert sorted(r["square"] for r in runs.records) == [25, 36]
+    assert sorted(r["n"] for r in report.read_runs(tmp_path / "runs.jsonl")) == [5, 6]

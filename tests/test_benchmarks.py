@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -33,14 +34,21 @@ def _quick_run(script: str, tmp_path: Path, *options: str) -> str:
 def test_closures_one_at_a_time_quick_run_writes_its_tables(tmp_path: Path) -> None:
     text = _quick_run("closures_one_at_a_time.py", tmp_path)
     assert "| lever | seeds | solved before the closures at (per seed) | closures recovered |" in text
+    # The recovery is seen at evaluations every 2 episodes (the default): the tables say so
+    assert "| closures recovered | median episodes (evaluated every 2) |" in text
     assert "| lever | seed | closure | road | routes affected | success right after |" in text
+    assert "| success right after | recovery episodes (evaluated every 2) |" in text
     assert "Command: `python benchmarks/closures_one_at_a_time.py --quick --out" in text
 
 
-def test_closures_eleven_quick_run_writes_its_tables(tmp_path: Path) -> None:
-    text = _quick_run("closures_eleven.py", tmp_path)
+def test_closures_eleven_quick_run_evaluates_after_every_episode_when_asked(tmp_path: Path) -> None:
+    text = _quick_run("closures_eleven.py", tmp_path, "--eval-every", "1")
     assert "| lever | seeds | solved before the closure at (per seed) | recovered |" in text
     assert "| lever | seed | routes affected | success / SPL right after |" in text
+    assert "| success / SPL right after | recovery episodes (evaluated every 1) |" in text
+    assert "then every 1 training episode)" in text
+    runs = [json.loads(line) for line in (tmp_path / "runs.jsonl").read_text().splitlines()]
+    assert runs and {run["recovery_eval_freq"] for run in runs} == {1}
 
 
 def test_paper_goals_quick_run_writes_its_tables(tmp_path: Path) -> None:
@@ -50,8 +58,9 @@ def test_paper_goals_quick_run_writes_its_tables(tmp_path: Path) -> None:
 
 
 def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: Path) -> None:
-    text = _quick_run("unseen_goals.py", tmp_path, "--after", "--levers", "shipped", "relabel8")  # --after: both
-    assert "| measure | median (worst) | goal | seeds |" in text
+    options = ("--after", "--levers", "shipped", "relabel8", "critics_alone")  # --after: both
+    text = _quick_run("unseen_goals.py", tmp_path, *options)
+    assert "| measure | median (worst) | goal | seeds | route memory |" in text
     rows = ("held-out goals (20%, strict)", "held-out goals, lenient", "every intersection as goal")
     rows += (
         "the paper's four goals",
@@ -61,6 +70,10 @@ def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: P
     for row in rows:
         assert f"| {row}" in text
     assert "| strict | 8 relabelled goals per transition | 0 |" in text
+    # The shipped entry plans over the route memory; the critics-alone lever turns it off, and the rows say which
+    shipped, critics = (next(line for line in text.splitlines() if line.startswith(f"| strict | {lever} |"))
+                        for lever in ("as shipped", "critics alone (route memory off)"))  # fmt: skip
+    assert shipped.endswith("| on |") and critics.endswith("| off |")
 
 
 def test_long_routes_quick_run_writes_the_ablation_table(tmp_path: Path) -> None:
