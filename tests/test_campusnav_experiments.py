@@ -44,6 +44,7 @@ BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 # The scripts that train to the solved bar or run closures through the glue (scale.py and throughput.py: elsewhere)
 GLUE_USERS = (
     "campusnav_runs.py",
+    "closure_runs.py",
     "closures_one_at_a_time.py",
     "closures_eleven.py",
     "compare.py",
