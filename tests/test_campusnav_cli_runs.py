@@ -1,5 +1,7 @@
-"""What ``dcqn-campusnav`` keeps of a run: no subcommand replaces another's results, readapt and evaluate go on from
-the model as it was saved (its closures, levers and callbacks), and Ctrl-C saves the run's work.
+"""What ``dcqn-campusnav`` keeps of a run: no subcommand replaces an earlier run's results (a folder or picture that
+holds them is kept, and the next numbered one written, as the RL Zoo numbers its runs; ``--force`` writes over them),
+readapt and evaluate go on from the model as it was saved (its closures, levers and callbacks), and Ctrl-C saves the
+run's work.
 
 Each test trains the built-in campus for a few hundred steps with the cheap ``pixels`` encoder on 64 x 48 views (the
 feature cache is built once for the module).
@@ -112,25 +114,70 @@ def test_demo_and_train_default_to_folders_of_their_own(
     assert json.loads(train["summary.json"])["command"] == "train" and "dcqn_campusnav_replay_buffer.pkl" in train
 
 
-def test_another_subcommands_results_are_not_overwritten_without_force(
-    tmp_path: Path, conf: Path, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize("command", ["train", "demo", "bare"])
+def test_a_second_run_into_a_folder_with_results_writes_the_next_numbered_folder(
+    tmp_path: Path, conf: Path, command: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    out = tmp_path / "run"
-    cli("train", *FAST, "--conf", str(conf), "--timesteps", "200", "--eval-freq", "200", "--out", str(out))
-    kept = files_under(out)
-    assert json.loads((out / "summary.json").read_text())["command"] == "train"
-    with pytest.raises(SystemExit) as exit_info:
-        main(["demo", *FAST, "--conf", str(conf), "--out", str(out)])
-    assert exit_info.value.code == 2
+    out = tmp_path / "runs" / "fixed"
+    argv = {
+        "train": ["train", "--timesteps", "100"],
+        "demo": ["demo", "--timesteps", "100", "--n-closures", "0"],
+        "bare": ["--timesteps", "100", "--n-closures", "0"],  # the main job: demo without a subcommand
+    }[command]
+    argv += [*FAST, "--conf", str(conf), "--eval-freq", "100", "--out", str(out)]
+    main(argv)
+    first = files_under(out)
+    main(argv)
+    second = tmp_path / "runs" / "fixed_2"
     error = capsys.readouterr().err
-    assert f"--out {out}: holds the results of 'dcqn-campusnav train'; pass --force to overwrite them" in error
-    assert files_under(out) == kept
-    # the same subcommand again writes over its own results; --force lets another one do so
+    assert f"--out {out} holds an earlier run's results (kept): writing to {second}" in error
+    assert files_under(out) == first  # not a byte of the first run changed
+    assert (second / "dcqn_campusnav.zip").is_file() and [p.name for p in (second / "tb").iterdir()] == ["DCQN_1"]
+    main(argv)  # and the third
+    assert (tmp_path / "runs" / "fixed_3" / "summary.json").is_file() and files_under(out) == first
+    # --force: into the folder asked for, all the same
+    main([*argv, "--force"])
+    assert sorted(p.name for p in (out / "tb").iterdir()) == ["DCQN_1", "DCQN_2"]
+    assert not (tmp_path / "runs" / "fixed_4").exists()
+
+
+def test_readapt_twice_keeps_the_first_readapted_run(tmp_path: Path, conf: Path) -> None:
+    out = tmp_path / "train"
     cli("train", *FAST, "--conf", str(conf), "--timesteps", "100", "--eval-freq", "100", "--out", str(out))
-    summary = cli(
-        "demo", *FAST, "--conf", str(conf), "--timesteps", "100", "--n-closures", "0", "--out", str(out), "--force"
-    )
-    assert summary["command"] == "demo" and json.loads((out / "summary.json").read_text())["command"] == "demo"
+    model = out / "dcqn_campusnav.zip"
+    trained = model.read_bytes()
+    for _ in range(2):
+        cli("readapt", str(model), *FAST[-1:], "--close", *map(str, ROAD), "--timesteps", "50", "--open-map")
+    first = out / "readapt"
+    assert (first / "summary.json").is_file() and (out / "readapt_2" / "summary.json").is_file()
+    assert model.read_bytes() == trained  # the input model is never replaced without --in-place
+    assert json.loads((first / "summary.json").read_text())["files"]["model"] == str(first / "dcqn_campusnav.zip")
+
+
+@pytest.mark.parametrize("command", ["evaluate", "draw"])
+def test_a_picture_that_exists_is_kept_and_the_next_numbered_name_written(
+    tmp_path: Path, conf: Path, command: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "train"
+    cli("train", *FAST, "--conf", str(conf), "--timesteps", "100", "--eval-freq", "100", "--out", str(out))
+    picture = tmp_path / "routes.png"
+    model = str(out / "dcqn_campusnav.zip")
+    argv = ["evaluate", model] if command == "evaluate" else ["draw", "--model", model]
+    argv += ["--start", "3", "--picture", str(picture)]
+    cli(*argv)
+    kept = files_under(tmp_path)
+    summary = cli(*argv)
+    assert summary["picture"] == str(tmp_path / "routes_2.png") and (tmp_path / "routes_2.txt").is_file()
+    assert f"{picture} exists, kept; --force writes over it" in capsys.readouterr().out
+    assert {name: data for name, data in files_under(tmp_path).items() if name in kept} == kept
+    assert cli(*argv, "--force")["picture"] == str(picture)
+
+
+def test_roads_writes_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    before = files_under(tmp_path)
+    cli("roads", "14")
+    assert files_under(tmp_path) == before
 
 
 # ------------------------------------------------------------------------------------------------ readapt, evaluate
