@@ -220,7 +220,7 @@ def parse_params(params: Sequence[str]) -> dict[str, Any]:
     return parsed
 
 
-def with_params(entry: ZooEntry, params: Sequence[str], source: str) -> ZooEntry:
+def with_params(entry: ZooEntry, params: Sequence[str]) -> ZooEntry:
     """
     An entry with ``-params`` overrides, checked as the YAML's keys are (``n_timesteps`` and ``n_envs`` as counts).
     """
@@ -237,7 +237,7 @@ def with_params(entry: ZooEntry, params: Sequence[str], source: str) -> ZooEntry
         if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value) or value < 1:
             raise CommandError(f"-params {key}: expected a positive integer, got {value!r}")
     try:
-        check_hyperparams({**entry.hyperparams, **overrides}, DCQN, f"-params (over {source})")
+        check_hyperparams({**entry.hyperparams, **overrides}, DCQN, "-params")
     except ValueError as error:
         raise CommandError(str(error)) from None
     return replace(
@@ -277,7 +277,7 @@ def training_entry(request: Request, env_id: str) -> tuple[ZooEntry, tuple[str, 
         check_hyperparams(entry.hyperparams, DCQN, f"{path}: entry {env_id!r}")
     except ValueError as error:
         raise CommandError(f"--conf: {error}") from None
-    entry = with_params(entry, request.params, f"{path}: entry {env_id!r}")
+    entry = with_params(entry, request.params)
     if request.levers is None:
         levers, left_out = usable_levers(request.default_levers, entry.hyperparams)
         for name, why in left_out.items():

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 from sb3_dcqn.campusnav.checks import DEFAULT_OUT, PROG, CommandError, Interrupted
 from sb3_dcqn.campusnav.levers import DEMO_LEVERS, LEVERS
 from sb3_dcqn.campusnav.requests import Request
-from sb3_dcqn.campusnav.settings import DEFAULT_ENV
+from sb3_dcqn.campusnav.settings import DEFAULT_ENV, campusnav_env_ids
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
 if TYPE_CHECKING:
@@ -38,33 +38,6 @@ __all__ = ["DESCRIPTION", "CommandError", "Interrupted", "build_parser", "campus
 COMPASS_LETTERS = ("N", "E", "S", "W")
 # Exit status after Ctrl-C (128 + SIGINT), as shells report it
 INTERRUPTED_STATUS = 130
-
-
-def campusnav_env_ids() -> list[str]:
-    """
-    The registered CampusNav ids, in order: the keys of :data:`campusnav_env.registration.ENV_IDS`, the table
-    ``import campusnav_env`` registers with Gymnasium.
-
-    Read from the module's source, not imported: importing ``campusnav_env`` imports torch, and ``--help`` (which
-    lists these ids) should answer at once. ``tests/test_campusnav_cli_goal_env.py`` checks them against Gymnasium's
-    registry.
-
-    :raises RuntimeError: if the table cannot be found
-    """
-    import ast
-    from importlib.util import find_spec
-
-    spec = find_spec("campusnav_env")  # a top-level package: found without being imported
-    locations = [] if spec is None or spec.submodule_search_locations is None else spec.submodule_search_locations
-    for folder in locations:
-        source = Path(folder) / "registration.py"
-        if source.is_file():
-            for node in ast.walk(ast.parse(source.read_text(encoding="utf-8"))):
-                if isinstance(node, ast.AnnAssign | ast.Assign) and isinstance(node.value, ast.Dict):
-                    targets = [node.target] if isinstance(node, ast.AnnAssign) else node.targets
-                    if any(isinstance(t, ast.Name) and t.id == "ENV_IDS" for t in targets):
-                        return [k.value for k in node.value.keys if isinstance(k, ast.Constant)]
-    raise RuntimeError("cannot find campusnav_env.registration.ENV_IDS (is campusnav_env installed?)")
 
 
 _ENV_IDS = ", ".join(campusnav_env_ids())
@@ -116,13 +89,15 @@ draw      the map with its closures, the goal and a route: the greedy route of -
 roads     the roads of an intersection: each as 'U V' with its compass direction, open or closed (with --close).
 
 Files written by demo, train and readapt (to --out, each atomically; demo's default runs/campusnav-demo, train's
-runs/campusnav-train, readapt's readapt/ next to the model; a folder holding another subcommand's results is refused
-without --force): TensorBoard logs in tb/DCQN_<n>, routes.png
-(a row per pictured goal, one panel per closure: the route learned before it and the route after recovery; the goals
-pictured: every goal of an env with at most four, else the paper's four landmark goals), curves.png (episode reward
-and length with the closures and route scores), the model dcqn_campusnav.zip with dcqn_campusnav.env.json (the env
-it was trained on, which evaluate, readapt and draw take as their defaults), dcqn_campusnav_replay_buffer.pkl (train
-and readapt), summary.md and summary.json.
+runs/campusnav-train, readapt's readapt/ next to the model): TensorBoard logs in tb/DCQN_<n>, routes.png (a row per
+pictured goal, one panel per closure: the route learned before and after recovery), curves.png (episode reward and
+length with the closures and route scores), the model dcqn_campusnav.zip with dcqn_campusnav.env.json (the env it was
+trained on: evaluate, readapt and draw take it as their default), dcqn_campusnav_replay_buffer.pkl (train and
+readapt; as large as what it stores; --no-replay-buffer: none), summary.md and summary.json, all of the model saved.
+Nothing is replaced: a folder that holds results is kept and the next numbered one written (runs/x taken: runs/x_2,
+as the RL Zoo numbers its runs), and so is a --picture that exists (map.png: map_2.png); --force writes over them.
+train -i MODEL (--trained-agent) goes on training a saved model; --save-freq N writes checkpoints every N steps;
+-params KEY:VALUE overrides the entry's hyperparameters; --device picks torch's device.
 
 Colours in every picture: orange the learned (greedy) route, purple the route after a closure, cyan the shortest
 path, red a closed road (drawn over the routes), a green triangle the start, a yellow star the goal.

@@ -366,13 +366,15 @@ class Run:
     def resume(cls, request: Request) -> Run:
         """
         ``train -i MODEL``: go on training a saved run with its levers, callbacks, closures in force and replay
-        buffer (the saved closures are in force, not closed again), in a folder of its own (the model's folder
-        taken: ``runs/x_2``), for ``--timesteps`` more steps (default: the entry's ``n_timesteps``).
+        buffer (the saved closures are in force, not closed again), in a folder of its own (default: the model's
+        run folder, which holds it: ``runs/x_2``), for ``--timesteps`` more steps (default: the entry's
+        ``n_timesteps``).
         """
         assert request.trained_agent is not None
         path = find_model(request.trained_agent, "--trained-agent")
         plan = closure_plan(request)
-        asked = Path(request.out) if request.out is not None else path.parent
+        run_folder = path.parent.parent if path.parent.name == "checkpoints" else path.parent
+        asked = Path(request.out) if request.out is not None else run_folder
         out = free_folder(asked, request.force)
         saved = saved_run(path)
         env_id = request.env or (saved.settings.env_id if saved.settings else DEFAULT_ENV)
@@ -486,6 +488,11 @@ class Run:
                 "files": {"model": str(saved[0]), "replay_buffer": str(saved[1]), "env_settings": str(saved[2])},
             }
             write_text_atomic(self.out / "summary.json", json.dumps(summary, indent=2) + "\n")
+            # Whatever summary.md said (of an earlier run, with --force) is not of this model
+            text = (
+                f"# {self.title}\n\nInterrupted at step {self.model.num_timesteps}: {saved[0]} saved, not evaluated.\n"
+            )
+            write_text_atomic(self.out / "summary.md", text)
         except KeyboardInterrupt:
             raise Interrupted(
                 f"interrupted again while saving to {self.out}: the files written are whole (each is written "
