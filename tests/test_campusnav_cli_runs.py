@@ -242,6 +242,31 @@ def test_evaluate_scores_the_model_on_the_map_it_was_saved_with(
     assert drawn["picture"] and "closed again: 14-15" in capsys.readouterr().err
 
 
+def test_the_summary_is_of_the_model_saved_beside_it_also_after_readapt_in_place(
+    tmp_path: Path, conf: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "fixed"
+    summary = cli(
+        "train", *FAST, "--conf", str(conf), "--close", *map(str, ROAD), "--close-at", "100",
+        *("--timesteps", "300", "--eval-freq", "100", "--out", str(out)),
+    )  # fmt: skip
+    model = out / "dcqn_campusnav.zip"
+    for step in range(2):
+        beside = json.loads((out / "summary.json").read_text())
+        assert beside["final"]["step"] == DCQN.load(model).num_timesteps  # the last evaluation is of the saved model
+        scores = cli("evaluate", str(model))["all"]  # on the roads closed when it was saved
+        assert beside["final"]["success_rate"] == pytest.approx(scores["success_rate"], abs=1e-9)
+        assert beside["final"]["spl"] == pytest.approx(scores["spl"], abs=1e-9)
+        if step == 0:
+            assert beside["num_timesteps"] == summary["num_timesteps"]
+            # The model replaced in place: so are the summary and pictures beside it
+            cli("readapt", str(model), *FAST[-1:], "--in-place", "--close-random", "1", "--timesteps", "100")
+            assert "--in-place: replacing" in capsys.readouterr().err
+            assert json.loads((out / "summary.json").read_text())["command"] == "readapt"
+    with pytest.raises(CommandError, match=r"--in-place writes the re-adapted model and its results beside"):
+        cli("readapt", str(model), "--in-place", "--close-random", "1", "--out", str(tmp_path / "elsewhere"))
+
+
 # ------------------------------------------------------------------------------------------------ Ctrl-C
 def test_ctrl_c_saves_the_model_replay_buffer_and_closures_and_says_how_to_go_on(
     tmp_path: Path, conf: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
@@ -266,6 +291,7 @@ def test_ctrl_c_saves_the_model_replay_buffer_and_closures_and_says_how_to_go_on
     assert saved["closed_roads_at_save"] == [list(ROAD)] and saved["num_timesteps"] == 150
     summary = json.loads((out / "summary.json").read_text())
     assert summary["command"] == "train" and summary["interrupted"] is True
+    assert "Interrupted at step 150" in (out / "summary.md").read_text()  # no summary.md of another model
     assert not list(out.glob("*.tmp*"))  # every file written whole
 
     # The way on that the line names: readapt goes on from step 150 with the saved closure in force

@@ -57,6 +57,15 @@ def _rebuilt(shell: Any, packed: dict[str, tuple[str, Any]]) -> Any:
     return shell
 
 
+def _arrays(value: Any) -> list[np.ndarray]:
+    """The arrays of an attribute: itself, or the values of a dict of arrays."""
+    if isinstance(value, np.ndarray):
+        return [value]
+    if isinstance(value, dict):
+        return [v for v in value.values() if isinstance(v, np.ndarray)]
+    return []
+
+
 class _CompactBuffer:
     """Pickles as a call of :func:`_rebuilt` on the buffer's shell and its packed arrays."""
 
@@ -82,6 +91,12 @@ class _CompactBuffer:
                 parts = {key: _pack(v, stored) for key, v in value.items()}
                 if all(part is not None for part in parts.values()):
                     packed[name] = ("dict", parts)
+        # An array that shares memory with another attribute stays whole: rebuilt apart, they would no longer share
+        arrays = [(name, a) for name, value in vars(buffer).items() for a in _arrays(value)]
+        for name in list(packed):
+            mine = _arrays(getattr(buffer, name))
+            if any(o_name != name and np.may_share_memory(a, o) for a in mine for o_name, o in arrays):
+                del packed[name]
         for name in packed:
             setattr(shell, name, None)
         return _rebuilt, (shell, packed)

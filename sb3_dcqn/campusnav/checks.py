@@ -8,6 +8,7 @@ module is cheap (no torch, no CampusNav): each check imports what it needs.
 from __future__ import annotations
 
 import os
+import re
 import sys
 import tempfile
 import zipfile
@@ -458,7 +459,9 @@ def env_error(settings: EnvSettings, error: Exception) -> CommandError:
         return CommandError(f"--env {settings.env_id}: {message}")
     fix = ""
     if "view_dim" in message:
-        fix = "; give the --conf entry's env_kwargs a view_dim the map's views allow"
+        most = re.search(r"view_dim must be an int in \[1, (\d+)\]", message)
+        at_most = f" of at most {most.group(1)}" if most else ""
+        fix = f"; give the --conf entry's env_kwargs a view_dim{at_most} (a smaller map has fewer views to project)"
     return CommandError(f"--map {settings.map_path}: the env cannot be built on this map ({message}){fix}")
 
 

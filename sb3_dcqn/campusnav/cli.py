@@ -610,7 +610,9 @@ def build_parser() -> argparse.ArgumentParser:
     readapt.add_argument("--replay-buffer", metavar="PATH", help="replay buffer (default: <model>_replay_buffer.pkl)")
     readapt.add_argument("--no-replay-buffer", action="store_true", help="do not save the replay buffer")
     readapt.add_argument("--out", help="output folder (default: readapt/ next to the model)")
-    readapt.add_argument("--in-place", action="store_true", help="save the re-adapted model over the input model")
+    readapt.add_argument(
+        "--in-place", action="store_true", help="save the re-adapted model and its results over the input's"
+    )
     _open_map_flag(readapt)
     _lever_flag(readapt, (), "the model's own (a lever DCQN or the env is built with must be one of them)")
     readapt.set_defaults(func=_cmd_readapt)

@@ -351,13 +351,22 @@ class Run:
             raise CommandError(
                 "readapt: give the roads to close (--close, --close-random, --close-on-route or --closures)"
             )
-        given = Path(request.out) if request.out is not None else path.parent / "readapt"
-        if not request.in_place and (given / path.name).resolve() == path.resolve():
-            raise CommandError(
-                f"--out {given}: the re-adapted model would overwrite {path}; pass --in-place or another --out"
-            )
-        out = free_folder(given, request.force)
-        target = path if request.in_place else out / path.name
+        if request.in_place:
+            # The model replaced, so are the results beside it: a summary there describes the model there
+            if request.out is not None and Path(request.out).resolve() != path.parent.resolve():
+                raise CommandError(
+                    f"--out {request.out}: --in-place writes the re-adapted model and its results beside {path} "
+                    "(replacing them); leave out --out, or leave out --in-place"
+                )
+            given = out = path.parent
+        else:
+            given = Path(request.out) if request.out is not None else path.parent / "readapt"
+            if (given / path.name).resolve() == path.resolve():
+                raise CommandError(
+                    f"--out {given}: the re-adapted model would overwrite {path}; pass --in-place or another --out"
+                )
+            out = free_folder(given, request.force)
+        target = out / path.name
         steps = request.timesteps or 20_000
         budgets = (steps if plan.scheduled.events else 0, steps)
         return cls._load(request, path, plan, given, out, target, budgets, f"DCQN re-adapted: {path}")
@@ -432,6 +441,8 @@ class Run:
         """The folder made, the logger set, the callbacks (``--save-freq``'s checkpoints last) in place."""
         if self.asked_out is not None:
             moved_note(self.asked_out, self.out)
+        if self.request.command == "readapt" and self.request.in_place:
+            note(f"--in-place: replacing {self.model_path} and the results beside it (summary, pictures, buffer)")
         self.out.mkdir(parents=True, exist_ok=True)
         self.tb_folder = _new_logger(self.model, self.out, self.request.verbose)
         self.callbacks = list(callbacks)
