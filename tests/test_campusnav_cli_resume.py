@@ -129,7 +129,7 @@ def test_save_freq_writes_checkpoints_that_train_i_goes_on_from(tmp_path: Path, 
     middle = checkpoints / "dcqn_campusnav_200_steps.zip"
     assert json.loads(middle.with_suffix(".env.json").read_text())["num_timesteps"] == 200
     assert (checkpoints / "dcqn_campusnav_200_steps_replay_buffer.pkl").is_file()
-    summary = cli("train", "-i", str(middle), *FAST[-1:], "--timesteps", "48", "--eval-freq", "48", "--keep-training")
+    summary = cli("train", "-i", str(middle), *FAST[-1:], "-n", "48", "--eval-freq", "48", "--keep-training")
     assert summary["num_timesteps"] == 248 and summary["files"]["model"] == str(
         tmp_path / "run_2" / "dcqn_campusnav.zip"
     )
@@ -182,6 +182,12 @@ def test_a_bad_device_and_params_a_loaded_model_was_built_with_are_refused(
     error = fails(["train", "-i", str(out / "dcqn_campusnav.zip"), "-params", "buffer_size:10"], capsys)
     assert "-params buffer_size: set when a model is built" in error
     assert not (tmp_path / "run_2").exists()
+
+
+@pytest.mark.parametrize("flag", [["--open-map"], ["--replay-buffer", "buffer.pkl"]])
+def test_flags_of_a_saved_run_need_i(flag: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    error = fails(["train", *FAST, *flag, "--out", str(tmp_path / "out")], capsys)
+    assert f"{flag[0]}: only with -i MODEL" in error and not (tmp_path / "out").exists()
 
 
 def test_version_says_the_packages_version(capsys: pytest.CaptureFixture[str]) -> None:

@@ -140,6 +140,9 @@ def _cmd_train(request: Request) -> dict[str, Any]:
     from sb3_dcqn.campusnav.runs import Run
 
     if request.trained_agent is None:
+        for flag, given in (("--replay-buffer", request.replay_buffer), ("--open-map", request.open_map)):
+            if given:
+                raise CommandError(f"{flag}: only with -i MODEL (a new model starts on the open map, buffer empty)")
         plan = closure_plan(request)
         return _report(Run.new(request, plan, "DCQN training", replay_buffer=not request.no_replay_buffer))
     if request.n_envs is not None:
@@ -428,6 +431,10 @@ def _training_flags() -> argparse.ArgumentParser:
     return parser
 
 
+# The RL Zoo's spellings too (-n, --n-timesteps)
+_TIMESTEPS = ("--timesteps", "-n", "--n-timesteps")
+
+
 def _force_flag(group: argparse._ArgumentGroup | argparse.ArgumentParser, text: str) -> None:
     group.add_argument("--force", action="store_true", help=text)
 
@@ -550,7 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train DCQN until the map is solved, then close the busiest road of the learned routes, one at a "
         "time, each once the agent has recovered from the previous one; print the routes and the recovery table.",
     )
-    demo.add_argument("--timesteps", type=_positive, help="most steps before the closures (default: the YAML's)")
+    demo.add_argument(*_TIMESTEPS, type=_positive, help="most steps before the closures (default: the YAML's)")
     demo.add_argument("--recovery-budget", type=_positive, help="most steps after each closure (default: half)")
     demo.add_argument("--n-closures", type=int, default=2, help="closures, one at a time (default: %(default)s)")
     demo.add_argument("--out", help=f"output folder (default: {DEFAULT_OUT['demo']})")
@@ -564,7 +571,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="train a model, with closures from a schedule file or flags",
         description="Train DCQN with route evaluations and closures; save the model and its replay buffer.",
     )
-    train.add_argument("--timesteps", type=_positive, help="most steps before one-at-a-time closures (default: YAML)")
+    train.add_argument(*_TIMESTEPS, type=_positive, help="most steps before one-at-a-time closures (default: YAML)")
     train.add_argument("--recovery-budget", type=_positive, help="most steps after each one-at-a-time closure (half)")
     train.add_argument("--n-envs", type=_positive, help="training envs (default: the YAML's n_envs, else 1)")
     train.add_argument("--no-replay-buffer", action="store_true", help="do not save the replay buffer")
@@ -605,7 +612,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     readapt.add_argument("model", metavar="MODEL.zip", help="a model saved by train, demo or readapt")
     readapt.add_argument(
-        "--timesteps", type=_positive, default=20_000, help="most steps per closure (default: %(default)s)"
+        *_TIMESTEPS, type=_positive, default=20_000, help="most steps per closure (default: %(default)s)"
     )
     readapt.add_argument("--replay-buffer", metavar="PATH", help="replay buffer (default: <model>_replay_buffer.pkl)")
     readapt.add_argument("--no-replay-buffer", action="store_true", help="do not save the replay buffer")
