@@ -115,6 +115,9 @@ def test_train_i_goes_on_with_the_saved_levers_callbacks_closures_and_buffer_in_
     again.load_replay_buffer(resumed / "dcqn_campusnav_replay_buffer.pkl")
     assert again.replay_buffer is not None and again.replay_buffer.size() == 300
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == first  # the first run kept whole
+    # Going on from the resumed run: the next number, runs/fixed_3
+    third = cli("train", "-i", str(resumed / "dcqn_campusnav.zip"), *FAST[-1:], "-n", "20", "--eval-freq", "20")
+    assert third["files"]["model"] == str(tmp_path / "runs" / "fixed_3" / "dcqn_campusnav.zip")
 
 
 def test_save_freq_writes_checkpoints_that_train_i_goes_on_from(tmp_path: Path, conf: Path) -> None:

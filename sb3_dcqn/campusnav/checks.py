@@ -128,6 +128,9 @@ def free_folder(out: Path, force: bool, flag: str = "--out") -> Path:
         check_folder(out, flag)
         return out
     out = Path(os.path.abspath(out)) if not out.name else out  # "." has no name to number
+    numbered = re.fullmatch(r"(.+)_\d+", out.name)
+    if numbered and out.with_name(numbered.group(1)).is_dir():  # runs/x_2 taken: runs/x_3, not runs/x_2_2
+        out = out.with_name(numbered.group(1))
     number = 2
     while holds_results(_numbered(out, number)):
         number += 1
