@@ -281,7 +281,11 @@ def test_a_file_that_is_not_a_model_zip_says_so(tmp_path: Path, capsys: pytest.C
     ("argv", "message"),
     [
         (["train", "--seed", "-1"], "argument --seed: expected an integer from 0 to 2**32 - 1, got '-1'"),
-        (["train", "--timesteps", "-5"], "argument --timesteps: expected a positive integer, got '-5'"),
+        (["train", "-n", "-5"], "argument --timesteps/-n/--n-timesteps: expected a positive integer, got '-5'"),
+        (
+            ["train", "--timesteps", "-5"],
+            "argument --timesteps/-n/--n-timesteps: expected a positive integer, got '-5'",
+        ),
         (["demo", "--eval-freq", "0"], "argument --eval-freq: expected a positive integer, got '0'"),
         (["evaluate"], "the following arguments are required: MODEL.zip"),
         (["--seed", "x"], "argument --seed: expected an integer from 0 to 2**32 - 1, got 'x'"),
