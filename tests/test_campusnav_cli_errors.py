@@ -262,6 +262,94 @@ def test_a_truncated_model_is_not_a_readable_model_file(
     assert files_under(tmp_path) == before
 
 
+def test_a_file_that_is_not_a_model_zip_says_so(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    readme = tmp_path / "README.md"
+    readme.write_text("# notes\n")
+    for argv in (
+        ["evaluate", str(readme)],
+        ["draw", "--model", str(readme)],
+        ["readapt", str(readme), "--close-random", "1"],
+    ):
+        _, error = fails([*argv, *FAST], capsys)
+        assert f"{readme}: not a model zip (a model is a .zip file written by DCQN.save)" in error
+        assert "not found" not in error and error.count("\n") == 1
+    _, error = fails(["evaluate", str(tmp_path), *FAST], capsys)
+    assert f"{tmp_path}: is a folder, not a model file" in error
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["train", "--seed", "-1"], "argument --seed: expected an integer from 0 to 2**32 - 1, got '-1'"),
+        (["train", "-n", "-5"], "argument --timesteps/-n/--n-timesteps: expected a positive integer, got '-5'"),
+        (
+            ["train", "--timesteps", "-5"],
+            "argument --timesteps/-n/--n-timesteps: expected a positive integer, got '-5'",
+        ),
+        (["demo", "--eval-freq", "0"], "argument --eval-freq: expected a positive integer, got '0'"),
+        (["evaluate"], "the following arguments are required: MODEL.zip"),
+        (["--seed", "x"], "argument --seed: expected an integer from 0 to 2**32 - 1, got 'x'"),
+    ],
+)
+def test_a_bad_flag_value_is_one_line_without_the_usage(
+    argv: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, error = fails(argv, capsys)
+    command = "demo" if argv[0].startswith("-") else argv[0]
+    assert (
+        error == f"dcqn-campusnav {command}: error: {message} ('dcqn-campusnav {command} --help' lists the options)\n"
+    )
+
+
+@pytest.fixture(scope="module")
+def small_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 4 x 4 street grid in metres, its far corner a library: 13 intersections once simplified (the bends go)."""
+    import networkx as nx
+
+    graph = nx.Graph()
+    for k in range(16):
+        graph.add_node(str(k), x=100.0 * (k % 4), y=100.0 * (k // 4))
+        if k % 4 < 3:
+            graph.add_edge(str(k), str(k + 1))
+        if k < 12:
+            graph.add_edge(str(k), str(k + 4))
+    graph.nodes["15"]["name"] = "Library"
+    path = tmp_path_factory.mktemp("maps") / "small.graphml"
+    nx.write_graphml(graph, path)
+    return path
+
+
+def test_a_goal_not_on_ones_own_map_is_refused_with_the_subcommands_own_flag(
+    tmp_path: Path, small_map: Path, saved_model: bytes, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, error = fails(["draw", *FAST, "--map", str(small_map), "--picture", str(tmp_path / "map.png")], capsys)
+    assert f"--map {small_map}: goal 'Dreese Lab' (the default of CampusNav-v0) is not a landmark" in error
+    assert "pass --goal with a landmark name" in error and "--goals" not in error
+    model = tmp_path / "model.zip"
+    model.write_bytes(saved_model)
+    _, error = fails(["evaluate", str(model), *FAST, "--map", str(small_map)], capsys)
+    assert "is not a landmark of the map" in error and "pass --goals" not in error
+    assert "use a model trained on this map ('dcqn-campusnav train --map FILE --goals" in error
+    _, error = fails(["train", *FAST, "--map", str(small_map), "--out", str(tmp_path / "out")], capsys)
+    assert "pass --goals with landmark names" in error
+
+
+def test_a_map_the_env_cannot_be_built_on_names_map_not_env(
+    tmp_path: Path, small_map: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # 13 intersections: fewer views than the shipped entry's view_dim (64) projects them to, unless the env fits it
+    picture = tmp_path / "map.png"
+    argv = ["draw", *FAST, "--map", str(small_map), "--goal", "Library", "--picture", str(picture)]
+    try:
+        run(build_parser().parse_args(argv))
+    except campusnav_cli.CommandError as error:
+        message = str(error)
+        assert message.startswith(f"--map {small_map}: ") and "--env" not in message
+        assert "view_dim of at most" in message
+    else:
+        assert picture.is_file()
+
+
 # ------------------------------------------------------------------------------------------------ closures
 def test_a_closure_that_cuts_the_goal_off_gives_the_command_lines_advice(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]

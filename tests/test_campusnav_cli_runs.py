@@ -1,5 +1,7 @@
-"""What ``dcqn-campusnav`` keeps of a run: no subcommand replaces another's results, readapt and evaluate go on from
-the model as it was saved (its closures, levers and callbacks), and Ctrl-C saves the run's work.
+"""What ``dcqn-campusnav`` keeps of a run: no subcommand replaces an earlier run's results (a folder or picture that
+holds them is kept, and the next numbered one written, as the RL Zoo numbers its runs; ``--force`` writes over them),
+readapt and evaluate go on from the model as it was saved (its closures, levers and callbacks), and Ctrl-C saves the
+run's work.
 
 Each test trains the built-in campus for a few hundred steps with the cheap ``pixels`` encoder on 64 x 48 views (the
 feature cache is built once for the module).
@@ -112,25 +114,70 @@ def test_demo_and_train_default_to_folders_of_their_own(
     assert json.loads(train["summary.json"])["command"] == "train" and "dcqn_campusnav_replay_buffer.pkl" in train
 
 
-def test_another_subcommands_results_are_not_overwritten_without_force(
-    tmp_path: Path, conf: Path, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize("command", ["train", "demo", "bare"])
+def test_a_second_run_into_a_folder_with_results_writes_the_next_numbered_folder(
+    tmp_path: Path, conf: Path, command: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    out = tmp_path / "run"
-    cli("train", *FAST, "--conf", str(conf), "--timesteps", "200", "--eval-freq", "200", "--out", str(out))
-    kept = files_under(out)
-    assert json.loads((out / "summary.json").read_text())["command"] == "train"
-    with pytest.raises(SystemExit) as exit_info:
-        main(["demo", *FAST, "--conf", str(conf), "--out", str(out)])
-    assert exit_info.value.code == 2
+    out = tmp_path / "runs" / "fixed"
+    argv = {
+        "train": ["train", "--timesteps", "100"],
+        "demo": ["demo", "--timesteps", "100", "--n-closures", "0"],
+        "bare": ["--timesteps", "100", "--n-closures", "0"],  # the main job: demo without a subcommand
+    }[command]
+    argv += [*FAST, "--conf", str(conf), "--eval-freq", "100", "--out", str(out)]
+    main(argv)
+    first = files_under(out)
+    main(argv)
+    second = tmp_path / "runs" / "fixed_2"
     error = capsys.readouterr().err
-    assert f"--out {out}: holds the results of 'dcqn-campusnav train'; pass --force to overwrite them" in error
-    assert files_under(out) == kept
-    # the same subcommand again writes over its own results; --force lets another one do so
+    assert f"--out {out} holds an earlier run's results (kept): writing to {second}" in error
+    assert files_under(out) == first  # not a byte of the first run changed
+    assert (second / "dcqn_campusnav.zip").is_file() and [p.name for p in (second / "tb").iterdir()] == ["DCQN_1"]
+    main(argv)  # and the third
+    assert (tmp_path / "runs" / "fixed_3" / "summary.json").is_file() and files_under(out) == first
+    # --force: into the folder asked for, all the same
+    main([*argv, "--force"])
+    assert sorted(p.name for p in (out / "tb").iterdir()) == ["DCQN_1", "DCQN_2"]
+    assert not (tmp_path / "runs" / "fixed_4").exists()
+
+
+def test_readapt_twice_keeps_the_first_readapted_run(tmp_path: Path, conf: Path) -> None:
+    out = tmp_path / "train"
     cli("train", *FAST, "--conf", str(conf), "--timesteps", "100", "--eval-freq", "100", "--out", str(out))
-    summary = cli(
-        "demo", *FAST, "--conf", str(conf), "--timesteps", "100", "--n-closures", "0", "--out", str(out), "--force"
-    )
-    assert summary["command"] == "demo" and json.loads((out / "summary.json").read_text())["command"] == "demo"
+    model = out / "dcqn_campusnav.zip"
+    trained = model.read_bytes()
+    for _ in range(2):
+        cli("readapt", str(model), *FAST[-1:], "--close", *map(str, ROAD), "--timesteps", "50", "--open-map")
+    first = out / "readapt"
+    assert (first / "summary.json").is_file() and (out / "readapt_2" / "summary.json").is_file()
+    assert model.read_bytes() == trained  # the input model is never replaced without --in-place
+    assert json.loads((first / "summary.json").read_text())["files"]["model"] == str(first / "dcqn_campusnav.zip")
+
+
+@pytest.mark.parametrize("command", ["evaluate", "draw"])
+def test_a_picture_that_exists_is_kept_and_the_next_numbered_name_written(
+    tmp_path: Path, conf: Path, command: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "train"
+    cli("train", *FAST, "--conf", str(conf), "--timesteps", "100", "--eval-freq", "100", "--out", str(out))
+    picture = tmp_path / "routes.png"
+    model = str(out / "dcqn_campusnav.zip")
+    argv = ["evaluate", model] if command == "evaluate" else ["draw", "--model", model]
+    argv += ["--start", "3", "--picture", str(picture)]
+    cli(*argv)
+    kept = files_under(tmp_path)
+    summary = cli(*argv)
+    assert summary["picture"] == str(tmp_path / "routes_2.png") and (tmp_path / "routes_2.txt").is_file()
+    assert f"{picture} exists, kept; --force writes over it" in capsys.readouterr().out
+    assert {name: data for name, data in files_under(tmp_path).items() if name in kept} == kept
+    assert cli(*argv, "--force")["picture"] == str(picture)
+
+
+def test_roads_writes_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    before = files_under(tmp_path)
+    cli("roads", "14")
+    assert files_under(tmp_path) == before
 
 
 # ------------------------------------------------------------------------------------------------ readapt, evaluate
@@ -195,6 +242,31 @@ def test_evaluate_scores_the_model_on_the_map_it_was_saved_with(
     assert drawn["picture"] and "closed again: 14-15" in capsys.readouterr().err
 
 
+def test_the_summary_is_of_the_model_saved_beside_it_also_after_readapt_in_place(
+    tmp_path: Path, conf: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "fixed"
+    summary = cli(
+        "train", *FAST, "--conf", str(conf), "--close", *map(str, ROAD), "--close-at", "100",
+        *("--timesteps", "300", "--eval-freq", "100", "--out", str(out)),
+    )  # fmt: skip
+    model = out / "dcqn_campusnav.zip"
+    for step in range(2):
+        beside = json.loads((out / "summary.json").read_text())
+        assert beside["final"]["step"] == DCQN.load(model).num_timesteps  # the last evaluation is of the saved model
+        scores = cli("evaluate", str(model))["all"]  # on the roads closed when it was saved
+        assert beside["final"]["success_rate"] == pytest.approx(scores["success_rate"], abs=1e-9)
+        assert beside["final"]["spl"] == pytest.approx(scores["spl"], abs=1e-9)
+        if step == 0:
+            assert beside["num_timesteps"] == summary["num_timesteps"]
+            # The model replaced in place: so are the summary and pictures beside it
+            cli("readapt", str(model), *FAST[-1:], "--in-place", "--close-random", "1", "--timesteps", "100")
+            assert "--in-place: replacing" in capsys.readouterr().err
+            assert json.loads((out / "summary.json").read_text())["command"] == "readapt"
+    with pytest.raises(CommandError, match=r"--in-place writes the re-adapted model and its results beside"):
+        cli("readapt", str(model), "--in-place", "--close-random", "1", "--out", str(tmp_path / "elsewhere"))
+
+
 # ------------------------------------------------------------------------------------------------ Ctrl-C
 def test_ctrl_c_saves_the_model_replay_buffer_and_closures_and_says_how_to_go_on(
     tmp_path: Path, conf: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
@@ -219,6 +291,7 @@ def test_ctrl_c_saves_the_model_replay_buffer_and_closures_and_says_how_to_go_on
     assert saved["closed_roads_at_save"] == [list(ROAD)] and saved["num_timesteps"] == 150
     summary = json.loads((out / "summary.json").read_text())
     assert summary["command"] == "train" and summary["interrupted"] is True
+    assert "Interrupted at step 150" in (out / "summary.md").read_text()  # no summary.md of another model
     assert not list(out.glob("*.tmp*"))  # every file written whole
 
     # The way on that the line names: readapt goes on from step 150 with the saved closure in force

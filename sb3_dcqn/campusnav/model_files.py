@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from campusnav_env.atomic_files import write_bytes_atomic, write_text_atomic
+from sb3_dcqn.campusnav.buffer_files import dump_compact_buffer
 from sb3_dcqn.campusnav.settings import EnvSettings
 from sb3_dcqn.dcqn import DCQN
 
@@ -90,7 +91,8 @@ def save_model(
     callbacks: Sequence[tuple[str, dict[str, Any]]] = (),
 ) -> list[Path]:
     """
-    Save the model (and its replay buffer and env settings), each file atomically; returns the paths.
+    Save the model (and its replay buffer, as large as what it stores: :mod:`~sb3_dcqn.campusnav.buffer_files`, and
+    its env settings), each file atomically; returns the paths.
 
     :param closed_roads: The roads closed now (``closed_roads_at_save``)
     :param levers: The re-adaptation levers it trains with (readapt's default)
@@ -103,7 +105,7 @@ def save_model(
     written = [write_bytes_atomic(zip_path, data.getvalue())]
     if replay_buffer:
         data = io.BytesIO()
-        model.save_replay_buffer(data)
+        dump_compact_buffer(model.replay_buffer, data)  # as large as what it stores; load_replay_buffer reads it
         written.append(write_bytes_atomic(buffer_path, data.getvalue()))
     document = {
         "settings": settings.to_json(),

@@ -22,6 +22,7 @@ __all__ = [
     "DEFAULT_ENV",
     "EnvSettings",
     "campus_of",
+    "campusnav_env_ids",
     "load_map",
     "make_env",
     "make_training_envs",
@@ -98,6 +99,33 @@ class EnvSettings:
         where = "" if self.map_path is None else f" on {Path(self.map_path).name}"
         random = " (random init)" if self.encoder_random_init else ""
         return f"{self.env_id}{where}, encoder {self.encoder}{random}, views {size}"
+
+
+def campusnav_env_ids() -> list[str]:
+    """
+    The registered CampusNav ids, in order: the keys of :data:`campusnav_env.registration.ENV_IDS`, the table
+    ``import campusnav_env`` registers with Gymnasium.
+
+    Read from the module's source, not imported: importing ``campusnav_env`` imports torch, and ``--help`` (which
+    lists these ids) should answer at once. ``tests/test_campusnav_cli_goal_env.py`` checks them against Gymnasium's
+    registry.
+
+    :raises RuntimeError: if the table cannot be found
+    """
+    import ast
+    from importlib.util import find_spec
+
+    spec = find_spec("campusnav_env")  # a top-level package: found without being imported
+    locations = [] if spec is None or spec.submodule_search_locations is None else spec.submodule_search_locations
+    for folder in locations:
+        source = Path(folder) / "registration.py"
+        if source.is_file():
+            for node in ast.walk(ast.parse(source.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.AnnAssign | ast.Assign) and isinstance(node.value, ast.Dict):
+                    targets = [node.target] if isinstance(node, ast.AnnAssign) else node.targets
+                    if any(isinstance(t, ast.Name) and t.id == "ENV_IDS" for t in targets):
+                        return [k.value for k in node.value.keys if isinstance(k, ast.Constant)]
+    raise RuntimeError("cannot find campusnav_env.registration.ENV_IDS (is campusnav_env installed?)")
 
 
 def load_map(path: str) -> RoadGraph:
