@@ -69,7 +69,10 @@ PER_GOAL_LOG_LIMIT = 16
 
 
 class _TrainingProgress(BaseCallback):
-    """Counts training episodes and training wall time (only while training runs, minus the excluded seconds)."""
+    """Counts training episodes and training wall time (only while training runs, minus the excluded seconds).
+
+    ``excluded_seconds``: the evaluations' seconds inside training runs (those between ``learn`` calls never counted).
+    """
 
     def __init__(self, verbose: int = 0) -> None:
         super().__init__(verbose)
@@ -286,7 +289,8 @@ class RouteEvaluationCallback(_TrainingProgress):
                 + ("" if critics is None else f" (critics alone {critics.success_rate:.3f} / {critics.spl:.3f})"),
                 flush=True,
             )
-        self.excluded_seconds += time.perf_counter() - start
+        if self._started is not None:  # outside training (a closure applied between learn calls) nothing ran to exclude
+            self.excluded_seconds += time.perf_counter() - start
         return evaluation
 
     def _log_report(self, prefix: str, report: RouteReport) -> None:

@@ -239,3 +239,28 @@ def test_training_seconds_never_count_the_evaluations_own_time(env_kwargs, monke
     assert seconds[-1] <= wall - 0.3 * len(seconds) + 0.05
     recovery = closures.recoveries[0]
     assert recovery.recovered and recovery.seconds >= 0
+
+
+def test_a_closure_between_learn_calls_never_makes_training_time_run_backwards(env_kwargs, monkeypatch) -> None:
+    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
+    model = explorer(env)
+    model.predict = shortest_path_policy(env.envs[0].unwrapped)
+    import campusnav_env.callbacks as callbacks
+
+    evaluate_routes = callbacks.evaluate_routes
+
+    def slow_evaluation(*args: Any, **kwargs: Any) -> Any:
+        time.sleep(0.3)
+        return evaluate_routes(*args, **kwargs)
+
+    monkeypatch.setattr(callbacks, "evaluate_routes", slow_evaluation)
+    evaluation = RouteEvaluationCallback(eval_freq=1_000)
+    closures = RoadClosureCallback([], evaluation=evaluation, recovery_eval_freq=1)
+    model.learn(50, callback=closures)
+    # As sb3_dcqn.campusnav.experiments does: the closure (and its evaluation) between two learn calls
+    closures.apply(ClosureEvent(at=model.num_timesteps, unit="step", close_on_route="busiest"))
+    model.learn(50, callback=closures, reset_num_timesteps=False)
+    seconds = [e.train_seconds for e in evaluation.evaluations]
+    assert seconds == sorted(seconds) and min(seconds) >= 0
+    recovery = closures.recoveries[0]
+    assert recovery.recovered and 0 <= recovery.seconds < 0.3
