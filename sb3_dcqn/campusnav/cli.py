@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingOutcome
     from sb3_dcqn.campusnav.model_files import SavedRun
     from sb3_dcqn.dcqn import DCQN
-    from sb3_dcqn.zoo import ZooEntry
+    from sb3_dcqn.zoo_files import ZooEntry
 
 __all__ = ["DESCRIPTION", "CommandError", "Interrupted", "build_parser", "campusnav_env_ids", "main", "run"]
 
@@ -230,7 +230,7 @@ def _check_overwrite(out: Path, command: str, force: bool, model_name: str = f"{
 
 # ------------------------------------------------------------------------------------------------ hyperparameters
 def _zoo_entry(conf: str | None, env_id: str) -> ZooEntry:
-    from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
+    from sb3_dcqn.zoo_files import default_hyperparams_path, load_zoo_entry
 
     path = default_hyperparams_path() if conf is None else Path(conf)
     try:
@@ -250,7 +250,7 @@ def _training_entry(conf: str | None, env_id: str, args: argparse.Namespace) -> 
     """
     from sb3_dcqn.campusnav.levers import check_levers, usable_levers, with_levers
     from sb3_dcqn.dcqn import DCQN
-    from sb3_dcqn.zoo import check_hyperparams, default_hyperparams_path
+    from sb3_dcqn.zoo_files import check_hyperparams, default_hyperparams_path
 
     entry = _zoo_entry(conf, env_id)
     path = default_hyperparams_path() if conf is None else Path(conf)
@@ -296,7 +296,7 @@ def _env_creator(env_id: str) -> Any:
 
 def _check_env_kwargs(env_id: str, env_kwargs: dict[str, Any], source: str) -> None:
     """Every ``env_kwargs`` key is an argument of the env (else a ``TypeError`` deep inside ``gym.make``)."""
-    from sb3_dcqn.zoo import check_keywords
+    from sb3_dcqn.zoo_files import check_keywords
 
     creator = _env_creator(env_id)
     if isinstance(creator, type):
@@ -574,7 +574,7 @@ def _closure_plan(args: argparse.Namespace) -> ClosurePlan:
 
     from campusnav_env.closures import ClosureEvent, ClosureSchedule
     from sb3_dcqn.campusnav.experiments import ClosurePlan
-    from sb3_dcqn.zoo import describe_yaml_error
+    from sb3_dcqn.zoo_files import describe_yaml_error
 
     flags = bool(args.close or args.close_random or args.close_on_route)
     if args.closures is not None:
@@ -1076,7 +1076,7 @@ def _readapt_callbacks(
 
 def _make_callbacks(specs: Sequence[tuple[str, dict[str, Any]]]) -> list[BaseCallback]:
     """New callbacks from ``(class path, keyword arguments)`` specs, as the zoo builds an entry's ``callback``."""
-    from sb3_dcqn.zoo import ZooEntry
+    from sb3_dcqn.zoo_files import ZooEntry
 
     try:
         return ZooEntry(n_timesteps=0, hyperparams={}, callbacks=tuple(specs)).make_callbacks()
