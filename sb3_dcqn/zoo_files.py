@@ -180,7 +180,7 @@ def preprocess_entry(settings: Mapping[str, Any], where: str) -> ZooEntry:
     """
     entry = dict(settings)
     if "n_timesteps" not in entry:
-        raise KeyError(f"{where}: the entry has no 'n_timesteps'")
+        raise KeyError(f"{where}: no 'n_timesteps' (the zoo needs it, -n or not)")
     n_envs = _whole_number(entry.pop("n_envs", 1), f"{where}: n_envs")
     for key in SCHEDULE_KEYS:
         if isinstance(entry.get(key), str):
