@@ -52,9 +52,7 @@ def _import_zoo() -> Any:
         import rl_zoo3  # noqa: F401
         from rl_zoo3 import exp_manager, hyperparams_opt, utils
     except ImportError as error:
-        raise ImportError(
-            'The RL Zoo integration needs rl_zoo3: install it with `pip install "sb3-dcqn[zoo]"`'
-        ) from error
+        raise ImportError('The RL Zoo integration needs rl_zoo3: pip install "sb3-dcqn[zoo]"') from error
     return exp_manager, hyperparams_opt, utils
 
 
@@ -113,10 +111,8 @@ def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()
     Entry point of ``dcqn-zoo``: registers DCQN, then runs the zoo command named by the first argument.
 
     Without a command word (first argument an option) the command is ``train``, whose ``-conf`` defaults to the
-    shipped ``dcqn.yml``; ``train`` checks the entry first and cleans up after a failed start (see :func:`_train`).
-    Bad input is one line on stderr and exit 2: rl_zoo3 not installed (even for ``-h``), an unknown command, a
-    ``-n``/``--n-timesteps`` that is not a positive number of steps (the zoo would train the entry's budget instead),
-    a bad hyperparameter entry.
+    shipped ``dcqn.yml`` (see :func:`_train`). Bad input is one line on stderr, exit 2: rl_zoo3 not installed (even
+    for ``-h``), an unknown command, a ``-n`` that is not a positive number of steps, a bad hyperparameter entry.
 
     :param argv: The arguments (default: ``sys.argv[1:]``)
     :param single_thread_envs: Env ids for which ``train`` and ``enjoy`` use one torch thread (``--num-threads 1``)
@@ -129,9 +125,10 @@ def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()
     if not args:
         print(usage(), file=sys.stderr)
         raise SystemExit(2)
+    asks_for_help = any(arg in _HELP_FLAGS for arg in args)
     if args[0].startswith("-"):
         command, prog = "train", "dcqn-zoo"
-        if _asks_for_help(args):
+        if asks_for_help:
             print(usage(), end="\n\n", flush=True)  # then the zoo's train help
     else:
         command, args, prog = args[0], args[1:], f"dcqn-zoo {args[0]}"
@@ -141,7 +138,7 @@ def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()
                 f"\ndcqn-zoo: error: unknown command {command!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr
             )
             raise SystemExit(2)
-    if command in _STEP_COMMANDS and not _asks_for_help(args):
+    if command in _STEP_COMMANDS and not asks_for_help:
         _check_timesteps(command, args)
     register_dcqn()
     runner, args = _prepare(command, _with_default_threads(command, args, single_thread_envs))
@@ -165,17 +162,13 @@ def require_zoo() -> None:
         raise SystemExit(2) from None
 
 
-def _asks_for_help(args: list[str]) -> bool:
-    return any(arg in _HELP_FLAGS for arg in args)
-
-
 def _check_timesteps(command: str, args: list[str]) -> None:
     """Refuse a ``-n``/``--n-timesteps`` that is not a positive whole number (the zoo reads -5 as "not given")."""
     value = _option_value(args, "--n-timesteps", shortest="--n-ti", alias="-n")
     if value is None:
         return
     try:
-        steps = int(value)
+        steps = int(value)  # as argparse's type=int reads it
     except ValueError:
         steps = 0
     if steps < 1:
@@ -223,7 +216,6 @@ def _option_value(args: list[str], name: str, shortest: str | None = None, alias
 
     :param name: The option's long name
     :param shortest: Its shortest prefix that argparse takes for it (no other option of the command starts so)
-    :param alias: Its short name, if any
     """
     value = None
     for i, arg in enumerate(args):
@@ -239,16 +231,13 @@ def _option_value(args: list[str], name: str, shortest: str | None = None, alias
 
 def _train(train: Callable[[], None]) -> None:
     """
-    Run the zoo's ``train`` with three changes (train.py makes its own ``ExperimentManager``: its methods are wrapped):
+    Run the zoo's ``train`` (which makes its own ``ExperimentManager``: its methods are wrapped) so that
 
-    - the hyperparameter entry is read and checked first (:func:`_check_entry`): a misspelt key, a wrong type, a bad
-      schedule or malformed YAML is one line naming the file, the entry and the key, exit 2, before any folder exists;
-      so are the errors of setting the run up (the env, the model) and the zoo's own argument checks;
-    - the evaluation envs (``--eval-freq``, ``-optimize``'s trials) get the training env's ``env_kwargs`` (the entry's,
-      or ``--env-kwargs``) unless ``--eval-env-kwargs`` is given: rl_zoo3 2.9 copies only ``--env-kwargs`` to them, so
-      with the entry's (CampusNav's ``view_dim: 64``) they had another observation space than the model;
-    - a run that fails before it wrote results (:func:`_holds_results`) leaves no run folder behind, nor the log
-      folders made for it.
+    - the entry is read and checked first (:func:`_check_entry`): a bad entry, like an error in setting the run up (the
+      env, the model) or in the zoo's own argument checks, is one line naming the file, the entry and the key, exit 2;
+    - the evaluation envs (``--eval-freq``, ``-optimize``'s trials) get the training env's ``env_kwargs`` unless
+      ``--eval-env-kwargs`` is given (rl_zoo3 2.9 gives them only ``--env-kwargs``, not the entry's ``view_dim``);
+    - a run that fails before it wrote results (:func:`_holds_results`) leaves no folder, nor log folders made for it.
     """
     from rl_zoo3.exp_manager import ExperimentManager
     from rl_zoo3.utils import ALGOS
@@ -360,8 +349,7 @@ def _holds_results(folder: Path) -> bool:
 
 
 def _first_line(error: BaseException) -> str:
-    text = str(error).strip().splitlines()
-    return f"{type(error).__name__}: {text[0]}" if text else type(error).__name__
+    return f"{type(error).__name__}: {(str(error).strip().splitlines() or [''])[0]}"
 
 
 def _refuse(command: str, message: str) -> NoReturn:
@@ -380,12 +368,8 @@ def _download_needs_requests(*args: Any, **kwargs: Any) -> None:
 
 def _allow_enjoy_without_requests() -> None:
     """
-    Let ``rl_zoo3.enjoy`` be imported where ``requests`` is not installed.
-
-    ``rl_zoo3.enjoy`` (2.9) imports ``rl_zoo3.load_from_hub``, which imports ``requests``: not a dependency of rl_zoo3,
-    and no longer brought in by ``huggingface_hub`` (which moved to httpx), so ``enjoy`` fails at import. Then a
-    stand-in module takes its place whose ``download_from_hub`` explains: enjoy only calls it to fetch a pretrained
-    agent missing from ``rl-trained-agents/``, never for the agents trained here.
+    Let ``rl_zoo3.enjoy`` (2.9) be imported without ``requests``, which its ``load_from_hub`` imports undeclared: a
+    stand-in module explains, should enjoy need it (only to fetch a pretrained agent missing from the log folder).
     """
     try:
         import rl_zoo3.load_from_hub  # noqa: F401
@@ -404,9 +388,8 @@ def _record_video() -> None:
     create_test_env = utils.create_test_env
 
     def create_with_saved_env_kwargs(*args: Any, hyperparams: dict[str, Any], **kwargs: Any) -> Any:
-        # rl_zoo3.record_video (2.9) ignores the env_kwargs saved in config.yml, which enjoy applies: an env trained
-        # with env_kwargs from the hyperparameter file (CampusNav's view_dim) would be made with the default
-        # observation space, and loading the model would fail. The command line's (and args.yml's) still win.
+        # rl_zoo3.record_video (2.9) ignores the env_kwargs saved in config.yml (CampusNav's view_dim), which enjoy
+        # applies: the model's observation space would not match the env's. The command line's still win.
         saved = hyperparams.pop("env_kwargs", None) or {}
         kwargs["env_kwargs"] = {**saved, **(kwargs.get("env_kwargs") or {})}
         return create_test_env(*args, hyperparams=hyperparams, **kwargs)
