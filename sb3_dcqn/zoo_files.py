@@ -182,8 +182,8 @@ def preprocess_entry(settings: Mapping[str, Any], where: str) -> ZooEntry:
     if "n_timesteps" not in entry:
         raise KeyError(f"{where}: no 'n_timesteps' (the zoo needs it, -n or not)")
     n_envs = _whole_number(entry.pop("n_envs", 1), f"{where}: n_envs")
-    for key in SCHEDULE_KEYS:
-        if isinstance(entry.get(key), str):
+    for key in SCHEDULE_KEYS:  # other strings are left to check_values, which names them with a hint
+        if isinstance(entry.get(key), str) and entry[key].startswith(SCHEDULE_PREFIX):
             entry[key] = linear_schedule(entry[key], f"{where}: {key}")
     if isinstance(entry.get("train_freq"), list):  # YAML has no tuples: the zoo reads [4, "episode"] as (4, "episode")
         entry["train_freq"] = tuple(entry["train_freq"])
@@ -221,17 +221,15 @@ def linear_schedule(text: str, where: str) -> Callable[[float], float]:
     """
     ``"lin_0.001"`` as the zoo reads it: from 0.001 at the start of training (progress remaining 1) to 0 at the end.
 
-    :raises ValueError: naming ``where``, for any other string
+    :raises ValueError: naming ``where``, when the rest is not a finite number
     """
-    kind, _, initial = text.partition("_")
     try:
-        start = float(initial)
+        start = float(text.removeprefix(SCHEDULE_PREFIX))
     except ValueError:
         start = math.nan
-    if f"{kind}_" != SCHEDULE_PREFIX or not math.isfinite(start):
+    if not text.startswith(SCHEDULE_PREFIX) or not math.isfinite(start):
         raise ValueError(
-            f"{where}: expected a number or a linear schedule {SCHEDULE_PREFIX}<initial value> "
-            f"(e.g. {SCHEDULE_PREFIX}0.001), got {text!r}"
+            f"{where}: expected a linear schedule {SCHEDULE_PREFIX}<initial value> (e.g. lin_0.001), got {text!r}"
         )
     from stable_baselines3.common.utils import LinearSchedule
 
@@ -417,8 +415,15 @@ def _learning_rate(value: Any) -> str | None:
     if callable(value) or (_is_number(value) and value > 0):
         return None
     return f"expected a positive number or a schedule (a callable of the remaining progress), got {value!r}" + (
-        _number_hint(value)
+        _number_hint(value) or _schedule_hint(value)
     )
+
+
+def _schedule_hint(value: Any) -> str:
+    """How a schedule string is written, for one that looks like an attempt (``exp_0.001``, ``lin0.001``)."""
+    if isinstance(value, str) and ("_" in value or value.startswith("lin")):
+        return f" (a linear schedule is written {SCHEDULE_PREFIX}<initial value>, e.g. lin_0.001)"
+    return ""
 
 
 def _gradient_steps(value: Any) -> str | None:

@@ -387,7 +387,7 @@ def one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
     [
         ({"learning_rat": 0.001}, r"unknown DCQN hyperparameter 'learning_rat' \(did you mean 'learning_rate'\?\)"),
         ({"batch_size": "64"}, r"batch_size: expected a positive integer, got '64'"),
-        ({"learning_rate": "lin_1e-3x"}, r"learning_rate: expected a number or a linear schedule lin_<initial value>"),
+        ({"learning_rate": "lin_1e-3x"}, r"learning_rate: expected a linear schedule lin_<initial value>"),
         ({"train_freq": [4, "episodes"]}, r"train_freq: unknown unit 'episodes' .*did you mean 'episode'"),
         ({"policy_kwargs": "dict(net_arch=[16]"}, r"policy_kwargs: cannot evaluate 'dict\(net_arch=\[16\]'"),
         ({"policy_kwargs": "dict(net_arch='abc')"}, r"TypeError: "),  # found by the model's constructor

@@ -131,12 +131,25 @@ def test_a_lin_schedule_passes_the_checks_and_reaches_dcqns_optimizer(tmp_path: 
     assert model.lr_schedule(1.0) == pytest.approx(1e-3) and model.lr_schedule(0.25) == pytest.approx(2.5e-4)
 
 
-@pytest.mark.parametrize("schedule", ["lin_abc", "exp_0.001", "lin0.001", "lin_inf"])
-def test_a_schedule_string_other_than_lin_and_a_number_is_named(tmp_path: Path, schedule: str) -> None:
+@pytest.mark.parametrize(
+    ("schedule", "message"),
+    [
+        ("lin_abc", r"expected a linear schedule lin_<initial value> \(e.g. lin_0.001\), got 'lin_abc'"),
+        ("lin_inf", r"expected a linear schedule lin_<initial value> \(e.g. lin_0.001\), got 'lin_inf'"),
+        (
+            "exp_0.001",
+            r"expected a positive number or a schedule .*got 'exp_0.001' \(a linear schedule is written lin_",
+        ),
+        ("lin0.001", r"expected a positive number or a schedule .*got 'lin0.001' \(a linear schedule is written lin_"),
+    ],
+)
+def test_a_schedule_string_other_than_lin_and_a_number_is_named(tmp_path: Path, schedule: str, message: str) -> None:
+    # The zoo reads any word_<number> as linear and fails on the rest with a traceback
     conf = tmp_path / "conf.yml"
     conf.write_text(f"CartPole-v1:\n  n_timesteps: 100\n  learning_rate: {schedule}\n")
-    with pytest.raises(ValueError, match=rf"conf.yml: entry 'CartPole-v1': learning_rate: .*lin_0.001.*'{schedule}'"):
-        load_zoo_entry(conf, "CartPole-v1")
+    with pytest.raises(ValueError, match=rf"conf.yml: entry 'CartPole-v1': learning_rate: {message}"):
+        entry = load_zoo_entry(conf, "CartPole-v1")
+        check_hyperparams(entry.hyperparams, DCQN, f"{conf}: entry 'CartPole-v1'")
 
 
 @pytest.mark.parametrize(
