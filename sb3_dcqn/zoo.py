@@ -38,6 +38,7 @@ from sb3_dcqn.dcqn import DCQN
 from sb3_dcqn.zoo_files import (
     check_hyperparams,
     default_hyperparams_path,
+    describe_entry,
     entry_name,
     hyperparams_namespace,
     load_zoo_entry,
@@ -252,8 +253,7 @@ def _train(train: Callable[[], None]) -> None:
         return originals["read_hyperparameters"](self)
 
     def preprocess_and_share_env_kwargs(self: Any, hyperparams: dict[str, Any]) -> Any:
-        # sets self.env_kwargs from the entry or the command line
-        processed = originals["_preprocess_hyperparams"](self, hyperparams)
+        processed = originals["_preprocess_hyperparams"](self, hyperparams)  # sets self.env_kwargs
         if self._eval_env_kwargs_args is None:  # no --eval-env-kwargs
             self.eval_env_kwargs = self.env_kwargs
         return processed
@@ -269,10 +269,12 @@ def _train(train: Callable[[], None]) -> None:
     try:
         try:
             train()
-        except _SETUP_ERRORS as error:
+        except (*_SETUP_ERRORS, NameError, SyntaxError) as error:
             if runs:  # raised while training: not an input error
                 raise
-            _refuse("train", _first_line(error))  # train.py's own checks: an unknown --env, a bad -i path
+            # train.py's own checks (an unknown --env, a bad -i path) and its evaluation of -params/--env-kwargs values
+            hint = _EVALUATED_VALUE_HINT if isinstance(error, NameError | SyntaxError) else ""
+            _refuse("train", _first_line(error) + hint)
     except BaseException as error:
         if not (isinstance(error, SystemExit) and error.code in (0, None)):
             for manager, existed in runs:
@@ -285,10 +287,9 @@ def _train(train: Callable[[], None]) -> None:
 
 # What setting a zoo run up raises on bad input: SB3's and the envs' checks (assertions, wrong values or keywords)
 _SETUP_ERRORS = (AssertionError, ImportError, KeyError, TypeError, ValueError)
+_EVALUATED_VALUE_HINT = " (-params/--env-kwargs values are Python: quote strings, e.g. policy:'MlpPolicy')"
 # Files that make a run folder worth keeping: models and checkpoints, evaluations, saved replay buffers
 _RESULT_SUFFIXES = (".zip", ".npz", ".pkl")
-# A monitor file holds a JSON line and the column names before its first finished episode
-_MONITOR_HEADER_LINES = 2
 
 
 def _check_entry(manager: Any, algo: type) -> None:
@@ -306,8 +307,7 @@ def _check_entry(manager: Any, algo: type) -> None:
         _refuse("train", f"{_entry_where(manager)}: n_timesteps: expected a positive integer, got {entry.n_timesteps}")
 
 
-def _fallbacks(manager: Any) -> tuple[str, ...]:
-    """The entries the zoo reads for an env without its own (``read_hyperparameters``)."""
+def _fallbacks(manager: Any) -> tuple[str, ...]:  # the entries the zoo reads for an env without its own
     return ("atari", "default") if manager._is_atari else ("default",)
 
 
@@ -317,7 +317,7 @@ def _entry_where(manager: Any) -> str:
         name = entry_name(read_zoo_table(manager.config), manager.env_name.gym_id, _fallbacks(manager))
     except (OSError, ValueError):
         name = None
-    return f"{manager.config}: entry {name or manager.env_name.gym_id!r}"
+    return describe_entry(manager.config, name or manager.env_name.gym_id, manager.custom_hyperparams)
 
 
 def _run_folders(manager: Any) -> tuple[Path, ...]:
@@ -343,7 +343,7 @@ def _holds_results(folder: Path) -> bool:
             return True
         if path.name.endswith("monitor.csv"):
             with open(path) as file:
-                if sum(1 for _ in file) > _MONITOR_HEADER_LINES:
+                if sum(1 for _ in file) > 2:  # a JSON line and the column names, then one line an episode
                     return True
     return False
 

@@ -6,8 +6,9 @@ first, then schedules, ``train_freq``, ``normalize``, the evaluated strings, ``m
 ``n_envs``, ``n_timesteps``, ``frame_stack``, a custom ``policy``, ``env_wrapper``, ``vec_env_wrapper`` and
 ``callback``), so that ``dcqn-campusnav`` and ``dcqn-zoo`` read one file the same way: ``learning_rate: lin_0.001``
 is a linear schedule from 0.001 to 0 under both. Two differences, both refusals where the zoo fails later or guesses:
-a count must be a whole number, and a schedule string must be ``lin_<initial value>`` (the zoo reads any
-``word_<number>`` as linear). Constant numbers stay numbers (SB3 makes them constant schedules, as the zoo does).
+a count must be a whole number, and a schedule string is ``lin_<initial value>`` (the zoo reads any ``word_<number>``
+as linear; :func:`check_values` refuses other strings). Constant numbers stay numbers (SB3 makes them constant
+schedules, as the zoo does).
 
 :func:`check_hyperparams` checks an entry's keys and values against the algorithm, its policy and its replay buffer,
 naming the file, the entry and the key, where the constructor would raise a ``TypeError`` from deep inside SB3.
@@ -29,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
 from sb3_dcqn.dcqn import DCQN
@@ -162,12 +164,17 @@ def load_zoo_entry(
         raise KeyError(f"{path}: no entry for {env_id!r} (entries: {sorted(map(str, table))})")
     if not isinstance(table[name], dict):
         raise ValueError(f"{path}: entry {name!r} is not a mapping of hyperparameters")
-    return preprocess_entry({**table[name], **(overrides or {})}, f"{path}: entry {name!r}")
+    return preprocess_entry({**table[name], **(overrides or {})}, describe_entry(path, name, overrides))
 
 
 def entry_name(table: Mapping[Any, Any], env_id: str, fallbacks: Sequence[str] = ("default",)) -> str | None:
     """The entry of ``table`` that the zoo reads for ``env_id``: its own, else the first fallback present."""
     return next((key for key in (env_id, *fallbacks) if key in table), None)
+
+
+def describe_entry(path: str | Path, name: str, overrides: Mapping[str, Any] | None = None) -> str:
+    """How messages name an entry: ``"dcqn.yml: entry 'CartPole-v1'"``, ``+ " with -params batch_size"``."""
+    return f"{path}: entry {name!r}" + (f" with -params {', '.join(map(str, overrides))}" if overrides else "")
 
 
 def preprocess_entry(settings: Mapping[str, Any], where: str) -> ZooEntry:
@@ -231,8 +238,6 @@ def linear_schedule(text: str, where: str) -> Callable[[float], float]:
         raise ValueError(
             f"{where}: expected a linear schedule {SCHEDULE_PREFIX}<initial value> (e.g. lin_0.001), got {text!r}"
         )
-    from stable_baselines3.common.utils import LinearSchedule
-
     return LinearSchedule(start, 0.0, 1.0)
 
 

@@ -424,6 +424,20 @@ def test_malformed_yaml_a_missing_entry_and_an_unknown_env_are_one_line(
     assert not (tmp_path / "logs").exists()
 
 
+def test_a_bad_params_override_is_one_line_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    conf, logs = write_tiny(tmp_path / "tiny.yml"), tmp_path / "logs"
+    for params, message in [
+        (["batch_siz:32"], r"entry 'CartPole-v1' with -params batch_siz: unknown DCQN hyperparameter 'batch_siz'"),
+        (["learning_rate:'lin_x'"], r"with -params learning_rate: learning_rate: expected a linear schedule lin_"),
+        (["learning_rate:lin_1e-3"], r"NameError: name 'lin_1e' is not defined \(-params/--env-kwargs values are"),
+    ]:
+        with pytest.raises(SystemExit) as exit_info:
+            zoo_train(conf, logs, "-params", *params)
+        assert exit_info.value.code == 2
+        assert re.search(message, one_error_line(capsys)), params
+    assert not logs.exists()
+
+
 def test_dcqn_zoo_reports_a_bad_entry_in_one_line_as_a_command(tmp_path: Path) -> None:
     write_tiny(tmp_path / "tiny.yml", learning_rat=0.001)
     result = run_zoo(["train", "--algo", "dcqn", "--env", "CartPole-v1", "-conf", "tiny.yml"], tmp_path)

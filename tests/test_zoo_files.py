@@ -109,6 +109,8 @@ def test_params_overrides_replace_the_entrys_settings_before_they_are_read(tmp_p
     _, algorithm_kwargs, _, _ = as_rl_zoo3_reads(conf, "CartPole-v1", tmp_path / "logs", overrides)
     assert_same_algorithm_kwargs(entry.hyperparams, algorithm_kwargs)
     assert entry.hyperparams["batch_size"] == 16 and entry.env_kwargs == {}
+    with pytest.raises(ValueError, match=r"conf.yml: entry 'CartPole-v1' with -params learning_rate: learning_rate: "):
+        load_zoo_entry(conf, "CartPole-v1", {"learning_rate": "lin_fast"})
 
 
 def test_an_env_without_its_own_entry_reads_the_default_entry_as_the_zoo_does(tmp_path: Path) -> None:
