@@ -502,3 +502,18 @@ def test_a_lin_schedule_trains_under_dcqn_zoo(tmp_path: Path) -> None:
     zoo_train(conf, tmp_path / "logs", "-n", "200", "--seed", "0")
     model = DCQN.load(tmp_path / "logs" / "dcqn" / "CartPole-v1_1" / "CartPole-v1.zip")
     assert model.num_timesteps == 200 and model.lr_schedule(0.5) == pytest.approx(5e-4)
+
+
+def test_ctrl_c_before_the_zoo_catches_it_exits_with_130_and_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from rl_zoo3 import train as zoo_train
+
+    def interrupted() -> None:  # e.g. while CampusNav encodes its views, before training starts
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(zoo_train, "train", interrupted)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--algo", "dcqn", "--env", "CartPole-v1"])
+    assert exit_info.value.code == 130
+    assert capsys.readouterr().err.strip() == "dcqn-zoo train: interrupted"
