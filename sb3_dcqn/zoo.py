@@ -14,11 +14,9 @@ as in the zoo's own CLI (``train`` when the first argument is an option)::
     dcqn-zoo plot_from_file -i results.pkl -o results.svg
 
 The plot commands need seaborn and scipy (in our ``zoo`` extra); ``record_video`` an env with ``rgb_array`` rendering.
-``train`` reads and checks the entry with :mod:`sb3_dcqn.zoo_files` first, as ``dcqn-campusnav`` does, so a bad
-entry is one line naming the file, the entry and the key (exit 2), and a run that fails before it wrote results
-leaves no folder. rl_zoo3 2.9 problems worked around: ``enjoy`` imports ``requests`` without declaring it;
-``record_video`` ignores the ``env_kwargs`` saved in ``config.yml``; ``train``'s evaluation envs miss the entry's
-``env_kwargs``; ``-n -5`` trains the entry's budget (refused here).
+``train`` reads and checks the entry with :mod:`sb3_dcqn.zoo_files` first, as ``dcqn-campusnav`` does (see
+:func:`_train`). rl_zoo3 2.9 problems worked around: ``enjoy`` imports ``requests`` undeclared; ``record_video``
+ignores the ``env_kwargs`` saved in ``config.yml``; ``-n -5`` trains the entry's budget; tracebacks for bad input.
 
 This module registers no env: :mod:`sb3_dcqn.campusnav.zoo` registers the CampusNav ids first; for other packages'
 envs pass the zoo's ``--gym-packages``. Requires the ``zoo`` extra: ``pip install "sb3-dcqn[zoo]"``.
@@ -26,24 +24,17 @@ envs pass the zoo's ``--gym-packages``. Requires the ``zoo`` extra: ``pip instal
 
 from __future__ import annotations
 
+import contextlib
 import runpy
 import shutil
 import sys
 import types
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
 from typing import Any, NoReturn
 
 from sb3_dcqn.dcqn import DCQN
-from sb3_dcqn.zoo_files import (
-    check_hyperparams,
-    default_hyperparams_path,
-    describe_entry,
-    entry_name,
-    hyperparams_namespace,
-    load_zoo_entry,
-    read_zoo_table,
-)
+from sb3_dcqn.zoo_files import check_hyperparams, default_hyperparams_path, hyperparams_namespace, load_zoo_entry
 
 ALGO_NAME = "dcqn"
 
@@ -118,8 +109,7 @@ def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()
     :param argv: The arguments (default: ``sys.argv[1:]``)
     :param single_thread_envs: Env ids for which ``train`` and ``enjoy`` use one torch thread (``--num-threads 1``)
         unless the arguments give ``--num-threads``: envs whose small networks run slower on more threads
-    :raises SystemExit: with code 2 on bad input, 130 on Ctrl-C before the zoo handles it, and as the zoo's commands
-        exit (``-h``, their own argument errors)
+    :raises SystemExit: 2 on bad input, 130 on Ctrl-C before the zoo catches it, else as the zoo's commands exit
     """
     require_zoo()
     args = list(sys.argv[1:] if argv is None else argv)
@@ -195,9 +185,13 @@ def _prepare(command: str, args: list[str]) -> tuple[Callable[[], None], list[st
         return (lambda: _train(train)), args
     if command == "enjoy":
         _allow_enjoy_without_requests()
-        from rl_zoo3.enjoy import enjoy
+        from rl_zoo3 import enjoy
 
-        return enjoy, args
+        def enjoy_found_models() -> None:
+            with _replaced(enjoy, "get_model_path", _model_path_or_refuse(command, enjoy.get_model_path)):
+                enjoy.enjoy()
+
+        return enjoy_found_models, args
     if command == "record_video":
         return _record_video, args
     if command == "plot_train":
@@ -243,46 +237,70 @@ def _train(train: Callable[[], None]) -> None:
     from rl_zoo3.exp_manager import ExperimentManager
     from rl_zoo3.utils import ALGOS
 
-    names = ("read_hyperparameters", "_preprocess_hyperparams", "setup_experiment")
-    originals = {name: getattr(ExperimentManager, name) for name in names}
-    runs: list[tuple[Any, set[Path]]] = []  # each manager with the folders of its run that existed before it
+    manager = ExperimentManager
+    read, preprocess, setup = manager.read_hyperparameters, manager._preprocess_hyperparams, manager.setup_experiment
+    runs: list[tuple[Any, set[Path], str]] = []  # each manager, the folders of its run that existed, its entry
 
     def read_checked(self: Any) -> Any:
-        runs.append((self, {folder for folder in _run_folders(self) if folder.exists()}))
-        _check_entry(self, ALGOS[self.algo])
-        return originals["read_hyperparameters"](self)
+        existed = {folder for folder in _run_folders(self) if folder.exists()}
+        runs.append((self, existed, _check_entry(self, ALGOS[self.algo])))
+        return read(self)
 
     def preprocess_and_share_env_kwargs(self: Any, hyperparams: dict[str, Any]) -> Any:
-        processed = originals["_preprocess_hyperparams"](self, hyperparams)  # sets self.env_kwargs
+        processed = preprocess(self, hyperparams)  # sets self.env_kwargs from the entry or the command line
         if self._eval_env_kwargs_args is None:  # no --eval-env-kwargs
             self.eval_env_kwargs = self.env_kwargs
         return processed
 
     def setup_or_refuse(self: Any) -> Any:
         try:
-            return originals["setup_experiment"](self)
+            return setup(self)
         except _SETUP_ERRORS as error:
-            _refuse("train", f"{_entry_where(self)}: {_first_line(error)}")
+            source = next((source for run, _, source in runs if run is self), self.config)
+            _refuse("train", f"{source}: {_first_line(error)}")
 
-    for name, method in zip(names, (read_checked, preprocess_and_share_env_kwargs, setup_or_refuse), strict=True):
-        setattr(ExperimentManager, name, method)
-    try:
+    with (
+        _replaced(manager, "read_hyperparameters", read_checked),
+        _replaced(manager, "_preprocess_hyperparams", preprocess_and_share_env_kwargs),
+        _replaced(manager, "setup_experiment", setup_or_refuse),
+    ):
         try:
-            train()
-        except (*_SETUP_ERRORS, NameError, SyntaxError) as error:
-            if runs:  # raised while training: not an input error
-                raise
-            # train.py's own checks (an unknown --env, a bad -i path) and its evaluation of -params/--env-kwargs values
-            hint = _EVALUATED_VALUE_HINT if isinstance(error, NameError | SyntaxError) else ""
-            _refuse("train", _first_line(error) + hint)
-    except BaseException as error:
-        if not (isinstance(error, SystemExit) and error.code in (0, None)):
-            for manager, existed in runs:
-                _remove_unfinished_run(manager, existed)
-        raise
+            try:
+                train()
+            except (*_SETUP_ERRORS, NameError, SyntaxError) as error:
+                if runs:  # raised while training: not an input error
+                    raise
+                # train.py's own checks (an unknown --env, a bad -i path), its evaluation of -params/--env-kwargs
+                hint = _EVALUATED_VALUE_HINT if isinstance(error, NameError | SyntaxError) else ""
+                _refuse("train", _first_line(error) + hint)
+        except BaseException as error:
+            if not (isinstance(error, SystemExit) and error.code in (0, None)):
+                for run, existed, _ in runs:
+                    _remove_unfinished_run(run, existed)
+            raise
+
+
+@contextlib.contextmanager
+def _replaced(owner: Any, name: str, value: Any) -> Iterator[None]:
+    """``owner.name`` is ``value`` while the block runs (the zoo's scripts look their helpers up by name)."""
+    original = getattr(owner, name)
+    setattr(owner, name, value)
+    try:
+        yield
     finally:
-        for name, method in originals.items():
-            setattr(ExperimentManager, name, method)
+        setattr(owner, name, original)
+
+
+def _model_path_or_refuse(command: str, get_model_path: Callable[..., Any]) -> Callable[..., Any]:
+    """The zoo's ``get_model_path``, refusing in one line a log folder or model that is not there (no Hub download)."""
+
+    def found(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return get_model_path(*args, **kwargs)
+        except (AssertionError, ValueError) as error:
+            _refuse(command, f"{error} (-f names the log folder of the trained agents)")
+
+    return found
 
 
 # What setting a zoo run up raises on bad input: SB3's and the envs' checks (assertions, wrong values or keywords)
@@ -292,32 +310,21 @@ _EVALUATED_VALUE_HINT = " (-params/--env-kwargs values are Python: quote strings
 _RESULT_SUFFIXES = (".zip", ".npz", ".pkl")
 
 
-def _check_entry(manager: Any, algo: type) -> None:
-    """Read the manager's entry as the zoo will (its ``-params`` applied) and check it against ``algo``, or refuse."""
+def _check_entry(manager: Any, algo: type) -> str:
+    """Read the manager's entry as the zoo will (``-params`` applied), check it against ``algo`` or refuse; its name."""
     if not str(manager.config).endswith((".yml", ".yaml")):
-        return  # a Python file or package of hyperparameters: the zoo's alone
+        return str(manager.config)  # hyperparameters in Python: the zoo's alone
+    fallbacks = ("atari", "default") if manager._is_atari else ("default",)  # the zoo's, for an env without its own
     try:
-        entry = load_zoo_entry(manager.config, manager.env_name.gym_id, manager.custom_hyperparams, _fallbacks(manager))
-        check_hyperparams(entry.hyperparams, algo, _entry_where(manager))
+        entry = load_zoo_entry(manager.config, manager.env_name.gym_id, manager.custom_hyperparams, fallbacks)
+        check_hyperparams(entry.hyperparams, algo, entry.source)
     except KeyError as error:
         _refuse("train", f"{error.args[0]} (choose another --env or -conf)")
     except (FileNotFoundError, ValueError) as error:
         _refuse("train", str(error))
     if manager.n_timesteps <= 0 and entry.n_timesteps < 1:
-        _refuse("train", f"{_entry_where(manager)}: n_timesteps: expected a positive integer, got {entry.n_timesteps}")
-
-
-def _fallbacks(manager: Any) -> tuple[str, ...]:  # the entries the zoo reads for an env without its own
-    return ("atari", "default") if manager._is_atari else ("default",)
-
-
-def _entry_where(manager: Any) -> str:
-    """``"FILE: entry 'ENV'"``: the entry the manager reads, for messages."""
-    try:
-        name = entry_name(read_zoo_table(manager.config), manager.env_name.gym_id, _fallbacks(manager))
-    except (OSError, ValueError):
-        name = None
-    return describe_entry(manager.config, name or manager.env_name.gym_id, manager.custom_hyperparams)
+        _refuse("train", f"{entry.source}: n_timesteps: expected a positive integer, got {entry.n_timesteps}")
+    return entry.source
 
 
 def _run_folders(manager: Any) -> tuple[Path, ...]:
@@ -358,18 +365,10 @@ def _refuse(command: str, message: str) -> NoReturn:
     raise SystemExit(2)
 
 
-def _download_needs_requests(*args: Any, **kwargs: Any) -> None:
-    raise ModuleNotFoundError(
-        "Downloading a pretrained agent from the Hugging Face Hub needs `requests` (pip install requests), "
-        "which rl_zoo3 imports without declaring it; pass -f with the folder of your trained agents",
-        name="requests",
-    )
-
-
 def _allow_enjoy_without_requests() -> None:
     """
-    Let ``rl_zoo3.enjoy`` (2.9) be imported without ``requests``, which its ``load_from_hub`` imports undeclared: a
-    stand-in module explains, should enjoy need it (only to fetch a pretrained agent missing from the log folder).
+    Let ``rl_zoo3.enjoy`` (2.9) be imported without ``requests``, which its ``load_from_hub`` imports undeclared, for
+    Hub downloads of pretrained agents: a stand-in module takes its place (a model missing from ``-f`` is refused).
     """
     try:
         import rl_zoo3.load_from_hub  # noqa: F401
@@ -377,7 +376,7 @@ def _allow_enjoy_without_requests() -> None:
         if error.name != "requests":
             raise
         stand_in = types.ModuleType("rl_zoo3.load_from_hub", "Stand-in without requests (see sb3_dcqn.zoo)")
-        stand_in.download_from_hub = _download_needs_requests  # type: ignore[attr-defined]
+        stand_in.download_from_hub = None  # type: ignore[attr-defined]  # never called: see _model_path_or_refuse
         sys.modules["rl_zoo3.load_from_hub"] = stand_in
 
 
@@ -394,11 +393,11 @@ def _record_video() -> None:
         kwargs["env_kwargs"] = {**saved, **(kwargs.get("env_kwargs") or {})}
         return create_test_env(*args, hyperparams=hyperparams, **kwargs)
 
-    utils.create_test_env = create_with_saved_env_kwargs  # record_video imports it by name when it runs
-    try:
-        runpy.run_module("rl_zoo3.record_video", run_name="__main__")
-    finally:
-        utils.create_test_env = create_test_env
+    with (
+        _replaced(utils, "create_test_env", create_with_saved_env_kwargs),
+        _replaced(utils, "get_model_path", _model_path_or_refuse("record_video", utils.get_model_path)),
+    ):
+        runpy.run_module("rl_zoo3.record_video", run_name="__main__")  # it imports both from utils when it runs
 
 
 def _pop_plot_output(args: list[str]) -> tuple[str | None, list[str]]:
@@ -437,12 +436,8 @@ def _plot_train(plot_train: Callable[[], None], output: str | None) -> None:
         return
     from matplotlib import pyplot as plt
 
-    show = plt.show
-    plt.show = lambda *args, **kwargs: plt.savefig(output)  # plot_train ends with plt.show()
-    try:
+    with _replaced(plt, "show", lambda *args, **kwargs: plt.savefig(output)):  # plot_train ends with plt.show()
         plot_train()
-    finally:
-        plt.show = show
     print(f"Saved the figure to {output}")
 
 

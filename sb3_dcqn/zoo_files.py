@@ -79,6 +79,7 @@ class ZooEntry:
         :meth:`wrap_env`
     :param vec_env_wrappers: The ``vec_env_wrapper`` key, in the same form
     :param monitor_kwargs: Keyword arguments of the zoo's ``Monitor`` (``monitor_kwargs``)
+    :param source: What messages name the entry by, e.g. ``"dcqn.yml: entry 'CartPole-v1'"``
     """
 
     n_timesteps: int
@@ -91,6 +92,7 @@ class ZooEntry:
     env_wrappers: tuple[ClassSpec, ...] = ()
     vec_env_wrappers: tuple[ClassSpec, ...] = ()
     monitor_kwargs: dict[str, Any] = field(default_factory=dict)
+    source: str = ""
 
     def make_callbacks(self) -> list[Any]:
         """New instances of the entry's callbacks (SB3 ``BaseCallback``), one per call: a callback trains one model."""
@@ -221,6 +223,7 @@ def preprocess_entry(settings: Mapping[str, Any], where: str) -> ZooEntry:
         env_wrappers=_class_specs(entry.pop("env_wrapper", None), f"{where}: env_wrapper"),
         vec_env_wrappers=_class_specs(entry.pop("vec_env_wrapper", None), f"{where}: vec_env_wrapper"),
         monitor_kwargs=dict(monitor_kwargs),
+        source=where,
     )
 
 

@@ -517,3 +517,39 @@ def test_ctrl_c_before_the_zoo_catches_it_exits_with_130_and_one_line(
         main(["train", "--algo", "dcqn", "--env", "CartPole-v1"])
     assert exit_info.value.code == 130
     assert capsys.readouterr().err.strip() == "dcqn-zoo train: interrupted"
+
+
+@pytest.mark.parametrize(
+    ("command", "folder", "message"),
+    [
+        (["enjoy", "--no-render"], "nowhere", "The nowhere/dcqn folder was not found"),
+        (
+            ["enjoy", "--no-render"],
+            None,
+            "The rl-trained-agents/dcqn folder was not found",
+        ),  # the zoo's default: no download
+        (
+            ["record_video"],
+            "logs",
+            "No model found for dcqn on CartPole-v1, path: logs/dcqn/CartPole-v1_1/CartPole-v1.zip",
+        ),
+    ],
+)
+def test_a_log_folder_without_the_agent_is_one_line(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    command: list[str],
+    folder: str | None,
+    message: str,
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "logs" / "dcqn" / "CartPole-v1_1").mkdir(parents=True)  # a run folder without its model
+    args = [*command, "--algo", "dcqn", "--env", "CartPole-v1", "-n", "10", *(["-f", folder] if folder else [])]
+    with pytest.raises(SystemExit) as exit_info:
+        main(args)
+    assert exit_info.value.code == 2
+    assert (
+        one_error_line(capsys)
+        == f"dcqn-zoo {command[0]}: error: {message} (-f names the log folder of the trained agents)"
+    )
