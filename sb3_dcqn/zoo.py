@@ -237,8 +237,11 @@ def _train(train: Callable[[], None]) -> None:
     from rl_zoo3.exp_manager import ExperimentManager
     from rl_zoo3.utils import ALGOS
 
-    manager = ExperimentManager
-    read, preprocess, setup = manager.read_hyperparameters, manager._preprocess_hyperparams, manager.setup_experiment
+    read, preprocess, setup = (
+        ExperimentManager.read_hyperparameters,
+        ExperimentManager._preprocess_hyperparams,
+        ExperimentManager.setup_experiment,
+    )
     runs: list[tuple[Any, set[Path], str]] = []  # each manager, the folders of its run that existed, its entry
 
     def read_checked(self: Any) -> Any:
@@ -260,9 +263,9 @@ def _train(train: Callable[[], None]) -> None:
             _refuse("train", f"{source}: {_first_line(error)}")
 
     with (
-        _replaced(manager, "read_hyperparameters", read_checked),
-        _replaced(manager, "_preprocess_hyperparams", preprocess_and_share_env_kwargs),
-        _replaced(manager, "setup_experiment", setup_or_refuse),
+        _replaced(ExperimentManager, "read_hyperparameters", read_checked),
+        _replaced(ExperimentManager, "_preprocess_hyperparams", preprocess_and_share_env_kwargs),
+        _replaced(ExperimentManager, "setup_experiment", setup_or_refuse),
     ):
         try:
             try:

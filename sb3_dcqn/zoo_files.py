@@ -161,22 +161,13 @@ def load_zoo_entry(
     """
     path = Path(path)
     table = read_zoo_table(path)
-    name = entry_name(table, env_id, fallbacks)
+    name = next((key for key in (env_id, *fallbacks) if key in table), None)
     if name is None:
         raise KeyError(f"{path}: no entry for {env_id!r} (entries: {sorted(map(str, table))})")
     if not isinstance(table[name], dict):
         raise ValueError(f"{path}: entry {name!r} is not a mapping of hyperparameters")
-    return preprocess_entry({**table[name], **(overrides or {})}, describe_entry(path, name, overrides))
-
-
-def entry_name(table: Mapping[Any, Any], env_id: str, fallbacks: Sequence[str] = ("default",)) -> str | None:
-    """The entry of ``table`` that the zoo reads for ``env_id``: its own, else the first fallback present."""
-    return next((key for key in (env_id, *fallbacks) if key in table), None)
-
-
-def describe_entry(path: str | Path, name: str, overrides: Mapping[str, Any] | None = None) -> str:
-    """How messages name an entry: ``"dcqn.yml: entry 'CartPole-v1'"``, ``+ " with -params batch_size"``."""
-    return f"{path}: entry {name!r}" + (f" with -params {', '.join(map(str, overrides))}" if overrides else "")
+    where = f"{path}: entry {name!r}" + (f" with -params {', '.join(map(str, overrides))}" if overrides else "")
+    return preprocess_entry({**table[name], **(overrides or {})}, where)
 
 
 def preprocess_entry(settings: Mapping[str, Any], where: str) -> ZooEntry:
