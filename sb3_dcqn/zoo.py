@@ -1,460 +1,42 @@
-"""RL Baselines3 Zoo integration: make ``--algo dcqn`` available to the zoo's commands.
+"""RL Baselines3 Zoo glue: make ``--algo dcqn`` available to the zoo's commands (the ``dcqn-zoo`` console script).
 
-``rl_zoo3`` has no plugin hook, so :func:`register_dcqn` adds DCQN to the zoo's algorithm table, its hyperparameter
-sampler and converter tables (for ``-optimize``), and the names used in ``policy_kwargs`` and replay buffer strings of
-``hyperparams/dcqn.yml`` to the namespace in which the zoo evaluates them. The console script ``dcqn-zoo`` registers
-and then runs one of the zoo's commands, named as in the zoo's own ``rl_zoo3`` CLI (``train`` when the first argument
-is an option, as before)::
+``rl_zoo3`` has no plugin hook, so :func:`register_dcqn` adds DCQN to the zoo's algorithm, sampler and converter
+tables (for ``-optimize``) and the names of :func:`~sb3_dcqn.zoo_files.hyperparams_namespace` to the namespace in
+which the zoo evaluates ``policy_kwargs`` and replay buffer strings. :func:`main` runs one of the zoo's commands, named
+as in the zoo's own CLI (``train`` when the first argument is an option)::
 
     dcqn-zoo train --algo dcqn --env CartPole-v1 -f logs/                  # -conf defaults to the shipped dcqn.yml
     dcqn-zoo --algo dcqn --env CartPole-v1 -optimize --storage dcqn.log     # train without the command word
     dcqn-zoo enjoy --algo dcqn --env CartPole-v1 -f logs/ -n 1000 --no-render
     dcqn-zoo record_video --algo dcqn --env CartPole-v1 -f logs/ -n 500 -o videos/
-    dcqn-zoo plot_train -a dcqn -e CartPole-v1 -f logs/ -w 20 -o curve.png
+    dcqn-zoo plot_train -a dcqn -e CartPole-v1 -f logs/ -w 20 -o curve.png   # -o FILE: ours, saved with Agg
     dcqn-zoo all_plots -a dcqn -e CartPole-v1 -f logs/ -o results --no-display
     dcqn-zoo plot_from_file -i results.pkl -o results.svg
 
-``dcqn-zoo COMMAND -h`` shows the zoo's options of a command, ``dcqn-zoo -h`` the commands and those of ``train``.
-``-o FILE`` of ``plot_train`` is this script's own (the zoo's ``plot_train`` only shows the figure): the figure is
-saved to FILE with matplotlib's Agg backend. The plot commands need seaborn and scipy (in our ``zoo`` extra);
-``all_plots`` reads the evaluations that ``train --eval-freq N`` writes, and ``plot_from_file`` needs two runs or more.
-``enjoy`` renders in a pygame window (``--no-render`` without pygame or a display; CampusNav's ``rgb_array`` frames are
-shown through gymnasium's ``HumanRendering``); ``record_video`` needs an env with ``rgb_array`` rendering (CartPole's
-needs pygame) and writes MP4 files with moviepy.
+The plot commands need seaborn and scipy (in our ``zoo`` extra); ``record_video`` an env with ``rgb_array`` rendering.
+``train`` reads and checks the entry with :mod:`sb3_dcqn.zoo_files` first, as ``dcqn-campusnav`` does (see
+:func:`_train`). rl_zoo3 2.9 problems worked around: ``enjoy`` imports ``requests`` undeclared; ``record_video``
+ignores the ``env_kwargs`` saved in ``config.yml``; ``-n -5`` trains the entry's budget; tracebacks for bad input.
 
-Three problems of rl_zoo3 2.9 are worked around here: ``enjoy`` imports ``requests`` (for Hub downloads) without
-declaring it; ``record_video`` ignores the ``env_kwargs`` saved in the run's ``config.yml`` (CampusNav's
-``view_dim``), so the model's observation space would not match the env's; and ``train`` makes the evaluation envs
-(``--eval-freq``, ``-optimize``'s trials) without the entry's ``env_kwargs``, which now reach them unless
-``--eval-env-kwargs`` is given.
-
-This module works with any Gymnasium env and registers none: the ``dcqn-zoo`` console script
-(:mod:`sb3_dcqn.campusnav.zoo`) registers the CampusNav ids first; for other packages' envs pass the zoo's
-``--gym-packages``.
-
-Requires the ``zoo`` extra: ``pip install "sb3-dcqn[zoo]"``.
+This module registers no env: :mod:`sb3_dcqn.campusnav.zoo` registers the CampusNav ids first; for other packages'
+envs pass the zoo's ``--gym-packages``. Requires the ``zoo`` extra: ``pip install "sb3-dcqn[zoo]"``.
 """
 
 from __future__ import annotations
 
-import difflib
-import importlib
-import inspect
-import math
-import re
+import contextlib
 import runpy
+import shutil
 import sys
 import types
-from collections.abc import Callable, Collection
-from dataclasses import dataclass, field
-from importlib import resources
+from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
-from typing import Any
-
-import yaml
-from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
+from typing import Any, NoReturn
 
 from sb3_dcqn.dcqn import DCQN
+from sb3_dcqn.zoo_files import check_hyperparams, default_hyperparams_path, hyperparams_namespace, load_zoo_entry
 
 ALGO_NAME = "dcqn"
-# Keys of a zoo entry that configure the zoo's env and wrappers rather than the algorithm (n_envs and env_kwargs are
-# kept in ZooEntry; the others are not supported outside the zoo and are dropped)
-_ZOO_ONLY_KEYS = ("normalize", "env_wrapper", "frame_stack", "vec_env_wrapper")
-# Keys whose string values the zoo evaluates as Python (rl_zoo3's ExperimentManager._preprocess_hyperparams)
-_EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs")
-# Arguments of a replay buffer that the algorithm passes itself (not replay_buffer_kwargs keys)
-_BUFFER_ARGUMENTS = ("buffer_size", "observation_space", "action_space", "env", "device", "n_envs")
-
-
-def default_hyperparams_path() -> Path:
-    """Path of the ``dcqn.yml`` hyperparameter file shipped with the package."""
-    return Path(str(resources.files("sb3_dcqn") / "hyperparams" / "dcqn.yml"))
-
-
-def paper_hyperparams_path() -> Path:
-    """Path of ``dcqn_paper.yml``: the paper's settings for CampusNav (lr 1e-4, gamma 0.95, replay buffer 412)."""
-    return Path(str(resources.files("sb3_dcqn") / "hyperparams" / "dcqn_paper.yml"))
-
-
-@dataclass(frozen=True)
-class ZooEntry:
-    """
-    One env's entry of a zoo-format hyperparameter file, ready for an SB3 algorithm's constructor.
-
-    :param n_timesteps: Training steps (``n_timesteps``)
-    :param hyperparams: Algorithm keyword arguments (``policy`` included; ``policy_kwargs`` evaluated)
-    :param env_kwargs: Keyword arguments for ``gym.make`` (``env_kwargs``)
-    :param n_envs: Number of training envs (``n_envs``, default 1)
-    :param callbacks: The entry's ``callback`` key, as the zoo reads it: ``(class path, keyword arguments)`` pairs
-        (e.g. ``("campusnav_env.callbacks.StartCurriculumCallback", {"initial": 2})``), built by
-        :meth:`make_callbacks`
-    """
-
-    n_timesteps: int
-    hyperparams: dict[str, Any]
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    n_envs: int = 1
-    callbacks: tuple[tuple[str, dict[str, Any]], ...] = ()
-
-    def make_callbacks(self) -> list[Any]:
-        """New instances of the entry's callbacks (SB3 ``BaseCallback``), one per call: a callback trains one model."""
-        return [_class_by_path(path)(**kwargs) for path, kwargs in self.callbacks]
-
-
-def load_zoo_entry(path: str | Path, env_id: str) -> ZooEntry:
-    """
-    Read one env's entry of a zoo-format hyperparameter file (as ``rl_zoo3`` reads it).
-
-    :param path: The YAML file
-    :param env_id: The env id (top-level key)
-    :return: the entry; ``policy_kwargs``, ``replay_buffer_class`` and ``replay_buffer_kwargs`` strings are evaluated
-        with the names the zoo sees (:func:`hyperparams_namespace`), so that ``replay_buffer_class: HerReplayBuffer``
-        is SB3's class
-    :raises FileNotFoundError: if the file does not exist
-    :raises KeyError: if the env has no entry, or the entry no ``n_timesteps``
-    :raises ValueError: if the file is not valid YAML (naming the line) or not a table of entries, if one of those
-        strings cannot be evaluated or ``env_kwargs`` is not a mapping
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"hyperparameter file not found: {path}")
-    try:
-        with open(path) as file:
-            table = yaml.safe_load(file) or {}
-    except yaml.YAMLError as error:
-        raise ValueError(f"{path}: not valid YAML ({describe_yaml_error(error)})") from None
-    if not isinstance(table, dict):
-        raise ValueError(f"{path}: not a zoo-format hyperparameter file (expected env ids mapped to their settings)")
-    if env_id not in table:
-        raise KeyError(f"{path}: no entry for {env_id!r} (entries: {sorted(map(str, table))})")
-    if not isinstance(table[env_id], dict):
-        raise ValueError(f"{path}: entry {env_id!r} is not a mapping of hyperparameters")
-    entry = dict(table[env_id])
-    if "n_timesteps" not in entry:
-        raise KeyError(f"{path}: entry {env_id!r} has no 'n_timesteps'")
-    n_timesteps = _whole_number(entry.pop("n_timesteps"), f"{path}: {env_id!r}: n_timesteps")
-    n_envs = _whole_number(entry.pop("n_envs", 1), f"{path}: {env_id!r}: n_envs")
-    if isinstance(entry.get("train_freq"), list):  # YAML has no tuples: the zoo reads [4, "episode"] as (4, "episode")
-        entry["train_freq"] = tuple(entry["train_freq"])
-    env_kwargs = entry.pop("env_kwargs", None) or {}
-    if not isinstance(env_kwargs, dict):
-        raise ValueError(f"{path}: {env_id!r}: env_kwargs must be a mapping, got {env_kwargs!r}")
-    for key in _ZOO_ONLY_KEYS:
-        entry.pop(key, None)
-    callbacks = _callback_specs(entry.pop("callback", None), f"{path}: {env_id!r}")
-    namespace = {"dict": dict, **hyperparams_namespace()}
-    for key in _EVALUATED_KEYS:
-        if isinstance(entry.get(key), str):
-            try:
-                entry[key] = eval(entry[key], namespace)  # the zoo's convention
-            except Exception as error:
-                raise ValueError(f"{path}: {env_id!r}: cannot evaluate {key} {entry[key]!r}") from error
-    return ZooEntry(n_timesteps, entry, dict(env_kwargs), n_envs, callbacks)
-
-
-def _whole_number(value: Any, where: str) -> int:
-    """A count from YAML (``3e4`` written ``!!float 3e4`` is a float), or an error naming the key."""
-    if isinstance(value, bool) or not _is_number(value) or value != int(value):
-        hint = " (YAML reads 3e4 as a string: write 30000 or !!float 3e4)" if isinstance(value, str) else ""
-        raise ValueError(f"{where}: expected a whole number, got {value!r}{hint}")
-    return int(value)
-
-
-def _callback_specs(value: Any, where: str) -> tuple[tuple[str, dict[str, Any]], ...]:
-    """
-    The ``callback`` key in the zoo's forms (``rl_zoo3.utils.get_callback_list``): a class path, a one-key mapping
-    ``{class path: keyword arguments}``, or a list of those; every class is imported now, so a misspelt path fails
-    on loading, naming the entry.
-    """
-    if value is None:
-        return ()
-    specs = []
-    for item in value if isinstance(value, list) else [value]:
-        if isinstance(item, str):
-            path, kwargs = item, {}
-        elif isinstance(item, dict) and len(item) == 1 and isinstance(next(iter(item.values())), dict | None):
-            path, kwargs = next(iter(item.items()))
-            kwargs = dict(kwargs or {})
-        else:
-            raise ValueError(f"{where}: callback {item!r} is not a class path or {{class path: keyword arguments}}")
-        try:
-            _class_by_path(path)
-        except (ImportError, AttributeError, ValueError) as error:
-            raise ValueError(f"{where}: callback {path!r} cannot be imported ({error})") from None
-        specs.append((path, kwargs))
-    return tuple(specs)
-
-
-def _class_by_path(path: str) -> Any:
-    """``"package.module.Name"`` -> the object (the zoo's ``get_class_by_name``)."""
-    module_name, _, name = path.rpartition(".")
-    if not module_name:
-        raise ValueError(f"{path!r} is not a dotted path (module.Class)")
-    return getattr(importlib.import_module(module_name), name)
-
-
-def describe_yaml_error(error: yaml.YAMLError) -> str:
-    """Where a YAML file fails to parse, in words: ``"line 3, column 7: mapping values are not allowed here"``."""
-    mark = getattr(error, "problem_mark", None)
-    problem = getattr(error, "problem", None) or str(error)
-    return problem if mark is None else f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
-
-
-def check_hyperparams(hyperparams: dict[str, Any], algo: type, where: str) -> None:
-    """
-    Check an entry's keys against what the algorithm and its policy take, before anything is built (a misspelt key
-    would otherwise be a ``TypeError`` from deep inside the constructor).
-
-    :param hyperparams: ``ZooEntry.hyperparams`` (``policy`` and ``policy_kwargs`` included)
-    :param algo: The algorithm class (e.g. ``DCQN``)
-    :param where: What to name in the message, e.g. ``"dcqn.yml: entry 'CampusNav-v0'"``
-    :raises ValueError: naming ``where``, the key and the closest known name
-    """
-    check_keywords(hyperparams, algo, where, f"{algo.__name__} hyperparameter", skip=("env",))
-    check_values(hyperparams, algo, where)
-    policy = hyperparams.get("policy")
-    aliases = getattr(algo, "policy_aliases", {})
-    if isinstance(policy, str) and policy not in aliases:
-        raise ValueError(f"{where}: unknown policy {policy!r} (policies: {', '.join(aliases)})")
-    policy_class = aliases.get(policy, policy) if isinstance(policy, str) else policy
-    policy_kwargs = hyperparams.get("policy_kwargs")
-    if isinstance(policy_class, type) and isinstance(policy_kwargs, dict):
-        skip = ("observation_space", "action_space", "lr_schedule")
-        check_keywords(policy_kwargs, policy_class, where, "policy_kwargs key", skip=skip)
-    _check_replay_buffer(hyperparams, algo, where)
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _number_hint(value: Any) -> str:
-    """Why a value is not a number, in YAML's words: PyYAML reads ``1e-3`` (no dot) as a string."""
-    if isinstance(value, str):
-        try:
-            number = float(value)
-        except ValueError:
-            return ""
-        return f" (YAML reads {value} as a string: write {number!r} or !!float {value})"
-    if isinstance(value, bool):
-        return " (a boolean)"
-    return ""
-
-
-def _positive_int(value: Any) -> str | None:
-    if _is_int(value) and value >= 1:
-        return None
-    if isinstance(value, float) and value.is_integer() and value >= 1:
-        return f"expected a positive integer, got {value!r} (write {int(value)})"
-    return f"expected a positive integer, got {value!r}{_number_hint(value)}"
-
-
-def _non_negative_int(value: Any) -> str | None:
-    if _is_int(value) and value >= 0:
-        return None
-    return f"expected an integer >= 0, got {value!r}{_number_hint(value)}"
-
-
-def _fraction(value: Any) -> str | None:
-    if _is_number(value) and 0 <= value <= 1:
-        return None
-    return f"expected a number in [0, 1], got {value!r}{_number_hint(value)}"
-
-
-def _positive_number(value: Any) -> str | None:
-    if _is_number(value) and value > 0:
-        return None
-    return f"expected a positive number, got {value!r}{_number_hint(value)}"
-
-
-def _learning_rate(value: Any) -> str | None:
-    if callable(value) or (_is_number(value) and value > 0):
-        return None
-    return f"expected a positive number or a schedule (a callable of the remaining progress), got {value!r}" + (
-        _number_hint(value)
-    )
-
-
-def _gradient_steps(value: Any) -> str | None:
-    if _is_int(value) and (value >= 1 or value == -1):
-        return None
-    return f"expected a positive integer, or -1 (as many as env steps), got {value!r}{_number_hint(value)}"
-
-
-_TRAIN_FREQ_UNITS = ("step", "episode")
-
-
-def _train_freq(value: Any) -> str | None:
-    if _is_int(value) and value >= 1:
-        return None
-    if isinstance(value, tuple) and len(value) == 2:
-        frequency, unit = value
-        if not (_is_int(frequency) and frequency >= 1):
-            return f"expected a positive frequency, got {frequency!r} in {value!r}"
-        if unit not in _TRAIN_FREQ_UNITS:
-            close = difflib.get_close_matches(str(unit), _TRAIN_FREQ_UNITS, n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            return f"unknown unit {unit!r} in {value!r} (units: {', '.join(_TRAIN_FREQ_UNITS)}{hint})"
-        return None
-    return f"expected a positive integer or a (frequency, unit) tuple, got {value!r}{_number_hint(value)}"
-
-
-_DEVICES = ("auto", "cpu", "cuda", "mps")
-
-
-def _device(value: Any) -> str | None:
-    import torch as th
-
-    if not isinstance(value, str):
-        return None if isinstance(value, th.device) else f"expected a device name, got {value!r}"
-    if value in _DEVICES or re.fullmatch(r"cuda:\d+", value):
-        return None
-    close = difflib.get_close_matches(value, _DEVICES, n=1)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
-    return f"unknown device {value!r} (devices: {', '.join(_DEVICES)} or cuda:N{hint})"
-
-
-def _seed(value: Any) -> str | None:
-    return None if value is None or _is_int(value) else f"expected an integer or null, got {value!r}"
-
-
-# What the off-policy constructors (SB3's DQN, DCQN) need of each value; booleans are checked by their defaults
-_VALUE_CHECKS: dict[str, Callable[[Any], str | None]] = {
-    "learning_rate": _learning_rate,
-    "buffer_size": _positive_int,
-    "learning_starts": _non_negative_int,
-    "batch_size": _positive_int,
-    "tau": _fraction,
-    "gamma": _fraction,
-    "train_freq": _train_freq,
-    "gradient_steps": _gradient_steps,
-    "n_steps": _positive_int,
-    "target_update_interval": _positive_int,
-    "exploration_fraction": _fraction,
-    "exploration_initial_eps": _fraction,
-    "exploration_final_eps": _fraction,
-    "max_grad_norm": _positive_number,
-    "stats_window_size": _positive_int,
-    "verbose": _non_negative_int,
-    "seed": _seed,
-    "device": _device,
-}
-_BOOLEAN_WORDS = {"true": True, "yes": True, "on": True, "false": False, "no": False, "off": False}
-
-
-def check_values(hyperparams: dict[str, Any], algo: type, where: str) -> None:
-    """
-    Check an entry's values against what the algorithm's constructor needs, before anything is built (a bad value
-    would otherwise be an ``AssertionError`` from SB3, or fail only once training reaches it: ``batch_size: -64``
-    after ``learning_starts`` steps).
-
-    Checked: the ranges and types of SB3's off-policy hyperparameters (``learning_rate`` a positive number or a
-    schedule, ``buffer_size`` and ``batch_size`` positive integers, ``gamma`` and ``tau`` in [0, 1], ``train_freq`` an
-    integer or a ``(frequency, "step" | "episode")`` tuple, ...) and every argument of ``algo`` whose default is a
-    boolean.
-
-    :param hyperparams: ``ZooEntry.hyperparams``
-    :param algo: The algorithm class (its arguments with boolean defaults must be booleans)
-    :param where: What to name in the message, e.g. ``"dcqn.yml: entry 'CampusNav-v0'"``
-    :raises ValueError: naming ``where``, the key, the value and what it should be (with "did you mean" for a string
-        close to a valid one)
-    """
-    booleans = {
-        name
-        for name, parameter in inspect.signature(algo.__init__).parameters.items()
-        if isinstance(parameter.default, bool)
-    }
-    for key, value in hyperparams.items():
-        problem = None
-        if key in _VALUE_CHECKS:
-            problem = _VALUE_CHECKS[key](value)
-        elif key in booleans and not isinstance(value, bool):
-            word = _BOOLEAN_WORDS.get(str(value).lower()) if isinstance(value, str) else None
-            hint = f" (write {str(word).lower()}, without quotes)" if word is not None else ""
-            problem = f"expected true or false, got {value!r}{hint}"
-        if problem is not None:
-            raise ValueError(f"{where}: {key}: {problem}")
-
-
-def _check_replay_buffer(hyperparams: dict[str, Any], algo: type, where: str) -> None:
-    """
-    ``replay_buffer_class`` is a replay buffer class, ``replay_buffer_kwargs`` are arguments of the one built, and
-    (for DCQN) its variants combine with ``n_steps`` and ``blocked_action_target``.
-    """
-    from stable_baselines3.common.buffers import ReplayBuffer
-
-    from sb3_dcqn.replay.combine import resolve_replay_buffer
-
-    buffer_class = hyperparams.get("replay_buffer_class")
-    if buffer_class is not None and not (isinstance(buffer_class, type) and issubclass(buffer_class, ReplayBuffer)):
-        names = ", ".join(name for name, value in hyperparams_namespace().items() if _is_buffer_class(value))
-        raise ValueError(f"{where}: replay_buffer_class {buffer_class!r} is not a replay buffer class (known: {names})")
-    buffer_kwargs = hyperparams.get("replay_buffer_kwargs")
-    if buffer_kwargs is not None and not isinstance(buffer_kwargs, dict):
-        raise ValueError(f"{where}: replay_buffer_kwargs must be a mapping, got {buffer_kwargs!r}")
-    if buffer_class is None or not issubclass(algo, DCQN):
-        if buffer_class is not None and buffer_kwargs:
-            check_keywords(buffer_kwargs, buffer_class, where, "replay_buffer_kwargs key", skip=_BUFFER_ARGUMENTS)
-        return  # without a class, the algorithm picks one from the observation space: its arguments are unknown here
-    try:  # what DCQN builds (Dict or Box observations alike for a given class)
-        built, _ = resolve_replay_buffer(
-            buffer_class,
-            buffer_kwargs or {},
-            is_dict=True,
-            n_steps=int(hyperparams.get("n_steps", 1)),
-            gamma=float(hyperparams.get("gamma", 0.99)),
-            blocked_action_target=bool(hyperparams.get("blocked_action_target", False)),
-        )
-    except ValueError as error:
-        raise ValueError(f"{where}: {error}") from None
-    if buffer_kwargs and built is not None:
-        check_keywords(buffer_kwargs, built, where, "replay_buffer_kwargs key", skip=_BUFFER_ARGUMENTS)
-
-
-def _is_buffer_class(value: Any) -> bool:
-    from stable_baselines3.common.buffers import ReplayBuffer
-
-    return isinstance(value, type) and issubclass(value, ReplayBuffer)
-
-
-def check_keywords(given: dict[str, Any], cls: type, where: str, what: str, skip: tuple[str, ...] = ()) -> None:
-    """
-    Check that every key of ``given`` is a keyword argument of ``cls(...)`` (following ``**kwargs`` up its base
-    classes; a class that takes any keyword passes).
-
-    :param given: The keyword arguments
-    :param cls: The class they are for
-    :param where: What to name in the message
-    :param what: What a key is, in words (``"DCQN hyperparameter"``)
-    :param skip: Arguments that may not be given this way
-    :raises ValueError: naming ``where``, the key and the closest known name
-    """
-    known = _keywords(cls)
-    if known is None:
-        return
-    known -= {"self", *skip}
-    for key in given:
-        if key not in known:
-            close = difflib.get_close_matches(str(key), sorted(known), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise ValueError(f"{where}: unknown {what} {key!r}{hint}")
-
-
-def _keywords(cls: type) -> set[str] | None:
-    """The keyword arguments ``cls(...)`` takes, following ``**kwargs`` up the base classes (``None``: any)."""
-    names: set[str] = set()
-    for klass in cls.__mro__:
-        if "__init__" not in vars(klass):
-            continue
-        parameters = inspect.signature(vars(klass)["__init__"]).parameters.values()
-        names |= {p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
-        if not any(p.kind is p.VAR_KEYWORD for p in parameters):
-            return names
-    return None
 
 
 def _import_zoo() -> Any:
@@ -462,47 +44,14 @@ def _import_zoo() -> Any:
         import rl_zoo3  # noqa: F401
         from rl_zoo3 import exp_manager, hyperparams_opt, utils
     except ImportError as error:
-        raise ImportError(
-            'The RL Zoo integration needs rl_zoo3: install it with `pip install "sb3-dcqn[zoo]"`'
-        ) from error
+        raise ImportError('The RL Zoo integration needs rl_zoo3: pip install "sb3-dcqn[zoo]"') from error
     return exp_manager, hyperparams_opt, utils
 
 
 def sample_dcqn_params(trial: Any, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
-    """
-    Optuna sampler for DCQN: the zoo's DQN search space (DCQN has the same hyperparameters).
-
-    :param trial: Optuna trial
-    :param n_actions: Number of actions of the env
-    :param n_envs: Number of envs
-    :param additional_args: The zoo's extra sampler arguments
-    :return: DCQN keyword arguments
-    """
+    """Optuna sampler for DCQN: the zoo's DQN search space (DCQN has the same hyperparameters)."""
     _, hyperparams_opt, _ = _import_zoo()
     return hyperparams_opt.sample_dqn_params(trial, n_actions, n_envs, additional_args)
-
-
-def hyperparams_namespace() -> dict[str, Any]:
-    """
-    Names that ``policy_kwargs``, ``replay_buffer_class`` and ``replay_buffer_kwargs`` strings in ``dcqn.yml`` may
-    use (the zoo evaluates those strings): the fusion extractor, ``nn``, SB3's ``HerReplayBuffer`` and DCQN's replay
-    buffers (its bases and every combination of variants, by class name: ``LeanNStepDictReplayBuffer``).
-    """
-    from torch import nn
-
-    from sb3_dcqn import replay
-    from sb3_dcqn.fusion import EmbeddingFusionExtractor
-
-    return {
-        "EmbeddingFusionExtractor": EmbeddingFusionExtractor,
-        "nn": nn,
-        "HerReplayBuffer": HerReplayBuffer,
-        **{cls.__name__: cls for cls in replay.all_replay_buffer_classes()},
-    }
-
-
-# The former name (the namespace once served policy_kwargs alone)
-policy_kwargs_namespace = hyperparams_namespace
 
 
 def register_dcqn() -> None:
@@ -526,6 +75,8 @@ COMMANDS: dict[str, str] = {
     "all_plots": "plot the evaluations of runs and tabulate them (rl_zoo3.plots.all_plots)",
 }
 _HELP_FLAGS = ("-h", "--help")
+# The zoo's commands whose -n/--n-timesteps counts steps
+_STEP_COMMANDS = ("train", "enjoy", "record_video")
 # The zoo's commands that take --env and --num-threads
 _THREADED_COMMANDS = ("train", "enjoy")
 _PLOT_OUTPUT_FLAGS = ("-o", "--output")
@@ -552,21 +103,23 @@ def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()
     Entry point of ``dcqn-zoo``: registers DCQN, then runs the zoo command named by the first argument.
 
     Without a command word (first argument an option) the command is ``train``, whose ``-conf`` defaults to the
-    shipped ``dcqn.yml``. ``train`` gives the evaluation envs (``--eval-freq``, and the trials of ``-optimize``) the
-    entry's ``env_kwargs`` unless ``--eval-env-kwargs`` is given (see :func:`_evaluate_with_the_entrys_env_kwargs`).
+    shipped ``dcqn.yml`` (see :func:`_train`). Bad input is one line on stderr, exit 2: rl_zoo3 not installed (even
+    for ``-h``), an unknown command, a ``-n`` that is not a positive number of steps, a bad hyperparameter entry.
 
     :param argv: The arguments (default: ``sys.argv[1:]``)
     :param single_thread_envs: Env ids for which ``train`` and ``enjoy`` use one torch thread (``--num-threads 1``)
         unless the arguments give ``--num-threads``: envs whose small networks run slower on more threads
-    :raises SystemExit: with code 2 on a missing or unknown command, and as the zoo's commands exit (``-h``, errors)
+    :raises SystemExit: 2 on bad input, 130 on Ctrl-C before the zoo catches it, else as the zoo's commands exit
     """
+    require_zoo()
     args = list(sys.argv[1:] if argv is None else argv)
     if not args:
         print(usage(), file=sys.stderr)
         raise SystemExit(2)
+    asks_for_help = any(arg in _HELP_FLAGS for arg in args)
     if args[0].startswith("-"):
         command, prog = "train", "dcqn-zoo"
-        if any(arg in _HELP_FLAGS for arg in args):
+        if asks_for_help:
             print(usage(), end="\n\n", flush=True)  # then the zoo's train help
     else:
         command, args, prog = args[0], args[1:], f"dcqn-zoo {args[0]}"
@@ -576,21 +129,48 @@ def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()
                 f"\ndcqn-zoo: error: unknown command {command!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr
             )
             raise SystemExit(2)
+    if command in _STEP_COMMANDS and not asks_for_help:
+        _check_timesteps(command, args)
     register_dcqn()
     runner, args = _prepare(command, _with_default_threads(command, args, single_thread_envs))
     saved_argv = sys.argv
     sys.argv = [prog, *args]  # argparse takes its usage line's program name from sys.argv[0]
     try:
         runner()
+    except KeyboardInterrupt:
+        print(f"\n{prog}: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
     finally:
         sys.argv = saved_argv
+
+
+def require_zoo() -> None:
+    """Exit with one line (code 2) saying how to install the zoo extra when ``rl_zoo3`` cannot be imported."""
+    try:
+        import rl_zoo3  # noqa: F401
+    except ImportError as error:
+        print(f'dcqn-zoo: the RL Zoo cannot be imported ({error}): pip install "sb3-dcqn[zoo]"', file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def _check_timesteps(command: str, args: list[str]) -> None:
+    """Refuse a ``-n``/``--n-timesteps`` that is not a positive whole number (the zoo reads -5 as "not given")."""
+    value = _option_value(args, "--n-timesteps", shortest="--n-ti", alias="-n")
+    if value is None:
+        return
+    try:
+        steps = int(value)  # as argparse's type=int reads it
+    except ValueError:
+        steps = 0
+    if steps < 1:
+        _refuse(command, f"-n/--n-timesteps: expected a positive number of steps, got {value!r}")
 
 
 def _with_default_threads(command: str, args: list[str], single_thread_envs: Collection[str]) -> list[str]:
     """``args`` with ``--num-threads 1`` added for an env of ``single_thread_envs`` (none given, command takes it)."""
     env_id = (_option_value(args, "--env") or "").rpartition(":")[2]  # "module:EnvId" names EnvId too
     wanted = command in _THREADED_COMMANDS and env_id in single_thread_envs
-    if wanted and not _gives_option(args, "--num-threads", shortest="--nu"):
+    if wanted and _option_value(args, "--num-threads", shortest="--nu") is None:
         return [*args, "--num-threads", "1"]
     return args
 
@@ -600,14 +180,18 @@ def _prepare(command: str, args: list[str]) -> tuple[Callable[[], None], list[st
     if command == "train":
         from rl_zoo3.train import train
 
-        if not _has_conf_option(args):
+        if _option_value(args, "--conf-file", shortest="--conf", alias="-conf") is None:
             args = [*args, "-conf", str(default_hyperparams_path())]
-        return (lambda: _evaluate_with_the_entrys_env_kwargs(train)), args
+        return (lambda: _train(train)), args
     if command == "enjoy":
         _allow_enjoy_without_requests()
-        from rl_zoo3.enjoy import enjoy
+        from rl_zoo3 import enjoy
 
-        return enjoy, args
+        def enjoy_found_models() -> None:
+            with _replaced(enjoy, "get_model_path", _model_path_or_refuse(command, enjoy.get_model_path)):
+                enjoy.enjoy()
+
+        return enjoy_found_models, args
     if command == "record_video":
         return _record_video, args
     if command == "plot_train":
@@ -620,50 +204,50 @@ def _prepare(command: str, args: list[str]) -> tuple[Callable[[], None], list[st
     return getattr(_import_plots(), command), args
 
 
-def _has_conf_option(args: list[str]) -> bool:
-    """Whether the train arguments give ``-conf``/``--conf-file`` (``=value`` and argparse's prefixes included)."""
-    return _gives_option(args, "--conf-file", shortest="--conf", alias="-conf")
-
-
-def _gives_option(args: list[str], name: str, shortest: str, alias: str | None = None) -> bool:
+def _option_value(args: list[str], name: str, shortest: str | None = None, alias: str | None = None) -> str | None:
     """
-    Whether ``args`` give the option ``name`` (``--name value`` or ``--name=value``), as argparse reads them.
+    The value given to option ``name`` as argparse reads it (``--name value``, ``--name=value``, ``-n value``,
+    ``-n5``; the last one wins), else None.
 
-    :param args: The command's arguments
     :param name: The option's long name
     :param shortest: Its shortest prefix that argparse takes for it (no other option of the command starts so)
-    :param alias: Its short name, if any
     """
-    for arg in args:
-        given = arg.split("=", 1)[0]
-        if given == alias or (given.startswith(shortest) and name.startswith(given)):
-            return True
-    return False
-
-
-def _option_value(args: list[str], name: str) -> str | None:
-    """The value given to option ``name`` (``--name value`` or ``--name=value``; the last one wins), else None."""
     value = None
     for i, arg in enumerate(args):
-        if arg == name and i + 1 < len(args):
+        given, equals, attached = arg.partition("=")
+        if given == name or (shortest is not None and given.startswith(shortest) and name.startswith(given)):
+            value = attached if equals else (args[i + 1] if i + 1 < len(args) else value)
+        elif alias is not None and arg == alias and i + 1 < len(args):
             value = args[i + 1]
-        elif arg.startswith(f"{name}="):
-            value = arg.split("=", 1)[1]
+        elif alias is not None and arg.startswith(alias) and not arg.startswith("--") and len(arg) > len(alias):
+            value = arg[len(alias) :].lstrip("=")
     return value
 
 
-def _evaluate_with_the_entrys_env_kwargs(train: Callable[[], None]) -> None:
+def _train(train: Callable[[], None]) -> None:
     """
-    Run the zoo's ``train`` with evaluation envs made with the training env's ``env_kwargs`` (the entry's, or
-    ``--env-kwargs``, which replace them) unless ``--eval-env-kwargs`` is given.
+    Run the zoo's ``train`` (which makes its own ``ExperimentManager``: its methods are wrapped) so that
 
-    rl_zoo3 2.9's ``ExperimentManager`` copies only ``--env-kwargs`` to the evaluation envs: the ``env_kwargs`` of the
-    hyperparameter file's entry (CampusNav's ``view_dim: 64``) reach the training env alone, so the eval env of
-    ``--eval-freq`` and of every ``-optimize`` trial had another observation space than the model and evaluation failed.
+    - the entry is read and checked first (:func:`_check_entry`): a bad entry, like an error in setting the run up (the
+      env, the model) or in the zoo's own argument checks, is one line naming the file, the entry and the key, exit 2;
+    - the evaluation envs (``--eval-freq``, ``-optimize``'s trials) get the training env's ``env_kwargs`` unless
+      ``--eval-env-kwargs`` is given (rl_zoo3 2.9 gives them only ``--env-kwargs``, not the entry's ``view_dim``);
+    - a run that fails before it wrote results (:func:`_holds_results`) leaves no folder, nor log folders made for it.
     """
     from rl_zoo3.exp_manager import ExperimentManager
+    from rl_zoo3.utils import ALGOS
 
-    preprocess = ExperimentManager._preprocess_hyperparams
+    read, preprocess, setup = (
+        ExperimentManager.read_hyperparameters,
+        ExperimentManager._preprocess_hyperparams,
+        ExperimentManager.setup_experiment,
+    )
+    runs: list[tuple[Any, set[Path], str]] = []  # each manager, the folders of its run that existed, its entry
+
+    def read_checked(self: Any) -> Any:
+        existed = {folder for folder in _run_folders(self) if folder.exists()}
+        runs.append((self, existed, _check_entry(self, ALGOS[self.algo])))
+        return read(self)
 
     def preprocess_and_share_env_kwargs(self: Any, hyperparams: dict[str, Any]) -> Any:
         processed = preprocess(self, hyperparams)  # sets self.env_kwargs from the entry or the command line
@@ -671,29 +255,123 @@ def _evaluate_with_the_entrys_env_kwargs(train: Callable[[], None]) -> None:
             self.eval_env_kwargs = self.env_kwargs
         return processed
 
-    ExperimentManager._preprocess_hyperparams = preprocess_and_share_env_kwargs  # train.py makes its own manager
+    def setup_or_refuse(self: Any) -> Any:
+        try:
+            return setup(self)
+        except _SETUP_ERRORS as error:
+            source = next((source for run, _, source in runs if run is self), self.config)
+            _refuse("train", f"{source}: {_first_line(error)}")
+
+    with (
+        _replaced(ExperimentManager, "read_hyperparameters", read_checked),
+        _replaced(ExperimentManager, "_preprocess_hyperparams", preprocess_and_share_env_kwargs),
+        _replaced(ExperimentManager, "setup_experiment", setup_or_refuse),
+    ):
+        try:
+            try:
+                train()
+            except (*_SETUP_ERRORS, NameError, SyntaxError) as error:
+                if runs:  # raised while training: not an input error
+                    raise
+                # train.py's own checks (an unknown --env, a bad -i path), its evaluation of -params/--env-kwargs
+                hint = _EVALUATED_VALUE_HINT if isinstance(error, NameError | SyntaxError) else ""
+                _refuse("train", _first_line(error) + hint)
+        except BaseException as error:
+            if not (isinstance(error, SystemExit) and error.code in (0, None)):
+                for run, existed, _ in runs:
+                    _remove_unfinished_run(run, existed)
+            raise
+
+
+@contextlib.contextmanager
+def _replaced(owner: Any, name: str, value: Any) -> Iterator[None]:
+    """``owner.name`` is ``value`` while the block runs (the zoo's scripts look their helpers up by name)."""
+    original = getattr(owner, name)
+    setattr(owner, name, value)
     try:
-        train()
+        yield
     finally:
-        ExperimentManager._preprocess_hyperparams = preprocess
+        setattr(owner, name, original)
 
 
-def _download_needs_requests(*args: Any, **kwargs: Any) -> None:
-    raise ModuleNotFoundError(
-        "Downloading a pretrained agent from the Hugging Face Hub needs `requests` (pip install requests), "
-        "which rl_zoo3 imports without declaring it; pass -f with the folder of your trained agents",
-        name="requests",
-    )
+def _model_path_or_refuse(command: str, get_model_path: Callable[..., Any]) -> Callable[..., Any]:
+    """The zoo's ``get_model_path``, refusing in one line a log folder or model that is not there (no Hub download)."""
+
+    def found(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return get_model_path(*args, **kwargs)
+        except (AssertionError, ValueError) as error:
+            _refuse(command, f"{error} (-f names the log folder of the trained agents)")
+
+    return found
+
+
+# What setting a zoo run up raises on bad input: SB3's and the envs' checks (assertions, wrong values or keywords)
+_SETUP_ERRORS = (AssertionError, ImportError, KeyError, TypeError, ValueError)
+_EVALUATED_VALUE_HINT = " (-params/--env-kwargs values are Python: quote strings, e.g. policy:'MlpPolicy')"
+# Files that make a run folder worth keeping: models and checkpoints, evaluations, saved replay buffers
+_RESULT_SUFFIXES = (".zip", ".npz", ".pkl")
+
+
+def _check_entry(manager: Any, algo: type) -> str:
+    """Read the manager's entry as the zoo will (``-params`` applied), check it against ``algo`` or refuse; its name."""
+    if not str(manager.config).endswith((".yml", ".yaml")):
+        return str(manager.config)  # hyperparameters in Python: the zoo's alone
+    fallbacks = ("atari", "default") if manager._is_atari else ("default",)  # the zoo's, for an env without its own
+    try:
+        entry = load_zoo_entry(manager.config, manager.env_name.gym_id, manager.custom_hyperparams, fallbacks)
+        check_hyperparams(entry.hyperparams, algo, entry.source)
+    except KeyError as error:
+        _refuse("train", f"{error.args[0]} (choose another --env or -conf)")
+    except (FileNotFoundError, ValueError) as error:
+        _refuse("train", str(error))
+    if manager.n_timesteps <= 0 and entry.n_timesteps < 1:
+        _refuse("train", f"{entry.source}: n_timesteps: expected a positive integer, got {entry.n_timesteps}")
+    return entry.source
+
+
+def _run_folders(manager: Any) -> tuple[Path, ...]:
+    """The folders a zoo run makes, innermost first: ``logs/dcqn/CartPole-v1_3``, ``logs/dcqn``, ``logs``."""
+    return Path(manager.save_path), Path(manager.log_path), Path(manager.log_folder)
+
+
+def _remove_unfinished_run(manager: Any, existed: set[Path]) -> None:
+    """Remove a failed run's folder when it holds no results, and the log folders made for it if left empty."""
+    run_folder, *parents = _run_folders(manager)
+    if run_folder in existed or not run_folder.is_dir() or _holds_results(run_folder):
+        return
+    shutil.rmtree(run_folder, ignore_errors=True)
+    for folder in parents:
+        if folder not in existed and folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+
+
+def _holds_results(folder: Path) -> bool:
+    """Whether a run folder holds a model, evaluations, a replay buffer or a finished episode's monitor line."""
+    for path in folder.rglob("*"):
+        if path.suffix in _RESULT_SUFFIXES:
+            return True
+        if path.name.endswith("monitor.csv"):
+            with open(path) as file:
+                if sum(1 for _ in file) > 2:  # a JSON line and the column names, then one line an episode
+                    return True
+    return False
+
+
+def _first_line(error: BaseException) -> str:
+    return f"{type(error).__name__}: {(str(error).strip().splitlines() or [''])[0]}"
+
+
+def _refuse(command: str, message: str) -> NoReturn:
+    """One line on stderr, exit 2: how ``dcqn-zoo`` reports bad input."""
+    print(f"dcqn-zoo {command}: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
 
 
 def _allow_enjoy_without_requests() -> None:
     """
-    Let ``rl_zoo3.enjoy`` be imported where ``requests`` is not installed.
-
-    ``rl_zoo3.enjoy`` (2.9) imports ``rl_zoo3.load_from_hub``, which imports ``requests``: not a dependency of rl_zoo3,
-    and no longer brought in by ``huggingface_hub`` (which moved to httpx), so ``enjoy`` fails at import. Then a
-    stand-in module takes its place whose ``download_from_hub`` explains: enjoy only calls it to fetch a pretrained
-    agent missing from ``rl-trained-agents/``, never for the agents trained here.
+    Let ``rl_zoo3.enjoy`` (2.9) be imported without ``requests``, which its ``load_from_hub`` imports undeclared, for
+    Hub downloads of pretrained agents: a stand-in module takes its place (a model missing from ``-f`` is refused).
     """
     try:
         import rl_zoo3.load_from_hub  # noqa: F401
@@ -701,7 +379,7 @@ def _allow_enjoy_without_requests() -> None:
         if error.name != "requests":
             raise
         stand_in = types.ModuleType("rl_zoo3.load_from_hub", "Stand-in without requests (see sb3_dcqn.zoo)")
-        stand_in.download_from_hub = _download_needs_requests  # type: ignore[attr-defined]
+        stand_in.download_from_hub = None  # type: ignore[attr-defined]  # never called: see _model_path_or_refuse
         sys.modules["rl_zoo3.load_from_hub"] = stand_in
 
 
@@ -712,18 +390,17 @@ def _record_video() -> None:
     create_test_env = utils.create_test_env
 
     def create_with_saved_env_kwargs(*args: Any, hyperparams: dict[str, Any], **kwargs: Any) -> Any:
-        # rl_zoo3.record_video (2.9) ignores the env_kwargs saved in config.yml, which enjoy applies: an env trained
-        # with env_kwargs from the hyperparameter file (CampusNav's view_dim) would be made with the default
-        # observation space, and loading the model would fail. The command line's (and args.yml's) still win.
+        # rl_zoo3.record_video (2.9) ignores the env_kwargs saved in config.yml (CampusNav's view_dim), which enjoy
+        # applies: the model's observation space would not match the env's. The command line's still win.
         saved = hyperparams.pop("env_kwargs", None) or {}
         kwargs["env_kwargs"] = {**saved, **(kwargs.get("env_kwargs") or {})}
         return create_test_env(*args, hyperparams=hyperparams, **kwargs)
 
-    utils.create_test_env = create_with_saved_env_kwargs  # record_video imports it by name when it runs
-    try:
-        runpy.run_module("rl_zoo3.record_video", run_name="__main__")
-    finally:
-        utils.create_test_env = create_test_env
+    with (
+        _replaced(utils, "create_test_env", create_with_saved_env_kwargs),
+        _replaced(utils, "get_model_path", _model_path_or_refuse("record_video", utils.get_model_path)),
+    ):
+        runpy.run_module("rl_zoo3.record_video", run_name="__main__")  # it imports both from utils when it runs
 
 
 def _pop_plot_output(args: list[str]) -> tuple[str | None, list[str]]:
@@ -734,7 +411,7 @@ def _pop_plot_output(args: list[str]) -> tuple[str | None, list[str]]:
         if arg in _PLOT_OUTPUT_FLAGS:
             output = next(items, None)
             if output is None:
-                raise SystemExit(f"dcqn-zoo plot_train: error: {arg} needs a file name")
+                _refuse("plot_train", f"{arg} needs a file name")
         elif arg.startswith("--output="):
             output = arg.split("=", 1)[1]
         else:
@@ -762,12 +439,8 @@ def _plot_train(plot_train: Callable[[], None], output: str | None) -> None:
         return
     from matplotlib import pyplot as plt
 
-    show = plt.show
-    plt.show = lambda *args, **kwargs: plt.savefig(output)  # plot_train ends with plt.show()
-    try:
+    with _replaced(plt, "show", lambda *args, **kwargs: plt.savefig(output)):  # plot_train ends with plt.show()
         plot_train()
-    finally:
-        plt.show = show
     print(f"Saved the figure to {output}")
 
 

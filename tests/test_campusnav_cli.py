@@ -21,7 +21,7 @@ from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.cli import CommandError, build_parser, main, run
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
 from sb3_dcqn.replay import RevisionDictReplayBuffer
-from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
+from sb3_dcqn.zoo_files import default_hyperparams_path, load_zoo_entry
 
 FAST = ("--encoder", "pixels", "--render-size", "64", "48")
 # A small CampusNav entry: short episodes, a small buffer (saved with the model) and small networks

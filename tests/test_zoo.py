@@ -5,8 +5,7 @@ One tiny CartPole run (``dcqn-zoo train``) and one tiny CampusNav run (``dcqn-zo
 trains the goal-conditioned ``CampusNavGoal-v0`` from the shipped entry as it is (``-n`` short, ``--env-kwargs`` with
 the ``pixels`` encoder in place of the entry's ``env_kwargs``): the zoo evaluates ``replay_buffer_class:
 HerReplayBuffer`` and the ``replay_buffer_kwargs`` string itself and builds DCQN with the env, which DCQN's HER buffer
-needs; :func:`~sb3_dcqn.zoo.load_zoo_entry` (the command line's path) reads the same classes, and
-:func:`~sb3_dcqn.zoo.check_hyperparams` checks the buffer's keys.
+needs (:mod:`sb3_dcqn.zoo_files`, tested in ``test_zoo_files.py``, reads the same classes for ``dcqn-campusnav``).
 """
 
 from __future__ import annotations
@@ -14,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -24,25 +24,11 @@ import yaml
 
 pytest.importorskip("rl_zoo3")
 
-from stable_baselines3 import HerReplayBuffer
-
 from campusnav_env.goal_env import CampusNavGoalEnv
 from sb3_dcqn import DCQN
-from sb3_dcqn.replay import (
-    DCQNDictReplayBuffer,
-    DCQNHerReplayBuffer,
-    LeanDictReplayBuffer,
-    LeanRevisionHerReplayBuffer,
-    RevisionDictReplayBuffer,
-)
-from sb3_dcqn.zoo import (
-    COMMANDS,
-    check_hyperparams,
-    default_hyperparams_path,
-    load_zoo_entry,
-    main,
-    register_dcqn,
-)
+from sb3_dcqn.replay import DCQNHerReplayBuffer
+from sb3_dcqn.zoo import COMMANDS, main, register_dcqn
+from sb3_dcqn.zoo_files import default_hyperparams_path
 
 TINY = {
     "CartPole-v1": {
@@ -232,14 +218,6 @@ def test_shipped_hyperparams_cover_the_classic_control_envs_and_campusnav() -> N
     assert Path("hyperparams/dcqn.yml").resolve() == default_hyperparams_path().resolve()
 
 
-@pytest.mark.parametrize("env_id", ["CampusNavCity-v0", "CampusNavCity10k-v0"])
-def test_the_shipped_city_entries_pass_the_checks_and_bring_their_curriculum(env_id: str) -> None:
-    entry = load_zoo_entry(default_hyperparams_path(), env_id)
-    check_hyperparams(entry.hyperparams, DCQN, f"dcqn.yml: entry {env_id!r}")
-    assert entry.hyperparams["replay_buffer_class"] is LeanDictReplayBuffer and entry.hyperparams["n_steps"] > 1
-    assert [type(c).__name__ for c in entry.make_callbacks()] == ["StartCurriculumCallback"]
-
-
 def test_dcqn_zoo_trains_and_saves_a_model(cartpole_run: Path, campusnav_run: Path) -> None:
     model_path = cartpole_run / "logs" / "dcqn" / "CartPole-v1_1" / "CartPole-v1.zip"
     assert model_path.is_file()
@@ -370,75 +348,208 @@ def test_enjoy_plays_the_goal_env_agent(goal_run: Path) -> None:
     assert f"Loading logs/dcqn/{GOAL_ENV}_1/{GOAL_ENV}.zip" in result.stdout
 
 
-def test_the_shipped_goal_entry_reads_as_sb3s_her_buffer_and_passes_the_checks() -> None:
-    entry = load_zoo_entry(default_hyperparams_path(), GOAL_ENV)
-    assert entry.hyperparams["replay_buffer_class"] is HerReplayBuffer
-    assert entry.hyperparams["replay_buffer_kwargs"] == {"n_sampled_goal": 4, "goal_selection_strategy": "future"}
-    check_hyperparams(entry.hyperparams, DCQN, "dcqn.yml: entry 'CampusNavGoal-v0'")
-    # DCQN's HER buffer's own arguments are accepted for HerReplayBuffer (DCQN serves it with that buffer)
-    extra = {**entry.hyperparams["replay_buffer_kwargs"], "terminal_relabels": False, "relabel_tries": 2}
-    check_hyperparams({**entry.hyperparams, "replay_buffer_kwargs": extra}, DCQN, "here")
+# ------------------------------------------------------------------------------------------------ bad input
+# Bad input is one line on stderr, exit 2, before any folder exists; a failed run leaves no empty folders
+FAILING_CALLBACK = """
+from stable_baselines3.common.callbacks import BaseCallback
 
 
-def test_bad_replay_buffer_settings_are_named(tmp_path: Path) -> None:
-    her = {"policy": "MultiInputPolicy", "replay_buffer_class": HerReplayBuffer}
-    misspelt = {**her, "replay_buffer_kwargs": {"n_sampled_goals": 4}}
-    with pytest.raises(
-        ValueError, match=r"here: unknown replay_buffer_kwargs key 'n_sampled_goals' .*'n_sampled_goal'"
-    ):
-        check_hyperparams(misspelt, DCQN, "here")
-    with pytest.raises(ValueError, match="here: replay_buffer_class 'HerReplayBuffer' is not a replay buffer class"):
-        check_hyperparams({**her, "replay_buffer_class": "HerReplayBuffer"}, DCQN, "here")  # not evaluated
-    # The keys are those of the buffer named: DCQN's own buffer does no relabelling
-    own = {**her, "replay_buffer_class": DCQNDictReplayBuffer, "replay_buffer_kwargs": {"n_sampled_goal": 4}}
-    with pytest.raises(ValueError, match="unknown replay_buffer_kwargs key 'n_sampled_goal'"):
-        check_hyperparams(own, DCQN, "here")
-    # Variants that do not combine are named, both of them, with the entry
-    with pytest.raises(ValueError, match=r"here: n-step returns \(nstep\) does not combine with experience revision"):
-        check_hyperparams({"replay_buffer_class": RevisionDictReplayBuffer, "n_steps": 3}, DCQN, "here")
-    # Every combination's class is a name a YAML entry may give
-    conf = tmp_path / "conf.yml"
-    conf.write_text(f"{GOAL_ENV}:\n  n_timesteps: 10\n  replay_buffer_class: LeanRevisionHerReplayBuffer\n")
-    assert load_zoo_entry(conf, GOAL_ENV).hyperparams["replay_buffer_class"] is LeanRevisionHerReplayBuffer
-    conf.write_text(f"{GOAL_ENV}:\n  n_timesteps: 10\n  replay_buffer_class: HerReplayBufer\n")
-    with pytest.raises(ValueError, match="cannot evaluate replay_buffer_class 'HerReplayBufer'"):
-        load_zoo_entry(conf, GOAL_ENV)
+class FailAt(BaseCallback):
+    def __init__(self, step: int) -> None:
+        super().__init__()
+        self.step = step
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self.step:
+            raise RuntimeError("the callback failed")
+        return True
+"""
 
 
-def test_an_entrys_callbacks_are_read_as_the_zoo_reads_them_and_built_anew_for_each_model(tmp_path: Path) -> None:
-    conf = tmp_path / "conf.yml"
-    conf.write_text(
-        "CampusNav-v0:\n  n_timesteps: 10\n  callback:\n"
-        "    - campusnav_env.callbacks.StartCurriculumCallback:\n        initial: 3\n        window: 7\n"
-        "    - stable_baselines3.common.callbacks.StopTrainingOnMaxEpisodes:\n        max_episodes: 5\n"
+def write_tiny(path: Path, **changes: object) -> Path:
+    path.write_text(yaml.safe_dump({"CartPole-v1": {**TINY["CartPole-v1"], **changes}}))
+    return path
+
+
+def zoo_train(conf: Path, logs: Path, *more: str) -> None:
+    args = ["--algo", "dcqn", "--env", "CartPole-v1", "-conf", str(conf), "-f", str(logs), "--eval-freq", "-1"]
+    main(["train", *args, *more])
+
+
+def one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "Traceback" not in error, error
+    return error.strip()
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"learning_rat": 0.001}, r"unknown DCQN hyperparameter 'learning_rat' \(did you mean 'learning_rate'\?\)"),
+        ({"batch_size": "64"}, r"batch_size: expected a positive integer, got '64'"),
+        ({"learning_rate": "lin_1e-3x"}, r"learning_rate: expected a linear schedule lin_<initial value>"),
+        ({"train_freq": [4, "episodes"]}, r"train_freq: unknown unit 'episodes' .*did you mean 'episode'"),
+        ({"policy_kwargs": "dict(net_arch=[16]"}, r"policy_kwargs: cannot evaluate 'dict\(net_arch=\[16\]'"),
+        ({"policy_kwargs": "dict(net_arch='abc')"}, r"TypeError: "),  # found by the model's constructor
+    ],
+)
+def test_a_bad_entry_is_one_line_naming_the_file_the_entry_and_the_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], changes: dict, message: str
+) -> None:
+    conf = write_tiny(tmp_path / "tiny.yml", **changes)
+    with pytest.raises(SystemExit) as exit_info:
+        zoo_train(conf, tmp_path / "logs")
+    assert exit_info.value.code == 2
+    assert re.match(
+        rf"dcqn-zoo train: error: {re.escape(str(conf))}: entry 'CartPole-v1': {message}", one_error_line(capsys)
     )
-    entry = load_zoo_entry(conf, "CampusNav-v0")
-    assert "callback" not in entry.hyperparams  # not a DCQN argument
-    first, second = entry.make_callbacks(), entry.make_callbacks()
-    assert [type(c).__name__ for c in first] == ["StartCurriculumCallback", "StopTrainingOnMaxEpisodes"]
-    assert first[0].window == 7 and first[1].max_episodes == 5
-    assert first[0] is not second[0]
-    # One class path alone, as the zoo also takes it
-    conf.write_text("CampusNav-v0:\n  n_timesteps: 10\n  callback: campusnav_env.callbacks.StartCurriculumCallback\n")
-    assert [type(c).__name__ for c in load_zoo_entry(conf, "CampusNav-v0").make_callbacks()] == [
-        "StartCurriculumCallback"
-    ]
-    conf.write_text("CampusNav-v0:\n  n_timesteps: 10\n  callback: campusnav_env.callbacks.NoSuchCallback\n")
-    with pytest.raises(
-        ValueError, match=r"conf.yml: 'CampusNav-v0': callback 'campusnav_env.callbacks.NoSuchCallback'"
-    ):
-        load_zoo_entry(conf, "CampusNav-v0")
+    assert not (tmp_path / "logs").exists()  # the constructor's failure too: its run folder is removed
 
 
-def test_counts_and_train_freq_are_read_as_the_zoo_reads_them(tmp_path: Path) -> None:
-    conf = tmp_path / "conf.yml"
-    conf.write_text("CartPole-v1:\n  n_timesteps: !!float 2e3\n  policy: MlpPolicy\n  train_freq: [2, episode]\n")
-    entry = load_zoo_entry(conf, "CartPole-v1")
-    assert entry.n_timesteps == 2000 and entry.hyperparams["train_freq"] == (2, "episode")  # a tuple, as the zoo's
-    check_hyperparams(entry.hyperparams, DCQN, "here")
-    conf.write_text("CartPole-v1:\n  n_timesteps: abc\n")
-    with pytest.raises(ValueError, match=r"conf.yml: 'CartPole-v1': n_timesteps: expected a whole number, got 'abc'"):
-        load_zoo_entry(conf, "CartPole-v1")
-    conf.write_text("CartPole-v1:\n  n_timesteps: 3e4\n")  # YAML 1.1: a string
-    with pytest.raises(ValueError, match=r"YAML reads 3e4 as a string"):
-        load_zoo_entry(conf, "CartPole-v1")
+def test_malformed_yaml_a_missing_entry_and_an_unknown_env_are_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    conf = tmp_path / "bad.yml"
+    conf.write_text("CartPole-v1:\n  n_timesteps: 200\n  policy: [MlpPolicy\n")
+    for env_id, conf_text, message in [
+        ("CartPole-v1", conf.read_text(), rf"{re.escape(str(conf))}: not valid YAML \(line 4, column 1: "),
+        ("Acrobot-v1", "CartPole-v1:\n  n_timesteps: 200\n", rf"{re.escape(str(conf))}: no entry for 'Acrobot-v1'"),
+        ("CartPol-v1", "CartPole-v1:\n  n_timesteps: 200\n", r"ValueError: CartPol-v1 not found .*CartPole-v1"),
+    ]:
+        conf.write_text(conf_text)
+        with pytest.raises(SystemExit) as exit_info:
+            main(["train", "--algo", "dcqn", "--env", env_id, "-conf", str(conf), "-f", str(tmp_path / "logs")])
+        assert exit_info.value.code == 2
+        assert re.match(rf"dcqn-zoo train: error: {message}", one_error_line(capsys)), env_id
+    assert not (tmp_path / "logs").exists()
+
+
+def test_a_bad_params_override_is_one_line_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    conf, logs = write_tiny(tmp_path / "tiny.yml"), tmp_path / "logs"
+    for params, message in [
+        (["batch_siz:32"], r"entry 'CartPole-v1' with -params batch_siz: unknown DCQN hyperparameter 'batch_siz'"),
+        (["learning_rate:'lin_x'"], r"with -params learning_rate: learning_rate: expected a linear schedule lin_"),
+        (["learning_rate:lin_1e-3"], r"NameError: name 'lin_1e' is not defined \(-params/--env-kwargs values are"),
+    ]:
+        with pytest.raises(SystemExit) as exit_info:
+            zoo_train(conf, logs, "-params", *params)
+        assert exit_info.value.code == 2
+        assert re.search(message, one_error_line(capsys)), params
+    assert not logs.exists()
+
+
+def test_dcqn_zoo_reports_a_bad_entry_in_one_line_as_a_command(tmp_path: Path) -> None:
+    write_tiny(tmp_path / "tiny.yml", learning_rat=0.001)
+    result = run_zoo(["train", "--algo", "dcqn", "--env", "CartPole-v1", "-conf", "tiny.yml"], tmp_path)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "tiny.yml: entry 'CartPole-v1': unknown DCQN hyperparameter 'learning_rat'" in result.stderr
+    assert not (tmp_path / "logs").exists()
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["train", "-n", "-5"],
+        ["train", "--n-timesteps=0"],
+        ["train", "--n-ti", "-1"],
+        ["train", "-n-5"],
+        ["train", "-n", "abc"],
+        ["enjoy", "-n", "0"],
+    ],
+)
+def test_a_budget_that_is_not_a_positive_number_of_steps_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: list[str]
+) -> None:
+    # The zoo reads -n <= 0 as "not given" and would train the entry's n_timesteps
+    conf = write_tiny(tmp_path / "tiny.yml")
+    with pytest.raises(SystemExit) as exit_info:
+        main([*command, "--algo", "dcqn", "--env", "CartPole-v1", "-conf", str(conf), "-f", str(tmp_path / "logs")])
+    assert exit_info.value.code == 2
+    assert "-n/--n-timesteps: expected a positive number of steps, got " in one_error_line(capsys)
+    assert not (tmp_path / "logs").exists()
+
+
+@pytest.mark.parametrize("args", [["--help"], ["train", "--algo", "dcqn", "--env", "CartPole-v1"]])
+def test_without_the_zoo_extra_dcqn_zoo_says_how_to_install_it(tmp_path: Path, args: list[str]) -> None:
+    code = "import sys; sys.modules['rl_zoo3'] = None; from sb3_dcqn.campusnav.zoo import main; main(sys.argv[1:])"
+    result = subprocess.run(
+        [sys.executable, "-c", code, *args], cwd=tmp_path, capture_output=True, text=True, timeout=300, check=False
+    )
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.count("\n") == 1 and 'pip install "sb3-dcqn[zoo]"' in result.stderr, result.stderr
+
+
+def test_a_failed_run_leaves_no_folder_unless_it_wrote_results(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "failing_callback.py").write_text(FAILING_CALLBACK)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    logs, conf = tmp_path / "logs", tmp_path / "tiny.yml"
+
+    def train_failing_at(step: int) -> None:
+        write_tiny(conf, callback=[{"failing_callback.FailAt": {"step": step}}])
+        with pytest.raises(RuntimeError, match="the callback failed"):  # a failure while training is not bad input
+            zoo_train(conf, logs)
+
+    train_failing_at(1)  # before any episode ended: nothing worth keeping, nor the log folders made for it
+    assert not logs.exists()
+    train_failing_at(300)  # after some episodes: their monitor log is kept
+    assert sorted(p.name for p in (logs / "dcqn").iterdir()) == ["CartPole-v1_1"]
+    train_failing_at(1)  # the second run's folder goes, the first run's and the log folders stay
+    assert sorted(p.name for p in (logs / "dcqn").iterdir()) == ["CartPole-v1_1"]
+
+
+def test_a_lin_schedule_trains_under_dcqn_zoo(tmp_path: Path) -> None:
+    conf = write_tiny(tmp_path / "tiny.yml", learning_rate="lin_1e-3")
+    zoo_train(conf, tmp_path / "logs", "-n", "200", "--seed", "0")
+    model = DCQN.load(tmp_path / "logs" / "dcqn" / "CartPole-v1_1" / "CartPole-v1.zip")
+    assert model.num_timesteps == 200 and model.lr_schedule(0.5) == pytest.approx(5e-4)
+
+
+def test_ctrl_c_before_the_zoo_catches_it_exits_with_130_and_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from rl_zoo3 import train as zoo_train
+
+    def interrupted() -> None:  # e.g. while CampusNav encodes its views, before training starts
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(zoo_train, "train", interrupted)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--algo", "dcqn", "--env", "CartPole-v1"])
+    assert exit_info.value.code == 130
+    assert capsys.readouterr().err.strip() == "dcqn-zoo train: interrupted"
+
+
+@pytest.mark.parametrize(
+    ("command", "folder", "message"),
+    [
+        (["enjoy", "--no-render"], "nowhere", "The nowhere/dcqn folder was not found"),
+        (
+            ["enjoy", "--no-render"],
+            None,
+            "The rl-trained-agents/dcqn folder was not found",
+        ),  # the zoo's default: no download
+        (
+            ["record_video"],
+            "logs",
+            "No model found for dcqn on CartPole-v1, path: logs/dcqn/CartPole-v1_1/CartPole-v1.zip",
+        ),
+    ],
+)
+def test_a_log_folder_without_the_agent_is_one_line(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    command: list[str],
+    folder: str | None,
+    message: str,
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "logs" / "dcqn" / "CartPole-v1_1").mkdir(parents=True)  # a run folder without its model
+    args = [*command, "--algo", "dcqn", "--env", "CartPole-v1", "-n", "10", *(["-f", folder] if folder else [])]
+    with pytest.raises(SystemExit) as exit_info:
+        main(args)
+    assert exit_info.value.code == 2
+    assert (
+        one_error_line(capsys)
+        == f"dcqn-zoo {command[0]}: error: {message} (-f names the log folder of the trained agents)"
+    )

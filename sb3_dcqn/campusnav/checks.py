@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from campusnav_env import CampusNavEnv
     from sb3_dcqn.campusnav.experiments import ClosurePlan
     from sb3_dcqn.campusnav.model_files import SavedRun
-    from sb3_dcqn.zoo import ZooEntry
+    from sb3_dcqn.zoo_files import ZooEntry
 
 __all__ = [
     "DEFAULT_OUT",
@@ -182,7 +182,7 @@ def check_cache() -> None:
 
 # ------------------------------------------------------------------------------------------------ hyperparameters
 def zoo_entry(conf: str | None, env_id: str) -> ZooEntry:
-    from sb3_dcqn.zoo import default_hyperparams_path, load_zoo_entry
+    from sb3_dcqn.zoo_files import default_hyperparams_path, load_zoo_entry
 
     path = default_hyperparams_path() if conf is None else Path(conf)
     try:
@@ -197,7 +197,7 @@ def _param_value(key: str, text: str) -> Any:
     """A ``-params`` value as YAML reads it; the keys the zoo evaluates (``policy_kwargs``...) evaluated as it does."""
     import yaml
 
-    from sb3_dcqn.zoo import hyperparams_namespace
+    from sb3_dcqn.zoo_files import hyperparams_namespace
 
     try:
         value = yaml.safe_load(text)
@@ -231,7 +231,7 @@ def with_params(entry: ZooEntry, params: Sequence[str]) -> ZooEntry:
     from dataclasses import replace
 
     from sb3_dcqn.dcqn import DCQN
-    from sb3_dcqn.zoo import check_hyperparams
+    from sb3_dcqn.zoo_files import check_hyperparams
 
     overrides = parse_params(params)
     if not overrides:
@@ -257,7 +257,7 @@ def check_device(device: str | None) -> None:
     if device is None:
         return
     from sb3_dcqn.dcqn import DCQN
-    from sb3_dcqn.zoo import check_values
+    from sb3_dcqn.zoo_files import check_values
 
     try:
         check_values({"device": device}, DCQN, "--device")
@@ -273,7 +273,7 @@ def training_entry(request: Request, env_id: str) -> tuple[ZooEntry, tuple[str, 
     """
     from sb3_dcqn.campusnav.levers import check_levers, usable_levers, with_levers
     from sb3_dcqn.dcqn import DCQN
-    from sb3_dcqn.zoo import check_hyperparams, default_hyperparams_path
+    from sb3_dcqn.zoo_files import check_hyperparams, default_hyperparams_path
 
     entry = zoo_entry(request.conf, env_id)
     path = default_hyperparams_path() if request.conf is None else Path(request.conf)
@@ -321,7 +321,7 @@ def env_creator(env_id: str) -> Any:
 
 def _check_env_kwargs(creator: Any, env_kwargs: dict[str, Any], source: str) -> None:
     """Every ``env_kwargs`` key is an argument of the env (else a ``TypeError`` deep inside ``gym.make``)."""
-    from sb3_dcqn.zoo import check_keywords
+    from sb3_dcqn.zoo_files import check_keywords
 
     if isinstance(creator, type):
         try:
@@ -496,7 +496,7 @@ def closure_plan(request: Request) -> ClosurePlan:
 
     from campusnav_env.closures import ClosureEvent, ClosureSchedule
     from sb3_dcqn.campusnav.experiments import ClosurePlan
-    from sb3_dcqn.zoo import describe_yaml_error
+    from sb3_dcqn.zoo_files import describe_yaml_error
 
     if request.closures is not None:
         if request.closure_flags_given or request.close_at is not None:

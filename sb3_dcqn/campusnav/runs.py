@@ -163,7 +163,7 @@ def _new_logger(model: DCQN, out: Path, verbose: int) -> Path:
 
 def _make_callbacks(specs: Sequence[tuple[str, dict[str, Any]]]) -> list[BaseCallback]:
     """New callbacks from ``(class path, keyword arguments)`` specs, as the zoo builds an entry's ``callback``."""
-    from sb3_dcqn.zoo import ZooEntry
+    from sb3_dcqn.zoo_files import ZooEntry
 
     try:
         return ZooEntry(n_timesteps=0, hyperparams={}, callbacks=tuple(specs)).make_callbacks()
@@ -226,7 +226,7 @@ def _saved_callbacks(request: Request, saved: SavedRun, env_id: str) -> tuple[tu
 
 def _load_changes(request: Request) -> dict[str, Any]:
     """``-params`` for a loaded model: checked as the YAML's keys; those it was built with cannot change."""
-    from sb3_dcqn.zoo import check_hyperparams
+    from sb3_dcqn.zoo_files import check_hyperparams
 
     changes = parse_params(request.params)
     fixed = sorted(set(changes) & {*_BUILT_WITH, "n_timesteps"})
