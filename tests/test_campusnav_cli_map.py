@@ -190,3 +190,51 @@ def test_roads_takes_only_the_options_it_uses(grid_map: Path, capsys: pytest.Cap
     listed = cli("roads", str(cinema), "--map", str(grid_map), "--env", "CampusNav-v0")
     assert sorted(road["direction"] for road in listed["roads"]) == ["E", "N", "S", "W"]  # the grid's centre
     assert f"roads of node {cinema} (Cinema)" in capsys.readouterr().out
+
+
+def ten_intersections(path: Path, crs: str | None = None) -> Path:
+    """Ten nodes over 90 m x 80 m, x/y in metres (values that would also fit degrees), a library at node 9."""
+    points = [(0, 0), (30, 0), (60, 0), (90, 0), (0, 40), (30, 40), (60, 40), (90, 40), (30, 80), (60, 80)]
+    graph = nx.Graph()
+    for node, (x, y) in enumerate(points):
+        graph.add_node(node, x=float(x), y=float(y))
+    graph.nodes[9]["name"] = "Library"
+    graph.add_edges_from([(0, 1), (1, 2), (2, 3), (0, 4), (1, 5), (2, 6), (3, 7), (4, 5), (5, 6), (6, 7), (5, 8),
+                          (6, 9), (8, 9)])  # fmt: skip
+    if crs is not None:
+        graph.graph["crs"] = crs
+    nx.write_graphml(graph, path)
+    return path
+
+
+def test_a_ten_intersection_map_in_metres_draws_and_trains_with_the_shipped_view_dim(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    town = ten_intersections(tmp_path / "town.graphml")
+    # The shipped entry's view_dim 64 is more than 40 views span: fitted, said once; no crs: read as metres, said
+    with pytest.warns(UserWarning) as said:
+        summary = cli("train", "--map", str(town), "--goals", "Library", *FAST, "--no-progress",
+                      *("--timesteps", "200", "--eval-freq", "200", "--out", str(tmp_path / "run")))  # fmt: skip
+    assert any("using view_dim" in str(w.message) for w in said)
+    assert "x/y read as metres" in capsys.readouterr().err
+    nodes = load_map(str(town)).n_nodes  # bends simplified away
+    assert summary["trained"]["n_routes"] == 4 * (nodes - 1) and summary["settings"]["map_coords"] == "auto"
+    drawn = cli("draw", "--model", str(tmp_path / "run" / "dcqn_campusnav.zip"), "--start", "0",
+                "--picture", str(tmp_path / "town.png"))  # fmt: skip
+    assert drawn["route"]["nodes"][0] == 0 and (tmp_path / "town.png").is_file()
+
+
+def test_coordinates_come_from_the_crs_or_the_flag_and_a_map_that_cannot_be_built_is_refused_first(
+    tmp_path: Path,
+) -> None:
+    # A crs that says degrees makes 11,000 km roads of these metres: refused before any view, with the flag to fix it
+    claimed = ten_intersections(tmp_path / "claimed.graphml", crs="EPSG:4326")
+    message = rf"--map {claimed}: too large to build its street views: .* load the map with --map-coords projected"
+    with pytest.raises(CommandError, match=message):
+        cli("draw", "--map", str(claimed), "--goal", "Library", *FAST, "--picture", str(tmp_path / "x.png"))
+    assert not (tmp_path / "x.png").exists()
+    drawn = cli("draw", "--map", str(claimed), "--map-coords", "projected", "--goal", "Library", *FAST,
+                "--picture", str(tmp_path / "x.png"))  # fmt: skip
+    assert drawn["picture"] and (tmp_path / "x.png").is_file()
+    with pytest.raises(CommandError, match=r"--map-coords: .* give --map FILE\.graphml too"):
+        cli("draw", "--map-coords", "projected", *FAST, "--picture", str(tmp_path / "y.png"))

@@ -11,6 +11,7 @@ import os
 import re
 import sys
 import tempfile
+import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -351,9 +352,12 @@ def env_settings(
         env_kwargs = {**env_kwargs, "goals": [int(goal) if goal.isdigit() else goal for goal in goals]}
     _check_env_kwargs(creator, env_kwargs, f"--conf: entry {env_id!r}" if saved is None else f"{env_id} env_kwargs")
     map_path = str(Path(request.map).resolve()) if request.map else (saved.map_path if saved else None)
+    map_coords = request.map_coords or (saved.map_coords if saved and not request.map else "auto")
+    if request.map_coords is not None and map_path is None:
+        raise CommandError("--map-coords: it says how --map's x/y are read; give --map FILE.graphml too")
     if map_path is not None:
         flag = "--map" if request.map else f"{env_id} map"
-        _check_map(request.command, env_id, creator, map_path, env_kwargs, flag, bool(goals))
+        _check_map(request.command, env_id, creator, map_path, map_coords, env_kwargs, flag, bool(goals))
     encoder = request.encoder or (saved.encoder if saved else DEFAULT_ENCODER)
     weights = request.encoder_weights
     if weights is None and saved is not None and saved.encoder == encoder:
@@ -365,7 +369,7 @@ def env_settings(
     if size is not None and min(size) < 16:
         raise CommandError(f"--render-size: width and height must be at least 16 pixels, got {size[0]} {size[1]}")
     check_cache()
-    settings = EnvSettings(env_id, dict(env_kwargs), encoder, weights, size, map_path, random_init)
+    settings = EnvSettings(env_id, dict(env_kwargs), encoder, weights, size, map_path, random_init, map_coords)
     if saved is not None and settings != saved:
         note(f"warning: the model was trained on {saved.describe()}; now {settings.describe()}")
     return settings
@@ -383,8 +387,20 @@ def _goals_fix(command: str, n_nodes: int) -> str:
     return f"use a model trained on this map ('{PROG} train --map FILE --goals ...', landmark names or {ids})"
 
 
+def _as_flags(message: str) -> str:
+    """A map-loading message in the command line's words: ``coords='projected'`` is ``--map-coords projected``."""
+    return re.sub(r"coords='(\w+)'(?: \(the env's map_coords\))?", r"--map-coords \1", message)
+
+
 def _check_map(
-    command: str, env_id: str, creator: Any, path: str, env_kwargs: dict[str, Any], flag: str, goals_given: bool
+    command: str,
+    env_id: str,
+    creator: Any,
+    path: str,
+    coords: str,
+    env_kwargs: dict[str, Any],
+    flag: str,
+    goals_given: bool,
 ) -> None:
     """
     A GraphML road network that the env can be built on (``world=``), with the env's goals on it; checked before any
@@ -403,12 +419,24 @@ def _check_map(
             f"{flag} {path}: the env_kwargs of {env_id} already choose a map ({', '.join(generating)}); "
             "drop them from the --conf entry or leave out --map"
         )
+    from campusnav_env.maps.extent import MapExtentError, check_map_extent
+    from campusnav_env.maps.osm import CoordinatesWarning
+
     nx = require_networkx()
     try:
-        graph = load_map(path)
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always", CoordinatesWarning)
+            graph = load_map(path, coords)
+        for warning in said:
+            note(f"warning: {flag} {_as_flags(str(warning.message))}")
     except (ParseError, nx.NetworkXError, KeyError, ValueError, TypeError) as error:
-        message = error.args[0] if isinstance(error, KeyError) and error.args else error
-        raise CommandError(f"{flag} {path}: not a GraphML road network ({message})") from None
+        message = error.args[0] if isinstance(error, KeyError) and error.args else str(error)
+        raise CommandError(f"{flag} {path}: not a GraphML road network ({_as_flags(message)})") from None
+    try:
+        check_map_extent(graph, source=path)
+    except MapExtentError as error:  # a view build that could not finish: refused before it starts
+        detail = str(error).split("': ", 1)[-1]  # "map '<file>': ..." names the file the flag names already
+        raise CommandError(f"{flag} {path}: {_as_flags(detail)}") from None
     if "goals" in env_kwargs:
         goals = env_kwargs["goals"]
         source = f"the env_kwargs of {env_id}"

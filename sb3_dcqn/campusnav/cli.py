@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
@@ -372,6 +373,12 @@ def _map_flags(group: argparse._ArgumentGroup) -> None:
         help="a road network (GraphML, e.g. from osmnx.save_graphml) instead of the env's map (default: the "
         "model's, if any)",
     )
+    group.add_argument(
+        "--map-coords",
+        choices=("auto", "lonlat", "projected"),
+        help="how --map's node x/y are read: auto (the file's crs; without one, lon/lat only where the values fit "
+        "degrees and span at most 100 km, with a warning), lonlat, projected (metres) (default: auto, or the model's)",
+    )
 
 
 def _common_flags() -> argparse.ArgumentParser:
@@ -677,10 +684,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return args.func(request)
 
 
+def _one_line_warning(message: Warning | str, category: type[Warning], *_: Any, **__: Any) -> str:
+    """A library's warning as the command line says things: one line, no source line."""
+    return f"{PROG}: warning: {message}\n"
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of ``dcqn-campusnav``; no subcommand (or only options) means ``demo``."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    warnings.formatwarning = _one_line_warning
     try:
         run(args)
     except CommandError as error:

@@ -35,6 +35,7 @@ class Request:
     env: str | None = None
     conf: str | None = None
     map: str | None = None
+    map_coords: str | None = None
     encoder: str | None = None
     encoder_weights: str | None = None
     encoder_random_init: bool = False

@@ -43,6 +43,8 @@ class EnvSettings:
     :param encoder_weights: Weights file of the encoder (ResNet-50), if any
     :param render_size: Street-view size ``(width, height)``; ``None``: the renderer's default (640 x 480)
     :param map_path: A GraphML road network the env is built on (``world=``, :func:`load_map`) instead of its own map
+    :param map_coords: How the map's x/y are read: ``"auto"`` (the file's ``crs``, else a plausible-extent guess that
+        warns), ``"lonlat"`` or ``"projected"`` (metres); see :func:`campusnav_env.maps.osm.import_networkx`
     :param encoder_random_init: ResNet-50 without weights, random features asked for (``--encoder-random-init``)
     """
 
@@ -53,6 +55,7 @@ class EnvSettings:
     render_size: tuple[int, int] | None = None
     map_path: str | None = None
     encoder_random_init: bool = False
+    map_coords: str = "auto"
 
     def make_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``gym.make``."""
@@ -60,7 +63,7 @@ class EnvSettings:
 
         kwargs: dict[str, Any] = {**self.env_kwargs, "encoder": self.encoder}
         if self.map_path is not None:
-            kwargs["world"] = load_map(self.map_path)
+            kwargs["world"] = load_map(self.map_path, self.map_coords)
         if self.encoder_weights is not None:
             kwargs["encoder_kwargs"] = {"weights_path": self.encoder_weights}
         elif self.encoder_random_init:
@@ -78,6 +81,7 @@ class EnvSettings:
             "render_size": None if self.render_size is None else list(self.render_size),
             "map": self.map_path,
             "encoder_random_init": self.encoder_random_init,
+            "map_coords": self.map_coords,
         }
 
     @classmethod
@@ -91,6 +95,7 @@ class EnvSettings:
             render_size=None if size is None else (int(size[0]), int(size[1])),
             map_path=document.get("map"),
             encoder_random_init=bool(document.get("encoder_random_init", False)),
+            map_coords=str(document.get("map_coords", "auto")),
         )
 
     def describe(self) -> str:
@@ -128,25 +133,26 @@ def campusnav_env_ids() -> list[str]:
     raise RuntimeError("cannot find campusnav_env.registration.ENV_IDS (is campusnav_env installed?)")
 
 
-def load_map(path: str) -> RoadGraph:
+def load_map(path: str, coords: str = "auto") -> RoadGraph:
     """
     The road network of a GraphML file (:func:`campusnav_env.maps.osm.load_graphml`), read once per process for each
     version of the file (every training env shares it; each env keeps its own closures).
 
     :param path: The GraphML file
+    :param coords: How its x/y are read (``"auto"``, ``"lonlat"``, ``"projected"``)
     :raises FileNotFoundError: no such file
     :raises ValueError, KeyError: not a road network (see :func:`~campusnav_env.maps.osm.import_networkx`)
     """
     file = Path(path).resolve()
     stat = file.stat() if file.is_file() else None
-    return _load_map(str(file), None if stat is None else (stat.st_mtime_ns, stat.st_size))
+    return _load_map(str(file), None if stat is None else (stat.st_mtime_ns, stat.st_size), coords)
 
 
 @functools.lru_cache(maxsize=4)
-def _load_map(path: str, version: tuple[int, int] | None) -> RoadGraph:
+def _load_map(path: str, version: tuple[int, int] | None, coords: str) -> RoadGraph:
     from campusnav_env.maps.osm import load_graphml
 
-    graph = load_graphml(path)
+    graph = load_graphml(path, coords=coords)
     assert not isinstance(graph, tuple)  # no return_mapping
     return graph
 
