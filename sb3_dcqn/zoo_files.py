@@ -182,17 +182,10 @@ def preprocess_entry(settings: Mapping[str, Any], where: str) -> ZooEntry:
     if "n_timesteps" not in entry:
         raise KeyError(f"{where}: no 'n_timesteps' (the zoo needs it, -n or not)")
     n_envs = _whole_number(entry.pop("n_envs", 1), f"{where}: n_envs")
-    for key in SCHEDULE_KEYS:  # other strings are left to check_values, which names them with a hint
-        if isinstance(entry.get(key), str) and entry[key].startswith(SCHEDULE_PREFIX):
-            entry[key] = linear_schedule(entry[key], f"{where}: {key}")
-    if isinstance(entry.get("train_freq"), list):  # YAML has no tuples: the zoo reads [4, "episode"] as (4, "episode")
-        entry["train_freq"] = tuple(entry["train_freq"])
+    entry = preprocess_hyperparams(entry, where)
     n_timesteps = _whole_number(entry.pop("n_timesteps"), f"{where}: n_timesteps")
     normalize = _normalize_kwargs(entry, where)
     namespace = {"dict": dict, **hyperparams_namespace()}
-    for key in _EVALUATED_KEYS:
-        if isinstance(entry.get(key), str):
-            entry[key] = _evaluated(entry[key], namespace, f"{where}: {key}")
     monitor_kwargs = _evaluated(entry.pop("monitor_kwargs", None) or {}, namespace, f"{where}: monitor_kwargs")
     env_kwargs = entry.pop("env_kwargs", None) or {}
     for key, value in (("env_kwargs", env_kwargs), ("monitor_kwargs", monitor_kwargs)):
@@ -216,6 +209,27 @@ def preprocess_entry(settings: Mapping[str, Any], where: str) -> ZooEntry:
         monitor_kwargs=dict(monitor_kwargs),
         source=where,
     )
+
+
+def preprocess_hyperparams(settings: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """
+    The algorithm's arguments among ``settings`` as the zoo turns them into values: ``lin_<value>`` schedules, a
+    ``train_freq`` list as a tuple, ``policy_kwargs`` and replay-buffer strings evaluated (both command lines'
+    ``-params`` go through here too).
+
+    :raises ValueError: naming ``where`` and the key, for a bad schedule or a string that cannot be evaluated
+    """
+    entry = dict(settings)
+    for key in SCHEDULE_KEYS:  # other strings are left to check_values, which names them with a hint
+        if isinstance(entry.get(key), str) and entry[key].startswith(SCHEDULE_PREFIX):
+            entry[key] = linear_schedule(entry[key], f"{where}: {key}")
+    if isinstance(entry.get("train_freq"), list):  # YAML has no tuples: the zoo reads [4, "episode"] as (4, "episode")
+        entry["train_freq"] = tuple(entry["train_freq"])
+    namespace = {"dict": dict, **hyperparams_namespace()}
+    for key in _EVALUATED_KEYS:
+        if isinstance(entry.get(key), str):
+            entry[key] = _evaluated(entry[key], namespace, f"{where}: {key}")
+    return entry
 
 
 def linear_schedule(text: str, where: str) -> Callable[[float], float]:

@@ -155,6 +155,14 @@ def test_params_override_the_entry_and_device_picks_torchs_device(tmp_path: Path
     assert DCQN.load(summary["files"]["model"]).gamma == pytest.approx(0.9)
 
 
+def test_params_read_schedules_as_the_zoo_reads_them(tmp_path: Path, conf: Path) -> None:
+    out = tmp_path / "run"
+    cli("train", *FAST, "--conf", str(conf), "--timesteps", "100", "--eval-freq", "100",
+        *("-params", "learning_rate:lin_0.004", "--out", str(out)))  # fmt: skip
+    model = DCQN.load(out / "dcqn_campusnav.zip")
+    assert model.lr_schedule(1.0) == pytest.approx(0.004) and model.lr_schedule(0.25) == pytest.approx(0.001)
+
+
 @pytest.mark.parametrize(
     ("params", "message"),
     [
@@ -163,6 +171,7 @@ def test_params_override_the_entry_and_device_picks_torchs_device(tmp_path: Path
         (["gamma:1.5"], "-params: gamma: expected a number in [0, 1], got 1.5"),
         (["n_timesteps:0"], "-params n_timesteps: expected a positive integer, got 0"),
         (["learning_rate"], "-params learning_rate: expected key:value"),
+        (["learning_rate:lin_x"], "-params: learning_rate: expected a linear schedule lin_<initial value>"),
     ],
 )
 def test_bad_params_are_one_line_naming_the_key(

@@ -194,35 +194,29 @@ def zoo_entry(conf: str | None, env_id: str) -> ZooEntry:
         raise CommandError(f"--conf: {error.args[0]} (choose another --env or --conf)") from None
 
 
-def _param_value(key: str, text: str) -> Any:
-    """A ``-params`` value as YAML reads it; the keys the zoo evaluates (``policy_kwargs``...) evaluated as it does."""
+def parse_params(params: Sequence[str]) -> dict[str, Any]:
+    """
+    ``-params key:value ...`` as a dict: values as YAML reads them, then as the zoo reads an entry's
+    (:func:`sb3_dcqn.zoo_files.preprocess_hyperparams`: ``lin_`` schedules, ``policy_kwargs`` evaluated), or an error
+    naming the bad one.
+    """
     import yaml
 
-    from sb3_dcqn.zoo_files import hyperparams_namespace
+    from sb3_dcqn.zoo_files import preprocess_hyperparams
 
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError:
-        value = text
-    if key in ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs") and isinstance(value, str):
-        try:
-            value = eval(value, {"dict": dict, **hyperparams_namespace()})  # the zoo's convention
-        except Exception as error:
-            raise CommandError(f"-params {key}:{text}: cannot evaluate {value!r} ({error})") from None
-    if key == "train_freq" and isinstance(value, list):  # YAML has no tuples, as in the zoo's files
-        value = tuple(value)
-    return value
-
-
-def parse_params(params: Sequence[str]) -> dict[str, Any]:
-    """``-params key:value ...`` as a dict (values as YAML reads them), or an error naming the bad one."""
     parsed: dict[str, Any] = {}
     for item in params:
         key, colon, text = item.partition(":")
         if not colon or not key.strip():
             raise CommandError(f"-params {item}: expected key:value (e.g. learning_rate:0.001 buffer_size:10000)")
-        parsed[key.strip()] = _param_value(key.strip(), text.strip())
-    return parsed
+        try:
+            parsed[key.strip()] = yaml.safe_load(text.strip())
+        except yaml.YAMLError:
+            parsed[key.strip()] = text.strip()
+    try:
+        return preprocess_hyperparams(parsed, "-params")
+    except ValueError as error:
+        raise CommandError(str(error)) from None
 
 
 def with_params(entry: ZooEntry, params: Sequence[str]) -> ZooEntry:
