@@ -87,6 +87,11 @@ def note(text: str) -> None:
     print(f"{PROG}: {text}", file=sys.stderr)
 
 
+def one_line_warning(message: Warning | str, category: type[Warning], *_: Any, **__: Any) -> str:
+    """A library's warning as the command line writes its notes (``warnings.formatwarning``): one line, no source."""
+    return f"{PROG}: warning: {message}\n"
+
+
 # ------------------------------------------------------------------------------------------------ paths
 def check_folder(folder: Path, flag: str, given: Path | None = None) -> None:
     """

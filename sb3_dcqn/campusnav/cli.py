@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
-from sb3_dcqn.campusnav.checks import DEFAULT_OUT, PROG, CommandError, Interrupted
+from sb3_dcqn.campusnav.checks import DEFAULT_OUT, PROG, CommandError, Interrupted, one_line_warning
 from sb3_dcqn.campusnav.levers import DEMO_LEVERS, LEVERS
 from sb3_dcqn.campusnav.requests import Request
 from sb3_dcqn.campusnav.settings import DEFAULT_ENV, campusnav_env_ids
@@ -40,9 +40,7 @@ COMPASS_LETTERS = ("N", "E", "S", "W")
 # Exit status after Ctrl-C (128 + SIGINT), as shells report it
 INTERRUPTED_STATUS = 130
 
-
 _ENV_IDS = ", ".join(campusnav_env_ids())
-
 
 DESCRIPTION = f"""\
 Train DCQN on CampusNav, close roads, measure how fast it re-routes.
@@ -57,7 +55,7 @@ Subcommands ('{PROG} SUBCOMMAND --help' lists the options of each):
     {PROG} readapt runs/multi/dcqn_campusnav.zip --close-random 3 --timesteps 20000
     {PROG} draw --model runs/campusnav-demo/dcqn_campusnav.zip --start 17 --close 81 82 --picture map.png
     {PROG} roads 81                       # the roads of intersection 81, as --close U V takes them
-    {PROG} train --map columbus.graphml --goals Library --out runs/columbus   # your own OSM map (GraphML)
+    {PROG} train --map town.graphml --goals Library --out runs/town   # your own map (GraphML; an example ships)
 
 Env ids (--env): {_ENV_IDS}
 
@@ -75,8 +73,7 @@ train     the same for any CampusNav env and zoo-format hyperparameter file, wit
           --env CampusNavGoal-v0 (any intersection the goal; hindsight relabelling with HerReplayBuffer): the route
           evaluations cover all 101 goals (about 3 s each), the pictures the paper's four landmark goals, and
           closures keep every intersection reachable (a road without a way around is refused). The lever prioritized
-          does not combine with hindsight relabelling and is refused (a stored transition stands for every goal it
-          is relabelled with); demo's default levers (revision, blocked) both run.
+          does not combine with hindsight relabelling and is refused; demo's default levers both run.
 evaluate  success rate, SPL, coverage, mean steps and optimality gap of a saved model's greedy routes from every
           (start, heading), overall and per goal (of an env with more than four goals: the four pictured, and the
           training and held-out goals of a goal env), optionally under closures (--close); --picture draws one route.
@@ -97,15 +94,14 @@ trained on: evaluate, readapt and draw take it as their default), dcqn_campusnav
 readapt; as large as what it stores; --no-replay-buffer: none), summary.md and summary.json, all of the model saved.
 Nothing is replaced: a folder that holds results is kept and the next numbered one written (runs/x taken: runs/x_2,
 as the RL Zoo numbers its runs), and so is a --picture that exists (map.png: map_2.png); --force writes over them.
-train -i MODEL (--trained-agent) goes on training a saved model; --save-freq N writes checkpoints every N steps;
--params KEY:VALUE overrides the entry's hyperparameters; --device picks torch's device.
+train -i MODEL goes on training a saved model; --save-freq N: checkpoints; -params KEY:VALUE: the entry overridden.
 
 Colours in every picture: orange the learned (greedy) route, purple the route after a closure, cyan the shortest
 path, red a closed road (drawn over the routes), a green triangle the start, a yellow star the goal.
 
-Your own map: --map FILE.graphml (a road network saved by osmnx.save_graphml or networkx.write_graphml; nodes with
-x/y, simplified to intersections) replaces the env's map, with --goals (landmark names, i.e. named nodes, or node ids)
-where the env's default goals are not on it; the model's .env.json keeps the file's path for evaluate, readapt, draw.
+Your own map: --map FILE.graphml (osmnx.save_graphml or networkx.write_graphml; nodes with x/y: lon/lat or metres
+by the file's crs, else a guess that warns, or --map-coords) replaces the env's map, with --goals (landmark names or
+node ids) where the env's are not on it; the model's .env.json keeps the file for evaluate, readapt and draw.
 
 evaluate, readapt and draw --model start from the roads closed when the model was saved (its env.json's
 closed_roads_at_save; --open-map: the open map) plus the closures they are given; demo and train from the open map.
@@ -684,16 +680,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return args.func(request)
 
 
-def _one_line_warning(message: Warning | str, category: type[Warning], *_: Any, **__: Any) -> str:
-    """A library's warning as the command line says things: one line, no source line."""
-    return f"{PROG}: warning: {message}\n"
-
-
 def main(argv: list[str] | None = None) -> None:
     """Entry point of ``dcqn-campusnav``; no subcommand (or only options) means ``demo``."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    warnings.formatwarning = _one_line_warning
+    warnings.formatwarning = one_line_warning
     try:
         run(args)
     except CommandError as error:
