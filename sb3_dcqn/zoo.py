@@ -10,16 +10,13 @@ as in the zoo's own CLI (``train`` when the first argument is an option)::
     dcqn-zoo enjoy --algo dcqn --env CartPole-v1 -f logs/ -n 1000 --no-render
     dcqn-zoo record_video --algo dcqn --env CartPole-v1 -f logs/ -n 500 -o videos/
     dcqn-zoo plot_train -a dcqn -e CartPole-v1 -f logs/ -w 20 -o curve.png   # -o FILE: ours, saved with Agg
-    dcqn-zoo all_plots -a dcqn -e CartPole-v1 -f logs/ -o results --no-display
-    dcqn-zoo plot_from_file -i results.pkl -o results.svg
 
 The plot commands need seaborn and scipy (in our ``zoo`` extra); ``record_video`` an env with ``rgb_array`` rendering.
 ``train`` reads and checks the entry with :mod:`sb3_dcqn.zoo_files` first, as ``dcqn-campusnav`` does (see
 :func:`_train`). rl_zoo3 2.9 problems worked around: ``enjoy`` imports ``requests`` undeclared; ``record_video``
 ignores the ``env_kwargs`` saved in ``config.yml``; ``-n -5`` trains the entry's budget; tracebacks for bad input.
 
-This module registers no env: :mod:`sb3_dcqn.campusnav.zoo` registers the CampusNav ids first; for other packages'
-envs pass the zoo's ``--gym-packages``. Requires the ``zoo`` extra: ``pip install "sb3-dcqn[zoo]"``.
+Registers no env (:mod:`sb3_dcqn.campusnav.zoo` registers CampusNav's; ``--gym-packages`` others'); needs the zoo extra.
 """
 
 from __future__ import annotations
@@ -144,12 +141,17 @@ def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()
         sys.argv = saved_argv
 
 
-def require_zoo() -> None:
-    """Exit with one line (code 2) saying how to install the zoo extra when ``rl_zoo3`` cannot be imported."""
+def require_zoo(argv: list[str] | None = None) -> None:
+    """Without ``rl_zoo3``, say how to install it and exit: 0 after the overview for ``-h`` or no args, else 2."""
     try:
         import rl_zoo3  # noqa: F401
     except ImportError as error:
-        print(f'dcqn-zoo: the RL Zoo cannot be imported ({error}): pip install "sb3-dcqn[zoo]"', file=sys.stderr)
+        install = f'the RL Zoo cannot be imported ({error}): pip install "sb3-dcqn[zoo]"'
+        args = sys.argv[1:] if argv is None else argv
+        if args in ([], *([flag] for flag in _HELP_FLAGS)):
+            print(f"{usage()}\n\n{install}")
+            raise SystemExit(0) from None
+        print(f"dcqn-zoo: {install}", file=sys.stderr)
         raise SystemExit(2) from None
 
 

@@ -469,14 +469,24 @@ def test_a_budget_that_is_not_a_positive_number_of_steps_is_refused(
     assert not (tmp_path / "logs").exists()
 
 
-@pytest.mark.parametrize("args", [["--help"], ["train", "--algo", "dcqn", "--env", "CartPole-v1"]])
-def test_without_the_zoo_extra_dcqn_zoo_says_how_to_install_it(tmp_path: Path, args: list[str]) -> None:
+def without_the_zoo(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
     code = "import sys; sys.modules['rl_zoo3'] = None; from sb3_dcqn.campusnav.zoo import main; main(sys.argv[1:])"
-    result = subprocess.run(
-        [sys.executable, "-c", code, *args], cwd=tmp_path, capture_output=True, text=True, timeout=300, check=False
+    return subprocess.run(
+        [sys.executable, "-c", code, *args], cwd=cwd, capture_output=True, text=True, timeout=300, check=False
     )
+
+
+def test_without_the_zoo_extra_a_dcqn_zoo_command_says_in_one_line_how_to_install_it(tmp_path: Path) -> None:
+    result = without_the_zoo(["train", "--algo", "dcqn", "--env", "CartPole-v1"], tmp_path)
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.count("\n") == 1 and 'pip install "sb3-dcqn[zoo]"' in result.stderr, result.stderr
+
+
+def test_without_the_zoo_extra_dcqn_zoo_help_shows_the_commands_and_how_to_install_it(tmp_path: Path) -> None:
+    result = without_the_zoo(["--help"], tmp_path)
+    assert result.returncode == 0 and result.stderr == "", result.stderr
+    assert result.stdout.startswith("usage: dcqn-zoo") and "record_video" in result.stdout
+    assert result.stdout.rstrip().endswith('pip install "sb3-dcqn[zoo]"')
 
 
 def test_a_failed_run_leaves_no_folder_unless_it_wrote_results(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

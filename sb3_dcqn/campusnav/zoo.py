@@ -16,7 +16,7 @@ def main(argv: list[str] | None = None) -> None:
     """Entry point of ``dcqn-zoo``: register the CampusNav ids, then run :func:`sb3_dcqn.zoo.main`."""
     from sb3_dcqn import zoo
 
-    zoo.require_zoo()  # one line before CampusNav's imports, even for -h, when the zoo extra is missing
+    zoo.require_zoo(argv)  # before CampusNav's imports, when the zoo extra is missing: how to install it
     import campusnav_env  # noqa: F401  (registers the CampusNav ids with gymnasium)
     from campusnav_env.registration import ENV_IDS
 
