@@ -47,3 +47,13 @@ def module_feature_cache(_module_cache_dir: Path, monkeypatch: pytest.MonkeyPatc
     render and encode the views once, not once per test."""
     monkeypatch.setenv("CAMPUSNAV_CACHE", str(_module_cache_dir))
     return _module_cache_dir
+
+
+@pytest.fixture
+def conf(tmp_path: Path) -> Path:
+    """The small entry of ``dcqn-campusnav``'s run tests (``cli_runs_support.TINY_CONF``), as a file."""
+    from cli_runs_support import TINY_CONF
+
+    path = tmp_path / "tiny.yml"
+    path.write_text(TINY_CONF)
+    return path

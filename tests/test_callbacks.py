@@ -214,19 +214,25 @@ def test_a_schedule_continues_over_several_learn_calls(env_kwargs) -> None:
     assert callback.records[1].step == 250 and env.get_attr("closed_roads") == [frozenset()]
 
 
-def test_training_seconds_never_count_the_evaluations_own_time(env_kwargs, monkeypatch) -> None:
-    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
-    model = explorer(env)
-    model.predict = shortest_path_policy(env.envs[0].unwrapped)
+@pytest.fixture
+def slow_evaluations(monkeypatch: pytest.MonkeyPatch) -> float:
+    """Route evaluations that each sleep this long first: far slower than the training around them."""
     import campusnav_env.callbacks as callbacks
 
-    evaluate_routes = callbacks.evaluate_routes
+    evaluate_routes, pause = callbacks.evaluate_routes, 0.3
 
     def slow_evaluation(*args: Any, **kwargs: Any) -> Any:
-        time.sleep(0.3)  # an evaluation far slower than the training around it
+        time.sleep(pause)
         return evaluate_routes(*args, **kwargs)
 
     monkeypatch.setattr(callbacks, "evaluate_routes", slow_evaluation)
+    return pause
+
+
+def test_training_seconds_never_count_the_evaluations_own_time(env_kwargs, slow_evaluations: float) -> None:
+    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
+    model = explorer(env)
+    model.predict = shortest_path_policy(env.envs[0].unwrapped)
     evaluation = RouteEvaluationCallback(eval_freq=20)
     schedule = [ClosureEvent(at=40, unit="step", close_on_route="busiest")]
     closures = RoadClosureCallback(schedule, evaluation=evaluation, recovery_eval_freq=1)
@@ -235,25 +241,18 @@ def test_training_seconds_never_count_the_evaluations_own_time(env_kwargs, monke
     wall = time.perf_counter() - started
     seconds = [e.train_seconds for e in evaluation.evaluations]
     assert len(seconds) >= 6 and seconds == sorted(seconds) and seconds[0] >= 0
-    # Every evaluation slept 0.3 s; none of it is training time
-    assert seconds[-1] <= wall - 0.3 * len(seconds) + 0.05
+    # Every evaluation slept; none of it is training time
+    assert seconds[-1] <= wall - slow_evaluations * len(seconds) + 0.05
     recovery = closures.recoveries[0]
     assert recovery.recovered and recovery.seconds >= 0
 
 
-def test_a_closure_between_learn_calls_never_makes_training_time_run_backwards(env_kwargs, monkeypatch) -> None:
+def test_a_closure_between_learn_calls_never_makes_training_time_run_backwards(
+    env_kwargs, slow_evaluations: float
+) -> None:
     env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
     model = explorer(env)
     model.predict = shortest_path_policy(env.envs[0].unwrapped)
-    import campusnav_env.callbacks as callbacks
-
-    evaluate_routes = callbacks.evaluate_routes
-
-    def slow_evaluation(*args: Any, **kwargs: Any) -> Any:
-        time.sleep(0.3)
-        return evaluate_routes(*args, **kwargs)
-
-    monkeypatch.setattr(callbacks, "evaluate_routes", slow_evaluation)
     evaluation = RouteEvaluationCallback(eval_freq=1_000)
     closures = RoadClosureCallback([], evaluation=evaluation, recovery_eval_freq=1)
     model.learn(50, callback=closures)
@@ -263,4 +262,4 @@ def test_a_closure_between_learn_calls_never_makes_training_time_run_backwards(e
     seconds = [e.train_seconds for e in evaluation.evaluations]
     assert seconds == sorted(seconds) and min(seconds) >= 0
     recovery = closures.recoveries[0]
-    assert recovery.recovered and 0 <= recovery.seconds < 0.3
+    assert recovery.recovered and 0 <= recovery.seconds < slow_evaluations

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cli_runs_support import FAST, ROAD, cli
 from stable_baselines3.common.callbacks import BaseCallback
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -21,45 +22,10 @@ from campusnav_env.callbacks import StartCurriculumCallback
 from sb3_dcqn import DCQN
 from sb3_dcqn.adaptation_boost import AdaptationBoost
 from sb3_dcqn.campusnav import experiments
-from sb3_dcqn.campusnav.cli import CommandError, build_parser, main, run
-
-FAST = ("--encoder", "pixels", "--render-size", "64", "48", "--no-progress")
-# A small entry with a start curriculum (the city entries' callback)
-TINY_CONF = """\
-CampusNav-v0:
-  n_timesteps: 300
-  policy: 'MultiInputPolicy'
-  env_kwargs:
-    view_dim: 16
-    max_steps: 40
-  learning_rate: !!float 1e-3
-  buffer_size: 2000
-  learning_starts: 100
-  batch_size: 32
-  target_update_interval: 100
-  callback:
-    - campusnav_env.callbacks.StartCurriculumCallback:
-        initial: 2
-        window: 5
-  policy_kwargs: "dict(features_extractor_class=EmbeddingFusionExtractor, features_extractor_kwargs=dict(embed_dim=16, \
-features_dim=16), share_features_extractor=True, net_arch=[16], heading_key='heading')"
-"""
-ROAD = (14, 15)  # a road of the built-in campus whose closure keeps every goal reachable
-
+from sb3_dcqn.campusnav.cli import CommandError, main
 
 # One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
 pytestmark = pytest.mark.usefixtures("module_feature_cache")
-
-
-@pytest.fixture
-def conf(tmp_path: Path) -> Path:
-    path = tmp_path / "tiny.yml"
-    path.write_text(TINY_CONF)
-    return path
-
-
-def cli(*argv: str) -> dict:
-    return run(build_parser().parse_args(list(argv)))
 
 
 def files_under(folder: Path) -> dict[str, bytes]:
