@@ -13,7 +13,7 @@ import sys
 import tempfile
 import warnings
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -124,6 +124,14 @@ def _numbered(path: Path, number: int) -> Path:
     return path.with_name(f"{path.stem}_{number}{path.suffix}")
 
 
+def _first_free(path: Path, taken: Callable[[Path], bool]) -> Path:
+    """The first numbered path after ``path`` (``_2``, ``_3``, ...) that is not ``taken``."""
+    number = 2
+    while taken(_numbered(path, number)):
+        number += 1
+    return _numbered(path, number)
+
+
 def free_folder(out: Path, force: bool, flag: str = "--out") -> Path:
     """
     The folder a run writes to: ``out``, or where it holds an earlier run's results the first free numbered folder
@@ -137,10 +145,7 @@ def free_folder(out: Path, force: bool, flag: str = "--out") -> Path:
     numbered = re.fullmatch(r"(.+)_\d+", out.name)
     if numbered and out.with_name(numbered.group(1)).is_dir():  # runs/x_2 taken: runs/x_3, not runs/x_2_2
         out = out.with_name(numbered.group(1))
-    number = 2
-    while holds_results(_numbered(out, number)):
-        number += 1
-    free = _numbered(out, number)
+    free = _first_free(out, holds_results)
     check_folder(free, flag, given=free)
     return free
 
@@ -173,10 +178,7 @@ def free_picture(path: str | None, force: bool, flag: str = "--picture") -> Path
 
     if force or not taken(picture):
         return picture
-    number = 2
-    while taken(_numbered(picture, number)):
-        number += 1
-    return _numbered(picture, number)
+    return _first_free(picture, taken)
 
 
 def check_cache() -> None:
@@ -487,12 +489,7 @@ def env_error(settings: EnvSettings, error: Exception) -> CommandError:
     message = str(error)
     if settings.map_path is None:
         return CommandError(f"--env {settings.env_id}: {message}")
-    fix = ""
-    if "view_dim" in message:
-        most = re.search(r"view_dim must be an int in \[1, (\d+)\]", message)
-        at_most = f" of at most {most.group(1)}" if most else ""
-        fix = f"; give the --conf entry's env_kwargs a view_dim{at_most} (a smaller map has fewer views to project)"
-    return CommandError(f"--map {settings.map_path}: the env cannot be built on this map ({message}){fix}")
+    return CommandError(f"--map {settings.map_path}: the env cannot be built on this map ({_as_flags(message)})")
 
 
 # ------------------------------------------------------------------------------------------------ roads
