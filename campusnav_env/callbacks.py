@@ -143,7 +143,9 @@ class RouteEvaluationCallback(_TrainingProgress):
     :param stop_when_solved: Stop training at the first evaluation at both thresholds
     :param every_goal: The map counts as solved only when each goal is at both thresholds on its own (not only the
         routes to all goals together)
-    :param evaluate_at_end: Evaluate once more when training ends (unless the last evaluation is current)
+    :param evaluate_at_end: Evaluate once more when training ends, unless the last evaluation is :attr:`current`
+        (SB3 stores a step's transition after the callbacks have seen the step, and runs the gradient steps after the
+        rollout: an evaluation made during the last step is of a model that changed since)
     :param policy: Makes the policy evaluated from the model, anew at each evaluation (default: the model's greedy
         ``predict``)
     :param critics_alone: Where the model's greedy ``predict`` plans over a route memory (a model with
@@ -196,6 +198,7 @@ class RouteEvaluationCallback(_TrainingProgress):
         self._next_due = eval_freq
         self._dense_every: int | None = None
         self._next_dense = 0
+        self._current = False
 
     def _init_callback(self) -> None:
         if self.eval_env is None:
@@ -207,6 +210,15 @@ class RouteEvaluationCallback(_TrainingProgress):
                 )
             self.eval_env = campus_env(env.envs[0], "route evaluation")
             self.shares_training_env = True
+
+    @property
+    def current(self) -> bool:
+        """
+        Whether the last evaluation is of the model as it is now: nothing has changed it since (no transition stored,
+        no gradient step). An evaluation during a step is current only if training stops at that step: otherwise SB3
+        stores the step's transition (and a route memory learns from it) and, at the end of the rollout, trains.
+        """
+        return self._current
 
     @property
     def solved(self) -> bool:
@@ -222,6 +234,7 @@ class RouteEvaluationCallback(_TrainingProgress):
 
     def _on_step(self) -> bool:
         super()._on_step()  # count the episodes that just ended
+        self._current = False  # the previous step's transition was stored since
         progress = self.steps if self.unit == "step" else self.episodes
         due = progress >= self._next_due
         if self._dense_every is not None and self.episodes >= self._next_dense:
@@ -235,8 +248,11 @@ class RouteEvaluationCallback(_TrainingProgress):
                 return False
         return True
 
+    def _on_rollout_end(self) -> None:
+        self._current = False  # the rollout's last transition is stored, and the gradient steps come next
+
     def _on_training_end(self) -> None:
-        if self.evaluate_at_end and (not self.evaluations or self.evaluations[-1].step != self.model.num_timesteps):
+        if self.evaluate_at_end and not self.current:
             self.evaluate()
         super()._on_training_end()
 
@@ -291,6 +307,7 @@ class RouteEvaluationCallback(_TrainingProgress):
             )
         if self._started is not None:  # outside training (a closure applied between learn calls) nothing ran to exclude
             self.excluded_seconds += time.perf_counter() - start
+        self._current = True
         return evaluation
 
     def _log_report(self, prefix: str, report: RouteReport) -> None:
@@ -401,6 +418,11 @@ class RoadClosureCallback(EventCallback):
         super().update_child_locals(locals_)
         if self.evaluation is None:
             self._progress.update_locals(locals_)
+
+    def _on_rollout_end(self) -> None:
+        # SB3's EventCallback passes no rollout end on: the evaluation needs it to know when the model trains
+        if self.callback is not None:
+            self.callback.on_rollout_end()
 
     def _on_step(self) -> bool:
         continue_training = self._on_event() if self.evaluation is not None else self._progress.on_step()

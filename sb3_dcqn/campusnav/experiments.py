@@ -4,7 +4,9 @@
 (start, heading) every ``eval_freq`` steps, and stops at the first evaluation at the solved bar
 (:mod:`sb3_dcqn.campusnav.solved`) or when the training-time budget is spent (evaluation time excluded).
 :func:`train_with_closures` is the loop of the command line and of the closure benchmarks: train (until solved), close
-roads (at fixed steps, or one at a time), train on until recovered, and return everything the callbacks recorded.
+roads (at fixed steps, or one at a time), train on until recovered, and return everything the callbacks recorded (on
+Ctrl-C, :class:`TrainingInterrupted` carries what was recorded until then). Its progress bar ends each phase on what
+happened (:meth:`TrainingOutcome.headline`: "solved at 9,000 steps", "recovered from 69-81 after 20 episodes").
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ __all__ = [
     "ClosurePlan",
     "SolveResult",
     "TrainingBudget",
+    "TrainingInterrupted",
     "TrainingOutcome",
     "train_until_solved",
     "train_with_closures",
@@ -209,6 +212,44 @@ class TrainingOutcome:
         end = self._first_change()
         return self.evaluation.evaluations[end - 1] if end > 0 else None
 
+    def headline(self) -> str:
+        """
+        What the run came to, in a line (the progress bar ends each phase on it): solved or not (before any closure),
+        recovered from the latest closure or not, and the latest evaluation's scores, e.g. ``"solved at 9,000 steps:
+        success 1.000, SPL 0.990"`` or ``"not recovered from 69-81; at 6,000 steps: success 0.750, SPL 0.723"``.
+        """
+        evaluations = self.evaluation.evaluations
+        if not evaluations:
+            return "not evaluated"
+        last = evaluations[-1]
+        scores = f"success {last.success_rate:.3f}, SPL {last.spl:.3f}"
+        recoveries = self.recoveries
+        if recoveries:
+            latest = recoveries[-1]
+            roads = ", ".join(f"{u}-{v}" for u, v in latest.closure.closed) or "reopened " + ", ".join(
+                f"{u}-{v}" for u, v in latest.closure.reopened
+            )
+            event = latest.recovered_at
+            said = f"not recovered from {roads}"
+            if event is not None:
+                said = f"recovered from {roads} after {latest.episodes:,.0f} episodes ({latest.steps:,.0f} steps)"
+        else:
+            event = self.solved_at()
+            said = "not solved" if event is None else f"solved at {event.step:,} steps"
+        return f"{said}: {scores}" if event is last else f"{said}; at {last.step:,} steps: {scores}"
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """
+    Ctrl-C inside :func:`train_with_closures`: a ``KeyboardInterrupt`` that carries what the run recorded until then.
+
+    :param outcome: The run so far (its route evaluation can still evaluate the model as it is now)
+    """
+
+    def __init__(self, outcome: TrainingOutcome) -> None:
+        super().__init__()
+        self.outcome = outcome
+
 
 def _has_logger(model: BaseAlgorithm) -> bool:
     try:
@@ -261,8 +302,9 @@ def train_with_closures(
         env has one per intersection: pass a sample)
     :param every_goal: Solved and recovered only when each goal is at the thresholds on its own
     :param verbose: 1: a line per route evaluation and closure event
-    :param progress: Show a progress bar on stderr
+    :param progress: Show a progress bar on stderr; each phase's bar ends on :meth:`TrainingOutcome.headline`
     :return: the callbacks, with everything they recorded
+    :raises TrainingInterrupted: on Ctrl-C (a ``KeyboardInterrupt``), with what was recorded until then
     """
     start, start_steps = time.perf_counter(), model.num_timesteps
     if not _has_logger(model):
@@ -281,8 +323,23 @@ def train_with_closures(
     )
     bar = TqdmProgress(evaluation, disable=not progress)
     closures.init_callback(model)  # learns the map, so that closures can be applied before any training
+    first_phase_seconds: float | None = None
+    fired: int | None = None
+
+    def outcome() -> TrainingOutcome:
+        """The run as it stands (its first phase, if still running, counted up to now)."""
+        return TrainingOutcome(
+            evaluation=evaluation,
+            closures=closures,
+            progress=bar,
+            steps=model.num_timesteps - start_steps,
+            seconds=time.perf_counter() - start,
+            first_phase_seconds=time.perf_counter() - start if first_phase_seconds is None else first_phase_seconds,
+            unfired=plan.scheduled.ordered()[len(closures.records) if fired is None else fired :],
+        )
 
     def learn(steps: int, phase: str, expected_events: int = 0, seconds: float = math.inf) -> None:
+        # The bar after the closures' callback: its last words come after the evaluation at the end of training
         phase_callbacks: list[BaseCallback] = [closures, bar, *callbacks]
         if stop_when_solved or stop_when_recovered:
             expected = len(closures.records) + expected_events
@@ -292,27 +349,23 @@ def train_with_closures(
         bar.phase = phase
         model.learn(steps, callback=phase_callbacks, reset_num_timesteps=False)
 
-    if budget > 0:
-        learn(budget, "train", len(plan.scheduled.events), budget_seconds)
-    first_phase_seconds = time.perf_counter() - start
-    fired = len(closures.records)
-    if plan.later and not evaluation.evaluations:
-        evaluation.evaluate()  # the routes before the first closure
-    for event in plan.later:
-        record = closures.apply(replace(event, at=model.num_timesteps))  # described as "step N: ..."
-        if not record.changed:
-            for what, why in record.refused:
-                print(f"closure refused: {what}: {why}", file=sys.stderr)
-            continue
-        roads = ", ".join(f"{u}-{v}" for u, v in record.closed)
-        if recovery_budget > 0:
-            learn(recovery_budget, f"closed {roads}")
-    return TrainingOutcome(
-        evaluation=evaluation,
-        closures=closures,
-        progress=bar,
-        steps=model.num_timesteps - start_steps,
-        seconds=time.perf_counter() - start,
-        first_phase_seconds=first_phase_seconds,
-        unfired=plan.scheduled.ordered()[fired:],
-    )
+    bar.ending = lambda: outcome().headline()
+    try:
+        if budget > 0:
+            learn(budget, "train", len(plan.scheduled.events), budget_seconds)
+        first_phase_seconds = time.perf_counter() - start
+        fired = len(closures.records)
+        if plan.later and not evaluation.evaluations:
+            evaluation.evaluate()  # the routes before the first closure
+        for event in plan.later:
+            record = closures.apply(replace(event, at=model.num_timesteps))  # described as "step N: ..."
+            if not record.changed:
+                for what, why in record.refused:
+                    print(f"closure refused: {what}: {why}", file=sys.stderr)
+                continue
+            roads = ", ".join(f"{u}-{v}" for u, v in record.closed)
+            if recovery_budget > 0:
+                learn(recovery_budget, f"closed {roads}")
+    except KeyboardInterrupt:
+        raise TrainingInterrupted(outcome()) from None
+    return outcome()

@@ -9,11 +9,17 @@ needs only tqdm (no rich), writes to stderr, names the training phase, shows the
     progress.phase = "train"
     model.learn(30_000, callback=[closures, progress])
     rewards, lengths = progress.episode_rewards, progress.episode_lengths
+
+A bar ends on what happened, never on a score the model has trained past: :attr:`TqdmProgress.ending` (e.g. "solved
+at 9,000 steps"), else the latest evaluation once training has ended (pass the bar after the evaluation, or after the
+closure callback that holds it, so that the evaluation at the end of training comes first). A phase that stopped
+before its budget (solved, recovered) ends full, its budget named, so that it does not read as a crash.
 """
 
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from typing import Any, TextIO
 
 from stable_baselines3.common.callbacks import BaseCallback
@@ -34,6 +40,7 @@ class TqdmProgress(BaseCallback):
     :param evaluation: Route evaluation whose latest success rate and SPL the bar shows (optional)
     :param disable: Show no bar (the episodes are still recorded)
     :param file: Where the bar goes (default: ``sys.stderr``)
+    :ivar ending: What happened, in a line, asked for when training ends (default: the latest evaluation's scores)
     """
 
     def __init__(
@@ -44,6 +51,7 @@ class TqdmProgress(BaseCallback):
         self.disable = disable
         self.file = file
         self.phase = "train"
+        self.ending: Callable[[], str] | None = None
         self.episode_rewards: list[float] = []
         self.episode_lengths: list[int] = []
         self._bar: Any = None
@@ -80,7 +88,23 @@ class TqdmProgress(BaseCallback):
                 self._bar.set_postfix(postfix, refresh=False)
         return True
 
+    def last_words(self) -> str:
+        """The line the bar ends on: :attr:`ending`, else the episodes and the latest evaluation's scores."""
+        if self.ending is not None:
+            return self.ending()
+        said = f"{len(self.episode_rewards)} episodes"
+        if self.evaluation is not None and self.evaluation.evaluations:
+            last = self.evaluation.evaluations[-1]
+            said += f"; at {last.step:,} steps: success {last.success_rate:.3f}, SPL {last.spl:.3f}"
+        return said
+
     def _on_training_end(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
+        bar, self._bar = self._bar, None
+        if bar is None:
+            return
+        words = self.last_words()
+        if bar.total and bar.n < bar.total:  # stopped before its budget: full, the budget named
+            words += f" (budget {bar.total:,} steps)"
+            bar.total = bar.n
+        bar.set_postfix_str(words, refresh=False)
+        bar.close()

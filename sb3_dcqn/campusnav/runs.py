@@ -25,6 +25,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from campusnav_env import CampusNavEnv
+from campusnav_env.recovery import RouteEvaluation
 from sb3_dcqn.campusnav import experiments
 from sb3_dcqn.campusnav.checks import (
     DEFAULT_OUT,
@@ -466,11 +467,10 @@ class Run:
     def train(self) -> TrainingOutcome:
         """
         Train with the closure plan (:func:`~sb3_dcqn.campusnav.experiments.train_with_closures`, its options from
-        the request); on Ctrl-C save the model, its replay buffer and the closures in force (each file atomically)
-        and a ``summary.json`` that says the run was interrupted, then raise :class:`Interrupted` saying how to go on.
+        the request); on Ctrl-C save the model, its replay buffer and the closures in force (each file atomically),
+        evaluate the model saved and write a summary that says the run was interrupted, with those scores, then raise
+        :class:`Interrupted` saying how to go on.
         """
-        from campusnav_env.atomic_files import write_text_atomic
-
         request = self.request
         try:
             return experiments.train_with_closures(
@@ -486,35 +486,65 @@ class Run:
                 verbose=request.verbose,
                 progress=request.progress,
             )
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as interrupt:
             print(file=sys.stderr)  # past the progress bar
-        try:
-            saved = self.save(self.model_path, replay_buffer=True)
-            self.model.logger.close()
-            summary = {
-                "command": request.command,
-                "interrupted": True,
-                "num_timesteps": self.model.num_timesteps,
-                "settings": self.settings.to_json(),
-                "files": {"model": str(saved[0]), "replay_buffer": str(saved[1]), "env_settings": str(saved[2])},
-            }
-            write_text_atomic(self.out / "summary.json", json.dumps(summary, indent=2) + "\n")
-            # Whatever summary.md said (of an earlier run, with --force) is not of this model
-            text = (
-                f"# {self.title}\n\nInterrupted at step {self.model.num_timesteps}: {saved[0]} saved, not evaluated.\n"
-            )
-            write_text_atomic(self.out / "summary.md", text)
-        except KeyboardInterrupt:
-            raise Interrupted(
-                f"interrupted again while saving to {self.out}: the files written are whole (each is written "
-                "atomically), the others not written"
-            ) from None
+            outcome = interrupt.outcome if isinstance(interrupt, experiments.TrainingInterrupted) else None
+        saved = self._save_interrupted(outcome)
         raise Interrupted(
             f"interrupted at step {self.model.num_timesteps}: saved {saved[0]} with its replay buffer and the closures "
             f"in force; go on with '{PROG} train -i {saved[0]}' (or '{PROG} readapt {saved[0]} --in-place --close "
             f"...' to close roads), or in Python with DCQN.load('{saved[0]}', env), load_replay_buffer('{saved[1]}') "
             "and learn(N, reset_num_timesteps=False)"
         ) from None
+
+    def _save_interrupted(self, outcome: TrainingOutcome | None) -> list[Path]:
+        """
+        After Ctrl-C: the model, its replay buffer and the closures in force, then a summary saying so (whatever
+        summary an earlier run left here, with ``--force``, is not of this model), then the saved model's scores in
+        it; Ctrl-C again leaves the files written whole (each atomically) and the summary without scores.
+        """
+        from campusnav_env.atomic_files import write_text_atomic
+        from sb3_dcqn.campusnav.summaries import final_json
+
+        try:
+            saved = self.save(self.model_path, replay_buffer=True)
+            files = {"model": str(saved[0]), "replay_buffer": str(saved[1]), "env_settings": str(saved[2])}
+            summary: dict[str, Any] = {
+                "command": self.request.command,
+                "interrupted": True,
+                "num_timesteps": self.model.num_timesteps,
+                "settings": self.settings.to_json(),
+                "final": None,
+                "files": files,
+            }
+            heading = f"# {self.title}\n\nInterrupted at step {self.model.num_timesteps}: {saved[0]} saved"
+            write_text_atomic(self.out / "summary.json", json.dumps(summary, indent=2) + "\n")
+            write_text_atomic(self.out / "summary.md", f"{heading}, not evaluated.\n")
+            if outcome is not None:
+                # Ctrl-C lands anywhere (in a gradient step, while a transition is stored): evaluate the model as saved
+                final = outcome.evaluation.evaluate()
+                summary["final"] = final_json(final)
+                write_text_atomic(self.out / "summary.json", json.dumps(summary, indent=2) + "\n")
+                text = f"{heading}; its routes: success {final.success_rate:.3f}, SPL {final.spl:.3f}.\n"
+                write_text_atomic(self.out / "summary.md", text)
+            self.model.logger.close()
+        except KeyboardInterrupt:
+            raise Interrupted(
+                f"interrupted again while saving to {self.out}: the files written are whole (each is written "
+                "atomically), the others not written"
+            ) from None
+        return saved
+
+    @staticmethod
+    def _final_evaluation(outcome: TrainingOutcome) -> RouteEvaluation:
+        """
+        The evaluation of the model as it is now, which is saved: the last one if nothing has changed the model
+        since, else a new one (logged to TensorBoard as every evaluation is). Every number a run reports at its end
+        (bars, tables, summaries, TensorBoard's last point) comes from here.
+        """
+        if not outcome.evaluation.current:
+            outcome.evaluation.evaluate()
+        return outcome.evaluation.evaluations[-1]
 
     def finish(self, outcome: TrainingOutcome) -> tuple[dict[str, Any], str]:
         """
@@ -526,12 +556,11 @@ class Run:
         from campusnav_env.atomic_files import write_text_atomic
         from campusnav_env.figures import training_curves, write_figure
         from sb3_dcqn.campusnav.pictures import picture_goals, routes_figure
-        from sb3_dcqn.campusnav.summaries import outcome_json, run_report
+        from sb3_dcqn.campusnav.summaries import final_json, outcome_json, run_report
 
         model, nav, out = self.model, self.nav, self.out
+        final = self._final_evaluation(outcome)  # the scores, curves and pictures are of the model saved beside them
         evaluations = outcome.evaluation.evaluations
-        if not evaluations or evaluations[-1].step != model.num_timesteps:
-            outcome.evaluation.evaluate()  # the scores, curves and pictures are of the model saved beside them
         recoveries = outcome.recoveries
         files: dict[str, str] = {"tensorboard": str(self.tb_folder)}
         figures: dict[str, np.ndarray] = {}
@@ -563,7 +592,6 @@ class Run:
         text = run_report(self.title, self.settings.describe(), outcome, files, from_model=self.from_model)
         if not self.replay_buffer:
             text += "\nReplay buffer not saved (" + _buffer_switch(self.request.command) + ").\n"
-        final = evaluations[-1]
         summary = {
             "command": self.request.command,
             "title": self.title,
@@ -573,7 +601,7 @@ class Run:
             "num_timesteps": model.num_timesteps,
             "resumed_from": None if self.origin is None or self.request.command != "train" else str(self.origin),
             **outcome_json(outcome),
-            "final": {"step": final.step, "success_rate": final.success_rate, "spl": final.spl},
+            "final": final_json(final),
             "files": files,
         }
         write_text_atomic(out / "summary.md", text)

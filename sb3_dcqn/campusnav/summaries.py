@@ -14,6 +14,7 @@ from sb3_dcqn.campusnav.solved import is_solved, solved_bar
 
 __all__ = [
     "evaluation_json",
+    "final_json",
     "finite",
     "goal_groups",
     "outcome_json",
@@ -83,7 +84,10 @@ def goal_groups(nav: CampusNavEnv) -> dict[str, list[str]]:
 
 
 def phases(outcome: TrainingOutcome) -> list[tuple[str, RouteEvaluation]]:
-    """The evaluations worth a row: before the closures, then right after each and at its recovery (or end)."""
+    """
+    The evaluations worth a row: before the closures, then right after each and at its recovery (or end), and the
+    last one (of the model saved) where it is none of those (training went on after the recovery).
+    """
     rows: list[tuple[str, RouteEvaluation]] = []
     before = outcome.before_closures()
     if before is not None:
@@ -98,6 +102,9 @@ def phases(outcome: TrainingOutcome) -> list[tuple[str, RouteEvaluation]]:
             rows.append((f"closure {number}: recovered", recovery.recovered_at))
         elif recovery.last is not None and recovery.last is not recovery.right_after:
             rows.append((f"closure {number}: not recovered, at the end", recovery.last))
+    evaluations = outcome.evaluation.evaluations
+    if evaluations and (not rows or rows[-1][1] is not evaluations[-1]):
+        rows.append(("at the end (the model saved)", evaluations[-1]))
     return rows
 
 
@@ -127,6 +134,11 @@ def evaluation_json(evaluation: RouteEvaluation | None) -> dict[str, Any] | None
         "train_seconds": evaluation.train_seconds,
         **summary,
     }
+
+
+def final_json(evaluation: RouteEvaluation) -> dict[str, Any]:
+    """``summary.json``'s ``final``: the scores of the model saved beside it (what ``evaluate`` says of it)."""
+    return {"step": evaluation.step, "success_rate": evaluation.success_rate, "spl": evaluation.spl}
 
 
 def outcome_json(outcome: TrainingOutcome) -> dict[str, Any]:
