@@ -37,6 +37,7 @@ from typing import Any, Literal
 import numpy as np
 
 from campusnav_env.maps.navigation import NavigationGraph, RoadClosureError
+from campusnav_env.maps.refusals import Refusal
 from campusnav_env.maps.road_graph import road_key
 
 __all__ = [
@@ -187,9 +188,10 @@ class ClosureSchedule:
         Works on a copy: ``graph`` is not changed. Route closures depend on the policy and are checked when they fire
         (only their start node is checked here).
 
-        :raises KeyError: an unknown road, naming the event
+        :raises NoSuchRoadError: (a ``KeyError``) an unknown road, naming the event
         :raises RoadClosureError: a closure that would cut a goal off, naming the event
-        :raises ValueError: a random draw that cannot be met, a reopening of an open road, a bad start node
+        :raises RoadStateError: a road closed twice or a reopening of an open road, naming the event
+        :raises ValueError: a random draw that cannot be met, a bad start node
         """
         trial = graph.copy()
         protect = list(protect)
@@ -198,10 +200,10 @@ class ClosureSchedule:
                 apply_fixed_event(trial, event, protect)
                 if isinstance(event.close_on_route, int) and not isinstance(event.close_on_route, bool):
                     trial.map.check_node(event.close_on_route, "close_on_route start")
+            except Refusal as error:  # the road refused (not on the map, would cut a goal off, closed already)
+                raise error.within(f"closure schedule, {event.describe()}") from None
             except KeyError as error:
                 raise KeyError(f"closure schedule, {event.describe()}: {error.args[0]}") from None
-            except RoadClosureError as error:
-                raise RoadClosureError(f"closure schedule, {event.describe()}: {error}") from None
             except ValueError as error:
                 raise ValueError(f"closure schedule, {event.describe()}: {error}") from None
 

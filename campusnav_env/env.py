@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Mapping, Sequence
 from os import PathLike
 from pathlib import Path
@@ -19,6 +20,7 @@ from campusnav_env.maps.compass import ACTION_NAMES, BACK, COMPASS
 from campusnav_env.maps.extent import check_map_extent
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.osm import load_graphml
+from campusnav_env.maps.refusals import Refusal, RefusedInput
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.rendering.street_view import RenderSettings
@@ -198,6 +200,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         _check_observation_mode(observation_mode)
         # Before any view is built: a map too large to build would sit at "encoding views 0/N" for days
         check_map_extent(graph.map, source=None if isinstance(world, (RoadGraph, NavigationGraph)) else str(world))
+        resolve_goals(graph.map, goals)  # and a misspelt goal is refused before its views are encoded
         # How views are built (kept for the views a subclass builds too, e.g. the goal env's goal pictures)
         self._view_build = {
             "workers": build_workers,
@@ -723,6 +726,36 @@ def resolve_world(
     raise ValueError(f"world must be 'campus', a RoadGraph, a NavigationGraph or a GraphML file's path, got {world!r}")
 
 
+class UnknownGoalError(Refusal, KeyError):
+    """
+    A goal name that is no landmark of the map.
+
+    :param goal: The name as given
+    :param graph: The map
+    :ivar nearest: The landmarks whose names are nearest it (``difflib``'s close matches), nearest first
+    """
+
+    def __init__(self, goal: str, graph: RoadGraph) -> None:
+        self.goal, self.map_name, self.n_nodes = goal, graph.name, graph.n_nodes
+        self.landmarks = sorted(graph.landmarks)
+        self.nearest = difflib.get_close_matches(goal, self.landmarks, n=3, cutoff=0.5)
+        nearest = f" (nearest: {', '.join(self.nearest)})" if self.nearest else ""
+        super().__init__(self._refuse(f"unknown goal {goal!r}{nearest}: the map's landmarks are {self.landmarks}"))
+
+
+class GoalNodeError(RefusedInput):
+    """
+    A goal node id that is not on the map.
+
+    :param goal: The node id as given
+    :param graph: The map
+    """
+
+    def __init__(self, goal: int, graph: RoadGraph) -> None:
+        self.goal, self.map_name, self.n_nodes = goal, graph.name, graph.n_nodes
+        super().__init__(f"goal node {goal} out of range [0, {graph.n_nodes})")
+
+
 def resolve_goals(graph: RoadGraph, goals: str | int | Sequence[str | int]) -> tuple[list[str], list[int]]:
     """
     The names and node ids of goals given as landmark names or node ids.
@@ -730,8 +763,9 @@ def resolve_goals(graph: RoadGraph, goals: str | int | Sequence[str | int]) -> t
     :param graph: The map whose landmarks and intersections the goals name
     :param goals: One goal or a sequence of them: landmark names (``"Dreese Lab"``) or node ids
     :return: ``(names, nodes)`` in the order given; a node without a landmark is named ``"node k"``
-    :raises ValueError: if no goal is given, a node id is out of range, or a goal is given twice
-    :raises KeyError: if a name is no landmark of the map
+    :raises ValueError: if no goal is given, or a goal is given twice
+    :raises UnknownGoalError: (a ``KeyError``) if a name is no landmark of the map
+    :raises GoalNodeError: (a ``ValueError``) if a node id is out of the map's range
     """
     items = [goals] if isinstance(goals, (str, int, np.integer)) else list(goals)
     if not items:
@@ -741,12 +775,12 @@ def resolve_goals(graph: RoadGraph, goals: str | int | Sequence[str | int]) -> t
     for item in items:
         if isinstance(item, str):
             if item not in graph.landmarks:
-                raise KeyError(f"unknown goal {item!r}: the map's landmarks are {sorted(graph.landmarks)}")
+                raise UnknownGoalError(item, graph)
             node = graph.landmarks[item]
         else:
             node = int(item)
             if not 0 <= node < graph.n_nodes:
-                raise ValueError(f"goal node {node} out of range [0, {graph.n_nodes})")
+                raise GoalNodeError(node, graph)
         if node in nodes:
             raise ValueError(f"goal {item!r} is given twice")
         names.append(by_node.get(node, f"node {node}"))

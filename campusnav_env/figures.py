@@ -255,12 +255,16 @@ def route_text(road_graph: RoadGraph | NavigationGraph, route: Route) -> str:
         return f"{node} ({', '.join(names[node])})" if node in names else str(node)
 
     moves = sum(u != v for u, v in itertools.pairwise(route.nodes))
-    # A failed route stops at a loop or the step limit and is scored as the limit (RouteReport), blocked moves unlisted
+    # A failed route is scored as the step limit (RouteReport); why it stopped, where the evaluation recorded it
+    why = {
+        "blocked": f"stuck at node {place(route.nodes[-1])}: a move into a closed road or no road, again and again",
+        "loop": f"goes round a loop (back at node {place(route.nodes[-1])} facing the same way)",
+        "step limit": "the step limit reached",
+    }.get(route.ended, "a loop, blocked or the step limit")
     outcome = (
         f"reached in {route.steps} steps"
         if route.success
-        else f"fails after {moves} move{'' if moves == 1 else 's'} (a loop, blocked or the step limit; scored as "
-        f"{route.steps} steps)"
+        else f"fails after {moves} move{'' if moves == 1 else 's'} ({why}; scored as {route.steps} steps)"
     )
     shortest = route.shortest if route.shortest >= 0 else "-"
     lines = [

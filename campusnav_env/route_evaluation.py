@@ -20,9 +20,18 @@ from campusnav_env.env import CampusNavEnv
 Policy = Callable[[Any], np.ndarray]  # batched observations -> actions
 
 
+# Why a route ended (Route.ended): at the goal, stuck on a blocked move (a closed road or no road that way, tried again
+# and again), round a loop of moves, or at the step limit
+ENDINGS = ("goal", "blocked", "loop", "step limit")
+
+
 @dataclass(frozen=True)
 class Route:
-    """One evaluated route."""
+    """
+    One evaluated route.
+
+    :param ended: Why it ended, one of :data:`ENDINGS` (``""``: not recorded, a route made elsewhere)
+    """
 
     goal: str
     start: int
@@ -31,6 +40,7 @@ class Route:
     steps: int
     shortest: int
     nodes: tuple[int, ...]
+    ended: str = ""
 
     @property
     def spl(self) -> float:
@@ -151,6 +161,7 @@ def evaluate_routes(
         steps = np.zeros(goal_starts.size, dtype=np.int64)
         active = np.ones(goal_starts.size, dtype=bool)
         success = np.zeros(goal_starts.size, dtype=bool)
+        ended = ["step limit"] * goal_starts.size
         visited: list[set[int]] = [{int(s)} for s in goal_starts]
         paths: list[list[int]] = [[int(state_nodes[s])] for s in goal_starts]
         for _ in range(max_steps):
@@ -166,9 +177,10 @@ def evaluate_routes(
                 if not was_blocked:
                     paths[i].append(int(state_nodes[state]))
                 if state_nodes[state] == goal_node:
-                    success[i], active[i] = True, False
+                    success[i], active[i], ended[i] = True, False, "goal"
                 elif stop_loops and state in visited[i]:
                     active[i] = False  # a deterministic policy that repeats a state loops forever
+                    ended[i] = "blocked" if was_blocked else "loop"
                 elif stop_loops:
                     visited[i].add(state)
         for i, start in enumerate(goal_starts):
@@ -181,6 +193,7 @@ def evaluate_routes(
                     steps=int(steps[i]) if success[i] else max_steps,  # a failed route counts the full budget
                     shortest=int(distances[state_nodes[start]]),
                     nodes=tuple(paths[i]),
+                    ended=ended[i],
                 )
             )
     return report

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from campusnav_env.maps.refusals import RefusedInput, Setting
 from campusnav_env.maps.road_graph import RoadGraph
 
 __all__ = ["MAX_MAP_SPAN_M", "MAX_ROAD_NETWORK_M", "MapExtentError", "check_map_extent", "describe_length", "span_m"]
@@ -29,8 +30,11 @@ MAX_MAP_SPAN_M = 100_000.0
 MAX_ROAD_NETWORK_M = 10_000_000.0
 
 
-class MapExtentError(ValueError):
-    """A map too large for its street views to be built (most often: coordinates read in the wrong units)."""
+class MapExtentError(RefusedInput):
+    """
+    A map too large for its street views to be built (most often: coordinates read in the wrong units); its ``fix``
+    is ``coords='projected'`` (the env's ``map_coords``), its ``where`` the map.
+    """
 
 
 def span_m(points: np.ndarray) -> tuple[float, float]:
@@ -57,10 +61,13 @@ def check_map_extent(graph: RoadGraph, source: str | None = None) -> None:
     u, v = graph.roads[longest]
     km = describe_length
     raise MapExtentError(
-        f"map {source or graph.name!r}: too large to build its street views: it spans {km(width)} x {km(height)} "
-        f"and its roads add up to {km(total)} (the longest, road {u}-{v}, {km(float(graph.lengths[longest]))}); "
-        f"the limits are {km(MAX_MAP_SPAN_M)} across and {km(MAX_ROAD_NETWORK_M)} of road. If x/y are metres "
-        "read as longitude/latitude, load the map with coords='projected' (the env's map_coords)"
+        f"too large to build its street views: it spans {km(width)} x {km(height)} and its roads add up to "
+        f"{km(total)} (the longest, road {u}-{v}, {km(float(graph.lengths[longest]))}); the limits are "
+        f"{km(MAX_MAP_SPAN_M)} across and {km(MAX_ROAD_NETWORK_M)} of road",
+        "If x/y are metres read as longitude/latitude, load the map with {fix}",
+        fix=Setting("coords", "projected", note="the env's map_coords"),
+        where=f"map {source or graph.name!r}",
+        separator=". ",
     )
 
 

@@ -23,13 +23,44 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from campusnav_env.maps.refusals import RefusedInput, Setting
 from campusnav_env.maps.road_graph import RoadGraph
 
-__all__ = ["NavigationGraph", "RoadClosureError"]
+__all__ = ["NavigationGraph", "RoadClosureError", "RoadStateError"]
 
 
-class RoadClosureError(ValueError):
-    """A road closure was refused because it would cut a protected node off from nodes that reach it now."""
+class RoadClosureError(RefusedInput):
+    """
+    A road closure refused because it would cut a protected node off from nodes that reach it now; its ``fix`` is
+    ``force=True``.
+
+    :param road: The road, as a canonical ``(min, max)`` pair
+    :param node: The protected node it would cut off
+    :param labels: The node's landmark names
+    :param n_cut: How many nodes that reach it now would not
+    """
+
+    def __init__(self, road: tuple[int, int], node: int, labels: Iterable[str], n_cut: int) -> None:
+        self.road, self.node, self.labels, self.n_cut = road, node, tuple(labels), n_cut
+        label = f" ({', '.join(self.labels)})" if self.labels else ""
+        super().__init__(
+            f"closing road {road} would cut protected node {node}{label} off from {n_cut} node(s) that reach it now",
+            "pass {fix} to close it anyway",
+            fix=Setting("force", True),
+        )
+
+
+class RoadStateError(RefusedInput):
+    """
+    A road already as asked: closing a closed road, or reopening an open one.
+
+    :param road: The road, as a canonical ``(min, max)`` pair
+    :param closed: Whether it is closed
+    """
+
+    def __init__(self, road: tuple[int, int], closed: bool) -> None:
+        self.road, self.closed = road, closed
+        super().__init__(f"road {road} is {'already closed' if closed else 'not closed'}")
 
 
 class _ReverseIndex:
@@ -202,24 +233,21 @@ class NavigationGraph:
         :param protect: Nodes that must stay reachable from every node that reaches them now; defaults to all
             landmark nodes
         :param force: Close even if a protected node gets cut off
-        :raises KeyError: if there is no such road
-        :raises ValueError: if the road is already closed
-        :raises RoadClosureError: if the closure would cut a protected node off (and ``force`` is False)
+        :raises NoSuchRoadError: (a ``KeyError``) if there is no such road
+        :raises RoadStateError: (a ``ValueError``) if the road is already closed
+        :raises RoadClosureError: (a ``ValueError``) if the closure would cut a protected node off (and ``force`` is
+            False)
         """
         road = self.map.road_id(u, v)
         a, b = self.map.roads[road]
         if road in self._closed:
-            raise ValueError(f"road ({a}, {b}) is already closed")
+            raise RoadStateError((int(a), int(b)), closed=True)
         if not force:
             cut = self._cut_protected(self._closed, road, self._protected_nodes(protect))
             if cut is not None:
                 node, n_cut = cut
                 labels = [label for label, n in self.map.landmarks.items() if n == node]
-                label = f" ({', '.join(labels)})" if labels else ""
-                raise RoadClosureError(
-                    f"closing road ({a}, {b}) would cut protected node {node}{label} off from {n_cut} node(s) that "
-                    "reach it now; pass force=True to close it anyway"
-                )
+                raise RoadClosureError((int(a), int(b)), node, labels, n_cut)
         self._closed.add(road)
         self._refresh()
 
@@ -227,13 +255,13 @@ class NavigationGraph:
         """
         Reopen a closed road, restoring both directions of the table exactly.
 
-        :raises KeyError: if there is no such road
-        :raises ValueError: if the road is not closed
+        :raises NoSuchRoadError: (a ``KeyError``) if there is no such road
+        :raises RoadStateError: (a ``ValueError``) if the road is not closed
         """
         road = self.map.road_id(u, v)
         if road not in self._closed:
             a, b = self.map.roads[road]
-            raise ValueError(f"road ({a}, {b}) is not closed")
+            raise RoadStateError((int(a), int(b)), closed=False)
         self._closed.remove(road)
         self._refresh()
 

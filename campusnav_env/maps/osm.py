@@ -58,6 +58,7 @@ import numpy as np
 from campusnav_env.maps.compass import compass_slots, initial_bearing
 from campusnav_env.maps.disjoint_set import DisjointSet
 from campusnav_env.maps.extent import MAX_MAP_SPAN_M, describe_length, span_m
+from campusnav_env.maps.refusals import Refusal, RefusedInput, Setting
 from campusnav_env.maps.road_graph import RoadGraph, require_networkx, road_key
 
 EARTH_RADIUS_M = 6_371_008.8
@@ -72,8 +73,21 @@ class OsmImportWarning(UserWarning):
     """Part of the input network was dropped on import (crowded intersections, disconnected pieces)."""
 
 
-class CoordinatesWarning(UserWarning):
-    """A graph without a ``crs`` whose x / y could be degrees: how they were read (degrees or metres), and why."""
+class CoordinatesWarning(Refusal, UserWarning):
+    """
+    A graph without a ``crs`` whose x / y could be degrees: how they were read (degrees or metres), and why; its
+    ``fix`` is the other ``coords``.
+
+    :param reason: How they were read, and why
+    :param other: The other reading (``"lonlat"`` or ``"projected"``)
+    """
+
+    def __init__(self, reason: str, other: str) -> None:
+        super().__init__(self._refuse(reason, "pass {fix} if that is wrong", fix=Setting("coords", other)))
+
+
+class CoordinatesError(RefusedInput):
+    """x / y said to be degrees (by ``coords='lonlat'`` or the graph's ``crs``) that are out of the degrees' ranges."""
 
 
 @dataclass(frozen=True)
@@ -309,11 +323,14 @@ def _read_as_lonlat(graph: Any, raw: np.ndarray, coords: str, where: str) -> boo
     if coords != "auto" or crs is not None:
         lonlat = coords == "lonlat" if coords != "auto" else _GEOGRAPHIC_CRS.search(str(crs).strip()) is not None
         if lonlat and not _fit_degrees(raw):
-            said = "coords='lonlat'" if coords != "auto" else f"its crs {str(crs)!r}"
-            raise ValueError(
-                f"{where}: {said} says x/y are longitude/latitude, but they reach |x| = {np.abs(raw[:, 0]).max():g}, "
-                f"|y| = {np.abs(raw[:, 1]).max():g} (degrees stay within 180 and 90); if they are metres, pass "
-                "coords='projected'"
+            said = "{given}" if coords != "auto" else f"its crs {str(crs)!r}"
+            raise CoordinatesError(
+                f"{said} says x/y are longitude/latitude, but they reach |x| = {np.abs(raw[:, 0]).max():g}, "
+                f"|y| = {np.abs(raw[:, 1]).max():g} (degrees stay within 180 and 90)",
+                "if they are metres, pass {fix}",
+                given=Setting("coords", coords) if coords != "auto" else None,
+                fix=Setting("coords", "projected"),
+                where=where,
             )
         return lonlat
     if not _fit_degrees(raw):
@@ -321,13 +338,14 @@ def _read_as_lonlat(graph: Any, raw: np.ndarray, coords: str, where: str) -> boo
     as_degrees = max(span_m(_local_projection(raw)(raw)))
     lonlat = as_degrees <= MAX_MAP_SPAN_M
     if lonlat:
-        reading = f"longitude/latitude (read so, the map spans {describe_length(as_degrees)}); pass coords='projected'"
+        reading = f"longitude/latitude (read so, the map spans {describe_length(as_degrees)})"
     else:
         reading = (
             f"metres (as degrees the map would span {describe_length(as_degrees)}, more than a road map's "
-            f"{describe_length(MAX_MAP_SPAN_M)}); pass coords='lonlat'"
+            f"{describe_length(MAX_MAP_SPAN_M)})"
         )
-    warnings.warn(f"{where} has no crs: x/y read as {reading} if that is wrong", CoordinatesWarning, stacklevel=4)
+    warning = CoordinatesWarning(f"{where} has no crs: x/y read as {reading}", "projected" if lonlat else "lonlat")
+    warnings.warn(warning, stacklevel=4)
     return lonlat
 
 

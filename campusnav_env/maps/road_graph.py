@@ -33,14 +33,39 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from campusnav_env.maps.compass import ACTION_SLOT, COMPASS, SLOT_BEARINGS, bearing_degrees, compass_slots
+from campusnav_env.maps.refusals import Refusal
 
 if TYPE_CHECKING:
     import networkx
 
-__all__ = ["RoadGraph", "require_networkx", "road_key"]
+__all__ = ["NoSuchRoadError", "RoadGraph", "require_networkx", "road_key"]
 
 _FINGERPRINT_VERSION = b"campusnav-road-graph-v1"
 _SCENE_FINGERPRINT_VERSION = b"campusnav-scene-graph-v1"
+
+
+class NoSuchRoadError(Refusal, KeyError):
+    """
+    A road that is not on the map: a ``KeyError`` that says which (``u``, ``v``) and why, an end that is no node of the
+    map (``missing``) or no road between two nodes that are.
+
+    :param u: One end, as given
+    :param v: The other end, as given
+    :param map_name: The map's name
+    :param n_nodes: Its number of nodes (ids ``0 .. n_nodes - 1``)
+    """
+
+    def __init__(self, u: int, v: int, map_name: str, n_nodes: int) -> None:
+        self.u, self.v = int(u), int(v)
+        self.missing = tuple(node for node in dict.fromkeys((self.u, self.v)) if not 0 <= node < n_nodes)
+        ids = f"the map {map_name!r} (node ids 0..{n_nodes - 1})"
+        if len(self.missing) == 1:
+            reason = f"node {self.missing[0]} is not on {ids}"
+        elif self.missing:
+            reason = f"nodes {self.u} and {self.v} are not on {ids}"
+        else:
+            reason = f"no road between nodes {self.u} and {self.v} in {map_name!r}"
+        super().__init__(self._refuse(reason))
 
 
 def road_key(u: int, v: int) -> tuple[int, int]:
@@ -241,12 +266,13 @@ class RoadGraph:
         """
         Id of the road between two nodes (either order).
 
-        :raises KeyError: if there is no road between ``u`` and ``v``
+        :raises NoSuchRoadError: (a ``KeyError``) if there is no road between ``u`` and ``v``, naming an end that is
+            not on the map
         """
         try:
             return self._road_index[road_key(u, v)]
         except KeyError:
-            raise KeyError(f"no road between nodes {int(u)} and {int(v)} in {self.name!r}") from None
+            raise NoSuchRoadError(u, v, self.name, self.n_nodes) from None
 
     def check_node(self, node: int, what: str = "node") -> int:
         """

@@ -5,7 +5,8 @@ raises :class:`CommandError`, whose message names the flag, file or road, and :f
 exits with status 2; Ctrl-C while training saves the run's model and raises :class:`Interrupted` (exit status 130).
 The subcommands themselves are described in :data:`DESCRIPTION` (``dcqn-campusnav --help``). This module holds the
 flags, the dispatch and the output; the parsed flags become a frozen request (:mod:`sb3_dcqn.campusnav.requests`),
-checked by :mod:`sb3_dcqn.campusnav.checks`, and a training run is a :class:`~sb3_dcqn.campusnav.runs.Run`.
+checked by the ``*_checks`` modules (the entry by :mod:`sb3_dcqn.campusnav.checks`, the folders written by
+:mod:`~sb3_dcqn.campusnav.output_paths`), and a training run is a :class:`~sb3_dcqn.campusnav.runs.Run`.
 
 Importing this module imports neither torch nor SB3 nor CampusNav (each subcommand imports what it needs), so that
 ``--help`` answers at once.
@@ -14,15 +15,18 @@ Importing this module imports neither torch nor SB3 nor CampusNav (each subcomma
 from __future__ import annotations
 
 import argparse
+import difflib
 import sys
 import time
 import warnings
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
-from sb3_dcqn.campusnav.checks import DEFAULT_OUT, PROG, CommandError, Interrupted, one_line_warning
+from sb3_dcqn.campusnav.errors import PROG, CommandError, Interrupted, one_line_warning
 from sb3_dcqn.campusnav.levers import DEMO_LEVERS, LEVERS
+from sb3_dcqn.campusnav.output_paths import DEFAULT_OUT
 from sb3_dcqn.campusnav.requests import Request
 from sb3_dcqn.campusnav.settings import DEFAULT_ENV, campusnav_env_ids
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
@@ -37,6 +41,14 @@ if TYPE_CHECKING:
 __all__ = ["DESCRIPTION", "CommandError", "Interrupted", "build_parser", "campusnav_env_ids", "main", "run"]
 
 COMPASS_LETTERS = ("N", "E", "S", "W")
+# The roads are the same whatever the views: where no model looks at them (roads, draw without --model) the env is
+# built with the cheapest ones, never rendered at full size nor encoded by the CNN
+_VIEWLESS: dict[str, Any] = {
+    "encoder": "pixels",
+    "encoder_weights": None,
+    "encoder_random_init": False,
+    "render_size": (16, 16),
+}
 # Exit status after Ctrl-C (128 + SIGINT), as shells report it
 INTERRUPTED_STATUS = 130
 
@@ -133,7 +145,7 @@ def _cmd_demo(request: Request) -> dict[str, Any]:
 
 
 def _cmd_train(request: Request) -> dict[str, Any]:
-    from sb3_dcqn.campusnav.checks import closure_plan
+    from sb3_dcqn.campusnav.closure_checks import closure_plan
     from sb3_dcqn.campusnav.runs import Run
 
     if request.trained_agent is None:
@@ -167,26 +179,31 @@ def _picture_line(picture: Path, asked: str | None) -> str:
 
 
 def _cmd_evaluate(request: Request) -> dict[str, Any]:
-    from sb3_dcqn.campusnav import checks
+    from sb3_dcqn.campusnav.checks import check_device
+    from sb3_dcqn.campusnav.closure_checks import close_roads
+    from sb3_dcqn.campusnav.env_checks import env_settings
+    from sb3_dcqn.campusnav.map_checks import check_goal, check_start
+    from sb3_dcqn.campusnav.model_checks import find_model, saved_run
+    from sb3_dcqn.campusnav.output_paths import free_picture
 
     assert request.model is not None
-    path = checks.find_model(request.model)
-    picture_path = checks.free_picture(request.picture, request.force)
-    saved = checks.saved_run(path)
-    checks.check_device(request.device)
-    settings = checks.env_settings(request, saved.settings)
+    path = find_model(request.model)
+    picture_path = free_picture(request.picture, request.force)
+    saved = saved_run(path)
+    check_device(request.device)
+    settings = env_settings(request, saved.settings)
 
     from campusnav_env import RouteReport, evaluate_routes
     from campusnav_env.figures import pick_route, write_figure
     from sb3_dcqn.campusnav.pictures import picture_goals, route_picture
     from sb3_dcqn.campusnav.runs import load_model, make_env, restore_closures
-    from sb3_dcqn.campusnav.summaries import finite, goal_groups, routes_to, score_table
+    from sb3_dcqn.campusnav.summaries import SCORES_LEGEND, finite, goal_groups, routes_to, score_table
 
-    nav = make_env(settings)
+    nav = make_env(settings, request)
     restored = restore_closures([nav], path, saved, request.open_map)
-    checks.close_roads(nav, request.close, restored)
-    goal = checks.check_goal(nav, request.goal)
-    checks.check_start(nav, request.start, goal)
+    close_roads(nav, request.close, restored)
+    goal = check_goal(nav, request.goal)
+    check_start(nav, request.start, goal)
     model = load_model(path, settings, nav, device=request.device)
     start = time.perf_counter()
     report = evaluate_routes(nav, _greedy_policy(model))
@@ -197,7 +214,8 @@ def _cmd_evaluate(request: Request) -> dict[str, Any]:
     rows = picture_goals(nav)
     rows += [goal] if request.goal is not None and goal not in rows else []
     groups = goal_groups(nav)
-    print(score_table(report, goals=rows, groups=groups), flush=True)
+    print(score_table(report, goals=rows, groups=groups))
+    print(f"\n({SCORES_LEGEND}.)", flush=True)
     if len(rows) < len(nav.goal_names):
         print(f"\n('all': the routes to every one of the {len(nav.goal_names)} goals; --goal NAME adds a goal's row)")
 
@@ -244,25 +262,32 @@ def _route_as_text(nav: CampusNavEnv, route: Any, picture: Path) -> dict[str, An
 
 
 def _cmd_draw(request: Request) -> dict[str, Any]:
-    from sb3_dcqn.campusnav import checks
+    from sb3_dcqn.campusnav.checks import check_device
+    from sb3_dcqn.campusnav.closure_checks import close_roads
+    from sb3_dcqn.campusnav.env_checks import env_settings
+    from sb3_dcqn.campusnav.map_checks import check_goal, check_start
+    from sb3_dcqn.campusnav.model_checks import find_model, saved_run
+    from sb3_dcqn.campusnav.output_paths import free_picture
 
-    path = None if request.model is None else checks.find_model(request.model, "--model")
-    picture_path = checks.free_picture(request.picture, request.force)
+    path = None if request.model is None else find_model(request.model, "--model")
+    picture_path = free_picture(request.picture, request.force)
     assert picture_path is not None  # draw's --picture has a default
-    saved = checks.saved_run(path) if path is not None else None
-    checks.check_device(request.device)
-    settings = checks.env_settings(request, None if saved is None else saved.settings)
+    saved = saved_run(path) if path is not None else None
+    check_device(request.device)
+    if path is None:  # no model looks at the views: the cheapest ones, never the CNN's (as roads builds its env)
+        request = replace(request, **_VIEWLESS)
+    settings = env_settings(request, None if saved is None else saved.settings)
 
     from campusnav_env import evaluate_routes
     from campusnav_env.figures import pick_route, write_figure
     from sb3_dcqn.campusnav.pictures import route_picture
     from sb3_dcqn.campusnav.runs import load_model, make_env, restore_closures
 
-    nav = make_env(settings)
+    nav = make_env(settings, request)
     restored = [] if saved is None or path is None else restore_closures([nav], path, saved, request.open_map)
-    checks.close_roads(nav, request.close, restored)
-    goal = checks.check_goal(nav, request.goal)
-    checks.check_start(nav, request.start, goal)
+    close_roads(nav, request.close, restored)
+    goal = check_goal(nav, request.goal)
+    check_start(nav, request.start, goal)
     route, report = None, None
     if path is not None:
         model = load_model(path, settings, nav, device=request.device)
@@ -283,12 +308,13 @@ def _cmd_draw(request: Request) -> dict[str, Any]:
 
 def _cmd_roads(request: Request) -> dict[str, Any]:
     """The roads of an intersection; writes no file."""
-    from sb3_dcqn.campusnav import checks
+    from sb3_dcqn.campusnav.closure_checks import close_roads
+    from sb3_dcqn.campusnav.env_checks import env_settings
     from sb3_dcqn.campusnav.runs import make_env
 
-    settings = checks.env_settings(request)
-    nav = make_env(settings)
-    checks.close_roads(nav, request.close)
+    settings = env_settings(request)
+    nav = make_env(settings, request)
+    close_roads(nav, request.close)
     graph = nav.graph
     try:
         node = graph.map.check_node(request.node, "node")
@@ -529,8 +555,20 @@ class _OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} ('{self.prog} --help' lists the options)\n")
 
 
+def _did_you_mean(given: str, choices: Sequence[str]) -> str:
+    """`` (did you mean --timesteps?)`` for a misspelt flag or subcommand, or nothing where none is near."""
+    near = difflib.get_close_matches(given, choices, n=1, cutoff=0.6)
+    return f" (did you mean {near[0]}?)" if near else ""
+
+
 class _DemoByDefaultParser(_OneLineParser):
-    """A parser that reads a command line without a subcommand (nothing, or options only) as ``demo``."""
+    """
+    A parser that reads a command line without a subcommand (nothing, or options only) as ``demo``; a misspelt
+    subcommand or flag is refused with the nearest ones ("did you mean") and the subcommand's own ``--help``.
+    """
+
+    def _subcommands(self) -> dict[str, argparse.ArgumentParser]:
+        return next(a.choices for a in self._actions if isinstance(a, argparse._SubParsersAction))
 
     def parse_known_args(  # type: ignore[override]
         self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
@@ -538,7 +576,22 @@ class _DemoByDefaultParser(_OneLineParser):
         argv = list(sys.argv[1:] if args is None else args)
         if not argv or (argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version")):
             argv = ["demo", *argv]
+        elif not argv[0].startswith("-") and argv[0] not in self._subcommands():
+            names = list(self._subcommands())
+            self.error(f"no subcommand {argv[0]!r}{_did_you_mean(argv[0], names)}; choose from {', '.join(names)}")
         return super().parse_known_args(argv, namespace)
+
+    def parse_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> argparse.Namespace:
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:  # said by the subcommand, whose --help lists its flags
+            command = self._subcommands()[parsed.command]
+            flags = [flag for action in command._actions for flag in action.option_strings]
+            unknown = [extra.split("=", 1)[0] for extra in extras if extra.startswith("-")]
+            hints = "".join(_did_you_mean(flag, flags) for flag in unknown[:1])
+            command.error(f"unrecognized arguments: {' '.join(extras)}{hints}")
+        return parsed
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -650,8 +703,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     roads.add_argument("node", type=int, metavar="NODE", help="the intersection's id")
     roads.add_argument("--close", type=int, nargs=2, action="append", metavar=("U", "V"), help="close road U-V first")
-    # The roads are the same whatever the views: the env is built with the cheapest ones (never looked at)
-    roads.set_defaults(func=_cmd_roads, encoder="pixels", encoder_weights=None, render_size=(16, 16), threads=1)
+    roads.set_defaults(func=_cmd_roads, threads=1, **_VIEWLESS)
     return parser
 
 

@@ -3,9 +3,9 @@
 
 A :class:`Run` holds what the steps share: the request, the env settings, the model and its envs, the folder, the
 closures and budgets, the levers and callbacks. Its folder never replaces an earlier run's results
-(:func:`~sb3_dcqn.campusnav.checks.free_folder`: ``runs/x`` taken, ``runs/x_2``); the summary, curves and pictures
+(:func:`~sb3_dcqn.campusnav.output_paths.free_folder`: ``runs/x`` taken, ``runs/x_2``); the summary, curves and pictures
 describe the model saved beside them (the last route evaluation is of the model as saved). Bad input raises
-:class:`~sb3_dcqn.campusnav.checks.CommandError` before anything is trained or written; Ctrl-C while training saves
+:class:`~sb3_dcqn.campusnav.errors.CommandError` before anything is trained or written; Ctrl-C while training saves
 the run's model and raises :class:`Interrupted`.
 """
 
@@ -27,33 +27,15 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from campusnav_env import CampusNavEnv
 from campusnav_env.recovery import RouteEvaluation
 from sb3_dcqn.campusnav import experiments
-from sb3_dcqn.campusnav.checks import (
-    DEFAULT_OUT,
-    MODEL_FILES,
-    MODEL_NAME,
-    PROG,
-    CommandError,
-    Interrupted,
-    check_device,
-    check_plan,
-    closure_plan,
-    env_creator,
-    env_error,
-    env_settings,
-    find_model,
-    free_folder,
-    moved_note,
-    note,
-    parse_params,
-    plan_source,
-    road_error,
-    saved_run,
-    training_entry,
-    zoo_entry,
-)
+from sb3_dcqn.campusnav.checks import check_device, parse_params, training_entry, zoo_entry
+from sb3_dcqn.campusnav.closure_checks import check_plan, closure_plan, plan_source, road_refused
+from sb3_dcqn.campusnav.env_checks import env_creator, env_error, env_settings
+from sb3_dcqn.campusnav.errors import PROG, CommandError, Interrupted, note
 from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingOutcome
 from sb3_dcqn.campusnav.levers import LEVERS, lever_callbacks
+from sb3_dcqn.campusnav.model_checks import MODEL_FILES, MODEL_NAME, find_model, saved_run
 from sb3_dcqn.campusnav.model_files import SavedRun, model_paths, save_model
+from sb3_dcqn.campusnav.output_paths import DEFAULT_OUT, free_folder, moved_note
 from sb3_dcqn.campusnav.requests import Request
 from sb3_dcqn.campusnav.settings import DEFAULT_ENV, EnvSettings
 from sb3_dcqn.dcqn import DCQN
@@ -67,28 +49,30 @@ _BUILT_WITH = ("policy", "policy_kwargs", "replay_buffer_class", "replay_buffer_
 
 
 # ------------------------------------------------------------------------------------------------ envs and models
-def _training_envs(settings: EnvSettings, n_envs: int, seed: int) -> tuple[DummyVecEnv, CampusNavEnv]:
+def _training_envs(request: Request, settings: EnvSettings, n_envs: int, seed: int) -> tuple[DummyVecEnv, CampusNavEnv]:
     """Training envs (each in a ``Monitor``) and the first one's CampusNav env, which the route evaluation shares."""
+    from campusnav_env.env import UnknownGoalError
     from sb3_dcqn.campusnav.settings import campus_of, make_training_envs
 
     try:
         venv = make_training_envs(settings, n_envs, seed)
-    except (TypeError, ValueError) as error:  # e.g. an env_kwargs value the env refuses
-        raise env_error(settings, error) from None
+    except (TypeError, ValueError, UnknownGoalError) as error:  # e.g. an env_kwargs value the env refuses
+        raise env_error(settings, error, request) from None
     try:
         return venv, campus_of(venv.envs[0])
     except TypeError as error:
         raise CommandError(f"--env {settings.env_id}: {error}") from None
 
 
-def make_env(settings: EnvSettings) -> CampusNavEnv:
-    """One env, for evaluating and drawing."""
+def make_env(settings: EnvSettings, request: Request) -> CampusNavEnv:
+    """One env, for evaluating and drawing (``request``: the command line, for the words of an error)."""
+    from campusnav_env.env import UnknownGoalError
     from sb3_dcqn.campusnav.settings import make_env as make
 
     try:
         return make(settings)
-    except (TypeError, ValueError) as error:  # e.g. an env_kwargs value the env refuses
-        raise env_error(settings, error) from None
+    except (TypeError, ValueError, UnknownGoalError) as error:  # e.g. an env_kwargs value the env refuses
+        raise env_error(settings, error, request) from None
 
 
 def restore_closures(
@@ -106,13 +90,15 @@ def restore_closures(
     if open_map:
         note(f"the open map (--open-map); the model was saved with roads {roads} closed")
         return []
+    from campusnav_env.maps.refusals import Refusal
+
     for nav in navs:
         for u, v in saved.closed_roads:
             try:
                 nav.close_road(u, v, force=True)  # as they were when it was saved
-            except (KeyError, ValueError) as error:
+            except Refusal as error:  # not on this map
                 raise CommandError(
-                    f"{model}: closed_roads_at_save {u}-{v}: {road_error(error)}; pass --open-map to start from the "
+                    f"{model}: closed_roads_at_save {u}-{v}: {road_refused(error)}; pass --open-map to start from the "
                     "open map"
                 ) from None
     note(f"roads closed when the model was saved, closed again: {roads} (--open-map: none)")
@@ -323,7 +309,7 @@ class Run:
         budget = entry.n_timesteps if request.timesteps is None else request.timesteps
         recovery_budget = max(1, budget // 2) if request.recovery_budget is None else request.recovery_budget
         n_envs = entry.n_envs if request.n_envs is None else request.n_envs
-        venv, nav = _training_envs(settings, n_envs, request.seed)
+        venv, nav = _training_envs(request, settings, n_envs, request.seed)
         check_plan(plan, nav, plan_source(request))
         hyperparams = {**entry.hyperparams, **({"device": request.device} if request.device else {})}
         try:
@@ -416,16 +402,11 @@ class Run:
         buffer_path = Path(request.replay_buffer) if request.replay_buffer is not None else model_paths(path)[1]
         if request.replay_buffer is not None and not buffer_path.is_file():
             raise CommandError(f"--replay-buffer: file not found: {buffer_path}")
-        venv, nav = _training_envs(settings, saved.n_envs, request.seed)
+        venv, nav = _training_envs(request, settings, saved.n_envs, request.seed)
         from sb3_dcqn.campusnav.settings import campus_of
 
         restored = restore_closures([campus_of(env) for env in venv.envs], path, saved, request.open_map)
-        try:
-            check_plan(plan, nav, plan_source(request))
-        except CommandError as error:
-            if restored and "already closed" in str(error):
-                raise CommandError(f"{error}; closed when the model was saved (--open-map: the open map)") from None
-            raise
+        check_plan(plan, nav, plan_source(request), restored)
         model = load_model(path, settings, nav, venv, request.device, **changes)
         _check_levers_with_buffer(levers, model)
         model.set_random_seed(request.seed)

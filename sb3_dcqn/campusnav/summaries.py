@@ -13,6 +13,7 @@ from sb3_dcqn.campusnav.experiments import TrainingOutcome
 from sb3_dcqn.campusnav.solved import is_solved, solved_bar
 
 __all__ = [
+    "SCORES_LEGEND",
     "evaluation_json",
     "final_json",
     "finite",
@@ -25,6 +26,15 @@ __all__ = [
     "score_table",
     "solved_text",
 ]
+
+
+# What the score columns mean, printed under every score table (evaluate's, summary.md's)
+SCORES_LEGEND = (
+    "success rate: share of the routes from every (start, heading) that reach the goal; SPL: success weighted by "
+    "shortest path length / max(path length, shortest); coverage: share of starts whose routes succeed at every "
+    "heading; optimality gap: mean extra steps over the shortest path of the routes that reach the goal ('-' where "
+    "none does: 0.00 beside a low success rate means the few that arrive take the shortest way)"
+)
 
 
 def cell(value: float, digits: int = 3) -> str:
@@ -216,6 +226,8 @@ def run_report(title: str, description: str, outcome: TrainingOutcome, files: di
         "Routes of the greedy policy from every (start, heading):",
         "",
         route_table(outcome),
+        "",
+        f"({SCORES_LEGEND}.)",
     ]
     if outcome.closures.records:
         lines += [
