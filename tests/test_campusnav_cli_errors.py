@@ -442,3 +442,134 @@ def test_draw_writes_node_ids_and_a_title(tmp_path: Path) -> None:
     picture = tmp_path / "map.png"
     summary = run(build_parser().parse_args(["draw", *FAST, "--node-ids", "--picture", str(picture)]))
     assert picture.is_file() and summary["picture"] == str(picture)
+
+
+# ------------------------------------------------------------------------------------------------ misspelt names
+@pytest.mark.parametrize("command", ["train", "demo"])
+def test_a_misspelt_goal_on_the_built_in_map_names_the_nearest_landmark_before_any_view(
+    tmp_path: Path, command: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("CAMPUSNAV_CACHE", str(cache))  # an empty cache: nothing may be rendered into it
+    out = tmp_path / "out"
+    _, error = fails([command, *FAST, "--goals", "Dreese Labs", "--out", str(out)], capsys)
+    assert error.count("\n") == 1 and "Traceback" not in error
+    assert error.startswith(f"dcqn-campusnav {command}: error: goal 'Dreese Labs' (--goals) is not a landmark of ")
+    assert "(nearest: Dreese Lab; its named nodes: Bookstore, " in error
+    assert error.endswith("; pass --goals with landmark names or node ids 0..100\n")
+    assert not out.exists() and files_under(tmp_path) == {}  # no folder, no view
+    _, error = fails([command, *FAST, "--goals", "500", "--out", str(out)], capsys)
+    assert "goal node 500 (--goals) is not on the map 'campus-n101-seed0' (node ids 0..100)" in error
+
+
+def test_a_misspelt_goal_of_evaluate_or_draw_names_the_nearest_goal(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, error = fails(["draw", *FAST, "--env", "CampusNavMulti-v0", "--goal", "cinema", "--picture",
+                      str(tmp_path / "map.png")], capsys)  # fmt: skip
+    assert "--goal 'cinema': not a goal of this env (nearest: Cinema; goals: Dreese Lab, Town house, Cinema" in error
+    assert not (tmp_path / "map.png").exists()
+
+
+@pytest.mark.parametrize("command", [["train"], ["roads", "5"]])
+def test_a_road_to_a_node_off_the_map_says_the_node_is_not_on_it(
+    tmp_path: Path, command: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    flags = [*FAST, "--out", str(tmp_path / "out")] if command[0] == "train" else []  # roads takes no view flags
+    _, error = fails([*command, *flags, "--close", "5", "500"], capsys)
+    assert "node 500 is not on the map 'campus-n101-seed0' (node ids 0..100)" in error
+    assert "no road between" not in error and "dcqn-campusnav roads NODE" in error
+    assert files_under(tmp_path) == {}
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["train", "--timestpes", "5"], "unrecognized arguments: --timestpes 5 (did you mean --timesteps?)"),
+        (["evaluate", "m.zip", "--node-idz"], "unrecognized arguments: --node-idz (did you mean --node-ids?)"),
+        (["--n-closurs=3"], "unrecognized arguments: --n-closurs=3 (did you mean --n-closures?)"),
+        (["roads", "5", "--frobnicate"], "unrecognized arguments: --frobnicate"),
+    ],
+)
+def test_a_misspelt_flag_gets_did_you_mean_and_its_subcommands_help(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # a flag taken after all would write its run here, not into the repository
+    _, error = fails(argv, capsys)
+    command = "demo" if argv[0].startswith("-") else argv[0]
+    assert error == (
+        f"dcqn-campusnav {command}: error: {message} ('dcqn-campusnav {command} --help' lists the options)\n"
+    )
+
+
+def test_a_misspelt_subcommand_gets_did_you_mean(capsys: pytest.CaptureFixture[str]) -> None:
+    _, error = fails(["trian", "--timesteps", "5"], capsys)
+    assert error == (
+        "dcqn-campusnav: error: no subcommand 'trian' (did you mean train?); choose from demo, train, evaluate, "
+        "readapt, draw, roads ('dcqn-campusnav --help' lists the options)\n"
+    )
+
+
+def test_draw_without_a_model_never_encodes_views_with_the_cnn(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from campusnav_env.features import encoders
+
+    def no_cnn(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the CNN was built")
+
+    monkeypatch.setitem(encoders._ENCODERS, "efficientnet-lite0", no_cnn)
+    picture = tmp_path / "ids.png"
+    run(build_parser().parse_args(["draw", "--node-ids", "--picture", str(picture)]))  # the default encoder
+    assert picture.is_file()
+
+
+# ------------------------------------------------------------------------------------------------ refusals as values
+def test_the_command_line_says_the_maps_refusals_in_its_flags_from_their_values() -> None:
+    from campusnav_env.maps.navigation import RoadClosureError
+    from campusnav_env.maps.osm import CoordinatesError
+    from campusnav_env.maps.refusals import Setting
+    from sb3_dcqn.campusnav.errors import said
+
+    error = CoordinatesError(
+        "{given} says x/y are degrees", "if they are metres, pass {fix}",
+        given=Setting("coords", "lonlat"), fix=Setting("coords", "projected"), where="town.graphml",
+    )  # fmt: skip
+    assert (
+        str(error) == "town.graphml: coords='lonlat' says x/y are degrees; if they are metres, pass coords='projected'"
+    )
+    assert (
+        said(error)
+        == "town.graphml: --map-coords lonlat says x/y are degrees; if they are metres, pass --map-coords projected"
+    )
+    closure = RoadClosureError((0, 11), 81, ["Dreese Lab"], 1)
+    assert (closure.road, closure.node, closure.n_cut, closure.fix) == ((0, 11), 81, 1, Setting("force", True))
+    assert str(closure).endswith("that reach it now; pass force=True to close it anyway")
+    assert said(closure).endswith("that reach it now; close another road instead")  # no flag forces a closure
+
+
+# ------------------------------------------------------------------------------------------------ routes
+def test_a_failed_route_says_why_it_stopped() -> None:
+    from campusnav_env import CampusNavEnv
+    from campusnav_env.figures import route_text
+    from campusnav_env.maps.compass import ACTION_NAMES
+    from campusnav_env.rendering.street_view import RenderSettings
+    from campusnav_env.route_evaluation import evaluate_routes
+
+    nav = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(width=64, height=48), progress=False)
+    back = ACTION_NAMES.index("back")
+
+    def always(action: int) -> Any:
+        return lambda observations: np.full(len(observations["heading"]), action, dtype=np.int64)
+
+    routes = evaluate_routes(nav, always(ACTION_NAMES.index("forward")), max_steps=500).routes
+    assert {route.ended for route in routes} <= {"goal", "blocked", "loop", "step limit"}
+    stuck = next(route for route in routes if route.ended == "blocked")
+    assert f"(stuck at node {stuck.nodes[-1]}" in route_text(nav.graph, stuck)
+    turning = [route for route in evaluate_routes(nav, always(back)).routes if not route.success]
+    assert {route.ended for route in turning} == {"blocked", "loop"}  # no road behind, or back and forth on one
+    looping = next(route for route in turning if route.ended == "loop")
+    assert len(looping.nodes) == 3 and looping.nodes[0] == looping.nodes[2]
+    assert f"goes round a loop (back at node {looping.nodes[0]} facing the same way)" in route_text(nav.graph, looping)
+    limited = evaluate_routes(nav, always(back), max_steps=1).routes  # one move: no loop yet where it moved
+    assert {route.ended for route in limited} == {"goal", "blocked", "step limit"}
+    failed = next(route for route in limited if route.ended == "step limit")
+    assert "(the step limit reached; scored as 1 steps)" in route_text(nav.graph, failed)

@@ -123,21 +123,35 @@ def test_training_without_closures_reports_the_saved_model(tmp_path: Path, n_env
 
 @pytest.mark.parametrize("keep_training", [False, True])
 def test_a_recovery_reports_the_saved_model_also_when_training_goes_on_after_it(
-    tmp_path: Path, keep_training: bool
+    tmp_path: Path, keep_training: bool, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "recovered"
     # The route memory solves the campus in about a thousand steps and recovers in a few episodes
     summary = cli(
         "train", "--encoder", "pixels", "-params", "route_memory:True", "--close-on-route", "busiest",
-        "--timesteps", "1500", "--recovery-budget", "600", "--no-progress", "--out", str(out),
+        "--timesteps", "1500", "--recovery-budget", "600", "--out", str(out),
         *(["--keep-training"] if keep_training else []),
     )  # fmt: skip
     (closure,) = summary["closures"]
     assert closure["recovered"]
     assert_of_the_saved_model(out)
+    final, solved = summary["final"], summary["solved_at"]
+    road = "-".join(map(str, closure["closed"][0]))
+    lines = capsys.readouterr().err.replace("\r", "\n").splitlines()
+    bars = [line for line in lines if "100%|" in line and "step/s" in line]  # the training bars, not the views
     if keep_training:  # trained past the recovery: the model saved is the one at the end, and the table says so
-        assert summary["final"]["step"] > closure["recovered_at"]["step"]
+        assert final["step"] > closure["recovered_at"]["step"]
         assert last_route_row((out / "summary.md").read_text())[0] == "at the end (the model saved)"
+        return
+    # Each phase's bar ends full on what happened, its budget named: not at "30%" as if it had crashed
+    assert bars[0].endswith(
+        f"solved at {solved['step']:,} steps: success {solved['success_rate']:.3f}, SPL {solved['spl']:.3f} "
+        "(budget 1,500 steps)]"
+    )
+    assert bars[-1].startswith(f"closed {road}: 100%|") and bars[-1].endswith(
+        f"recovered from {road} after {closure['recovery_episodes']:,.0f} episodes ({closure['recovery_steps']:,.0f} "
+        f"steps): success {final['success_rate']:.3f}, SPL {final['spl']:.3f} (budget 600 steps)]"
+    )
 
 
 # ------------------------------------------------------------------------------------------------ a saved run

@@ -557,7 +557,7 @@ class _OneLineParser(argparse.ArgumentParser):
 
 def _did_you_mean(given: str, choices: Sequence[str]) -> str:
     """`` (did you mean --timesteps?)`` for a misspelt flag or subcommand, or nothing where none is near."""
-    near = difflib.get_close_matches(given, choices, n=1, cutoff=0.6)
+    near = difflib.get_close_matches(given, choices, n=1, cutoff=0.75)
     return f" (did you mean {near[0]}?)" if near else ""
 
 
