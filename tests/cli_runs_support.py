@@ -1,6 +1,9 @@
-"""What the tests of ``dcqn-campusnav``'s runs share: cheap views, a small entry with a start curriculum, a road."""
+"""What the tests of ``dcqn-campusnav``'s runs share: cheap views, a small entry with a start curriculum, a road,
+Ctrl-C inside training."""
 
 from __future__ import annotations
+
+from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_dcqn.campusnav.cli import build_parser, run
 
@@ -31,3 +34,16 @@ ROAD = (14, 15)  # a road of the built-in campus whose closure keeps every goal 
 def cli(*argv: str) -> dict:
     """The command line in process: its summary (bad input raises ``CommandError``)."""
     return run(build_parser().parse_args(list(argv)))
+
+
+class CtrlC(BaseCallback):
+    """Raises ``KeyboardInterrupt`` inside ``learn()`` at an env step, where Ctrl-C's SIGINT would."""
+
+    def __init__(self, at: int) -> None:
+        super().__init__()
+        self.at = at
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self.at:
+            raise KeyboardInterrupt
+        return True

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from cli_runs_support import FAST, ROAD, cli
+from cli_runs_support import FAST, ROAD, CtrlC, cli
 from stable_baselines3.common.callbacks import BaseCallback
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -51,19 +51,6 @@ class _Spy:
         self.callbacks.append(list(callbacks))
         extra = [self.extra] if self.extra is not None else []
         return self._original(*args, callbacks=[*callbacks, *extra], **kwargs)
-
-
-class _CtrlC(BaseCallback):
-    """Raises ``KeyboardInterrupt`` inside ``learn()`` at an env step, where Ctrl-C's SIGINT would."""
-
-    def __init__(self, at: int) -> None:
-        super().__init__()
-        self.at = at
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self.at:
-            raise KeyboardInterrupt
-        return True
 
 
 # ------------------------------------------------------------------------------------------------ output folders
@@ -238,7 +225,7 @@ def test_ctrl_c_saves_the_model_replay_buffer_and_closures_and_says_how_to_go_on
     tmp_path: Path, conf: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "run"
-    spy = _Spy(monkeypatch, extra=_CtrlC(at=150))
+    spy = _Spy(monkeypatch, extra=CtrlC(at=150))
     with pytest.raises(SystemExit) as exit_info:
         main(["train", *FAST, "--conf", str(conf), "--close", *map(str, ROAD), "--close-at", "100", "--out", str(out)])
     assert exit_info.value.code == 130

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from cli_runs_support import cli
+from cli_runs_support import CtrlC, cli
 from stable_baselines3.common.callbacks import BaseCallback
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -83,19 +83,6 @@ def assert_of_the_saved_model(out: Path) -> dict[str, Any]:
         row = last_route_row((out / "summary.md").read_text())
         assert row[1:2] + row[3:5] == [str(final["step"]), f"{final['success_rate']:.3f}", f"{final['spl']:.3f}"]
     return summary
-
-
-class _CtrlC(BaseCallback):
-    """Raises ``KeyboardInterrupt`` inside ``learn()`` at an env step, where Ctrl-C's SIGINT would."""
-
-    def __init__(self, at: int) -> None:
-        super().__init__()
-        self.at = at
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self.at:
-            raise KeyboardInterrupt
-        return True
 
 
 # ------------------------------------------------------------------------------------------------ train
@@ -177,7 +164,7 @@ def test_ctrl_c_reports_the_model_it_saved(tmp_path: Path, monkeypatch: pytest.M
     original = experiments.train_with_closures
 
     def interrupted(*args: Any, callbacks: list[BaseCallback], **kwargs: Any) -> Any:
-        return original(*args, callbacks=[*callbacks, _CtrlC(at=1500)], **kwargs)
+        return original(*args, callbacks=[*callbacks, CtrlC(at=1500)], **kwargs)
 
     monkeypatch.setattr(experiments, "train_with_closures", interrupted)
     out = tmp_path / "interrupted"

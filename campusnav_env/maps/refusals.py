@@ -111,20 +111,8 @@ class RefusedInput(Refusal, ValueError):
 
     :param reason: What is wrong (may name ``{given}``)
     :param advice: How to fix it (may name ``{fix}``)
-    :param given: The setting that led here
-    :param fix: The setting that fixes it
-    :param where: What was being read or done
-    :param separator: Between the reason and the advice
+    :param values: ``given``, ``fix``, ``where`` and ``separator``, as :class:`Refusal` keeps them
     """
 
-    def __init__(
-        self,
-        reason: str,
-        advice: str = "",
-        *,
-        given: Setting | None = None,
-        fix: Setting | None = None,
-        where: str = "",
-        separator: str = "; ",
-    ) -> None:
-        super().__init__(self._refuse(reason, advice, given=given, fix=fix, where=where, separator=separator))
+    def __init__(self, reason: str, advice: str = "", **values: Any) -> None:
+        super().__init__(self._refuse(reason, advice, **values))
