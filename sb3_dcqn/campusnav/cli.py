@@ -609,7 +609,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser(
         "demo",
         parents=[common, training],
-        help="train on CampusNav-v0, close the busiest road twice, report the recovery (the default)",
+        help="train on CampusNav-v0, close the busiest road --n-closures times (2), report the recovery (the default)",
         description="Train DCQN until the map is solved, then close the busiest road of the learned routes, one at a "
         "time, each once the agent has recovered from the previous one; print the routes and the recovery table.",
     )

@@ -122,19 +122,23 @@ def load_model(
     import pickle
     import zlib
 
-    hint = "pass the --env, --encoder and --render-size it was trained with"
-    try:
-        model = DCQN.load(
-            path, env=venv if venv is not None else DummyVecEnv([lambda: nav]), device=device or "auto", **changes
-        )
-    except ValueError as error:
-        if "spaces do not match" in str(error):
-            raise CommandError(f"{path}: cannot load the model on {settings.describe()} ({error}); {hint}") from None
-        raise CommandError(f"{path}: not a readable model file ({error}); {MODEL_FILES}") from None
-    except (KeyError, EOFError, OSError, RuntimeError, zipfile.BadZipFile, zlib.error, pickle.UnpicklingError) as error:
+    from stable_baselines3.common.save_util import json_to_data
+
+    unreadable = (KeyError, EOFError, OSError, RuntimeError, zipfile.BadZipFile, zlib.error, pickle.UnpicklingError)
+    try:  # the spaces it was saved with, read before loading (SB3's own refusal is a bare ValueError)
+        with zipfile.ZipFile(path) as archive:
+            saved_space = json_to_data(archive.read("data").decode()).get("observation_space")
+        model = None
+        if saved_space == nav.observation_space:
+            env = venv if venv is not None else DummyVecEnv([lambda: nav])
+            model = DCQN.load(path, env=env, device=device or "auto", **changes)
+    except (*unreadable, ValueError) as error:
         raise CommandError(f"{path}: not a readable model file ({error!r}); {MODEL_FILES}") from None
-    if model.observation_space != nav.observation_space:
-        raise CommandError(f"{path}: the model's observations do not match those of {settings.describe()}; {hint}")
+    if model is None:
+        raise CommandError(
+            f"{path}: the model's observations do not match those of {settings.describe()}; pass the --env, "
+            "--encoder and --render-size it was trained with"
+        )
     return model
 
 
