@@ -104,9 +104,10 @@ def check_plan(plan: ClosurePlan, nav: CampusNavEnv, source: str, restored: Sequ
         ClosureSchedule(list(events)).validate(nav.graph, nav.goal_nodes)
     except Refusal as error:  # closed already, cutting a goal off
         restored_roads = {(min(u, v), max(u, v)) for u, v in restored}
-        saved = isinstance(error, RoadStateError) and error.closed and error.road in restored_roads
-        why = "; closed when the model was saved (--open-map: the open map)" if saved else ""
-        raise CommandError(f"{source}: {road_refused(error)}{why}") from None
+        if isinstance(error, RoadStateError) and error.closed and error.road in restored_roads:
+            why = "closed when the model was saved (--open-map: the open map)"
+            raise CommandError(f"{source}: {said(error)}; {why}") from None
+        raise CommandError(f"{source}: {road_refused(error)}") from None
     except (KeyError, ValueError) as error:  # a random draw that cannot be met, a bad start node
         raise CommandError(f"{source}: {error.args[0] if isinstance(error, KeyError) else error}") from None
 
