@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import re
-import sys
 import tempfile
 import warnings
 import zipfile
@@ -17,7 +16,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_dcqn.campusnav.levers import LEVERS
+from sb3_dcqn.campusnav.errors import PROG, CommandError, Interrupted, note, one_line_warning
 from sb3_dcqn.campusnav.requests import Request
 from sb3_dcqn.campusnav.settings import DEFAULT_ENCODER, DEFAULT_ENV, EnvSettings
 
@@ -25,7 +24,7 @@ if TYPE_CHECKING:
     from campusnav_env import CampusNavEnv
     from sb3_dcqn.campusnav.experiments import ClosurePlan
     from sb3_dcqn.campusnav.model_files import SavedRun
-    from sb3_dcqn.zoo_files import ZooEntry
+    from sb3_dcqn.zoo_entry import ZooEntry
 
 __all__ = [
     "DEFAULT_OUT",
@@ -46,13 +45,12 @@ __all__ = [
     "free_picture",
     "holds_results",
     "moved_note",
+    "note",
+    "one_line_warning",
     "plan_source",
     "road_error",
-    "training_entry",
-    "zoo_entry",
 ]
 
-PROG = "dcqn-campusnav"
 MODEL_NAME = "dcqn_campusnav"
 # Each training subcommand's own output folder, so that one never replaces another's results
 DEFAULT_OUT = {"demo": "runs/campusnav-demo", "train": "runs/campusnav-train"}
@@ -72,24 +70,6 @@ RESULT_NAMES = (
     f"{MODEL_NAME}.env.json",
     f"{MODEL_NAME}_replay_buffer.pkl",
 )
-
-
-class CommandError(Exception):
-    """Bad input to the command line (a flag, a file, a road); the message names it."""
-
-
-class Interrupted(Exception):
-    """Training stopped by Ctrl-C; the message says what was saved and how to go on (the command line exits 130)."""
-
-
-def note(text: str) -> None:
-    """A line on stderr, as the command line's notes are written."""
-    print(f"{PROG}: {text}", file=sys.stderr)
-
-
-def one_line_warning(message: Warning | str, category: type[Warning], *_: Any, **__: Any) -> str:
-    """A library's warning as the command line writes its notes (``warnings.formatwarning``): one line, no source."""
-    return f"{PROG}: warning: {message}\n"
 
 
 # ------------------------------------------------------------------------------------------------ paths
@@ -188,115 +168,6 @@ def check_cache() -> None:
     check_folder(default_cache_dir(), "$CAMPUSNAV_CACHE")
 
 
-# ------------------------------------------------------------------------------------------------ hyperparameters
-def zoo_entry(conf: str | None, env_id: str) -> ZooEntry:
-    from sb3_dcqn.zoo_files import default_hyperparams_path, load_zoo_entry
-
-    path = default_hyperparams_path() if conf is None else Path(conf)
-    try:
-        return load_zoo_entry(path, env_id)
-    except (FileNotFoundError, ValueError) as error:
-        raise CommandError(f"--conf: {error}") from None
-    except KeyError as error:
-        raise CommandError(f"--conf: {error.args[0]} (choose another --env or --conf)") from None
-
-
-def parse_params(params: Sequence[str]) -> dict[str, Any]:
-    """
-    ``-params key:value ...`` as a dict: values as YAML reads them, then as the zoo reads an entry's
-    (:func:`sb3_dcqn.zoo_files.preprocess_hyperparams`: ``lin_`` schedules, ``policy_kwargs`` evaluated), or an error
-    naming the bad one.
-    """
-    import yaml
-
-    from sb3_dcqn.zoo_files import preprocess_hyperparams
-
-    parsed: dict[str, Any] = {}
-    for item in params:
-        key, colon, text = item.partition(":")
-        if not colon or not key.strip():
-            raise CommandError(f"-params {item}: expected key:value (e.g. learning_rate:0.001 buffer_size:10000)")
-        try:
-            parsed[key.strip()] = yaml.safe_load(text.strip())
-        except yaml.YAMLError:
-            parsed[key.strip()] = text.strip()
-    try:
-        return preprocess_hyperparams(parsed, "-params")
-    except ValueError as error:
-        raise CommandError(str(error)) from None
-
-
-def with_params(entry: ZooEntry, params: Sequence[str]) -> ZooEntry:
-    """
-    An entry with ``-params`` overrides, checked as the YAML's keys are (``n_timesteps`` and ``n_envs`` as counts).
-    """
-    from dataclasses import replace
-
-    from sb3_dcqn.dcqn import DCQN
-    from sb3_dcqn.zoo_files import check_hyperparams
-
-    overrides = parse_params(params)
-    if not overrides:
-        return entry
-    counts = {key: overrides.pop(key) for key in ("n_timesteps", "n_envs") if key in overrides}
-    for key, value in counts.items():
-        if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value) or value < 1:
-            raise CommandError(f"-params {key}: expected a positive integer, got {value!r}")
-    try:
-        check_hyperparams({**entry.hyperparams, **overrides}, DCQN, "-params")
-    except ValueError as error:
-        raise CommandError(str(error)) from None
-    return replace(
-        entry,
-        hyperparams={**entry.hyperparams, **overrides},
-        n_timesteps=int(counts.get("n_timesteps", entry.n_timesteps)),
-        n_envs=int(counts.get("n_envs", entry.n_envs)),
-    )
-
-
-def check_device(device: str | None) -> None:
-    """``--device``: a torch device name, checked as the YAML's ``device`` key is."""
-    if device is None:
-        return
-    from sb3_dcqn.dcqn import DCQN
-    from sb3_dcqn.zoo_files import check_values
-
-    try:
-        check_values({"device": device}, DCQN, "--device")
-    except ValueError as error:
-        raise CommandError(str(error).replace("--device: device: ", "--device: ")) from None
-
-
-def training_entry(request: Request, env_id: str) -> tuple[ZooEntry, tuple[str, ...]]:
-    """
-    The hyperparameter entry to train with (``-params`` and levers applied), its keys checked against DCQN's before
-    any work, and the levers used: those given, or the subcommand's default levers that can run with the entry's
-    replay buffer (:func:`~sb3_dcqn.campusnav.levers.usable_levers`; a note names those left out).
-    """
-    from sb3_dcqn.campusnav.levers import check_levers, usable_levers, with_levers
-    from sb3_dcqn.dcqn import DCQN
-    from sb3_dcqn.zoo_files import check_hyperparams, default_hyperparams_path
-
-    entry = zoo_entry(request.conf, env_id)
-    path = default_hyperparams_path() if request.conf is None else Path(request.conf)
-    try:
-        check_hyperparams(entry.hyperparams, DCQN, f"{path}: entry {env_id!r}")
-    except ValueError as error:
-        raise CommandError(f"--conf: {error}") from None
-    entry = with_params(entry, request.params)
-    if request.levers is None:
-        levers, left_out = usable_levers(request.default_levers, entry.hyperparams)
-        for name, why in left_out.items():
-            note(f"note: default lever {name!r} ({LEVERS[name].name}) left out: {why}")
-    else:
-        levers = request.levers
-        try:
-            check_levers(levers, entry.hyperparams)
-        except ValueError as error:
-            raise CommandError(f"--levers: {error} (entry {env_id!r} of {path})") from None
-    return with_levers(entry, levers), tuple(levers)
-
-
 # ------------------------------------------------------------------------------------------------ envs
 def env_creator(env_id: str) -> Any:
     """The class (or function) a registered CampusNav id makes; an error names the flag otherwise."""
@@ -323,13 +194,11 @@ def env_creator(env_id: str) -> Any:
 
 def _check_env_kwargs(creator: Any, env_kwargs: dict[str, Any], source: str) -> None:
     """Every ``env_kwargs`` key is an argument of the env (else a ``TypeError`` deep inside ``gym.make``)."""
-    from sb3_dcqn.zoo_files import check_keywords
+    from sb3_dcqn.zoo_entry import unknown_keyword
 
-    if isinstance(creator, type):
-        try:
-            check_keywords(env_kwargs, creator, source, "env_kwargs key")
-        except ValueError as error:
-            raise CommandError(str(error)) from None
+    problem = unknown_keyword(env_kwargs, creator) if isinstance(creator, type) else None
+    if problem is not None:
+        raise CommandError(f"{source}: env_kwargs: {problem}")
 
 
 def env_settings(
@@ -342,16 +211,18 @@ def env_settings(
     """
     env_id = request.env or (saved.env_id if saved else DEFAULT_ENV)
     creator = env_creator(env_id) if creator is None else creator
-    if entry is not None:
-        env_kwargs = entry.env_kwargs
-    elif saved is not None and env_id == saved.env_id and request.conf is None:
-        env_kwargs = saved.env_kwargs
+    if entry is None and saved is not None and env_id == saved.env_id and request.conf is None:
+        env_kwargs, source = saved.env_kwargs, f"{env_id} (as saved with the model)"
     else:
-        env_kwargs = zoo_entry(request.conf, env_id).env_kwargs
+        if entry is None:
+            from sb3_dcqn.campusnav.entries import conf_entry
+
+            entry = conf_entry(request.conf, env_id)
+        env_kwargs, source = entry.env_kwargs, f"--conf: {entry.source}"
     goals = request.goals
     if goals:
         env_kwargs = {**env_kwargs, "goals": [int(goal) if goal.isdigit() else goal for goal in goals]}
-    _check_env_kwargs(creator, env_kwargs, f"--conf: entry {env_id!r}" if saved is None else f"{env_id} env_kwargs")
+    _check_env_kwargs(creator, env_kwargs, source)
     map_path = str(Path(request.map).resolve()) if request.map else (saved.map_path if saved else None)
     map_coords = request.map_coords or (saved.map_coords if saved and not request.map else "auto")
     if request.map_coords is not None and map_path is None:

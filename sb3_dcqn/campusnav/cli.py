@@ -168,12 +168,13 @@ def _picture_line(picture: Path, asked: str | None) -> str:
 
 def _cmd_evaluate(request: Request) -> dict[str, Any]:
     from sb3_dcqn.campusnav import checks
+    from sb3_dcqn.campusnav.entries import check_device
 
     assert request.model is not None
     path = checks.find_model(request.model)
     picture_path = checks.free_picture(request.picture, request.force)
     saved = checks.saved_run(path)
-    checks.check_device(request.device)
+    check_device(request.device)
     settings = checks.env_settings(request, saved.settings)
 
     from campusnav_env import RouteReport, evaluate_routes
@@ -245,12 +246,13 @@ def _route_as_text(nav: CampusNavEnv, route: Any, picture: Path) -> dict[str, An
 
 def _cmd_draw(request: Request) -> dict[str, Any]:
     from sb3_dcqn.campusnav import checks
+    from sb3_dcqn.campusnav.entries import check_device
 
     path = None if request.model is None else checks.find_model(request.model, "--model")
     picture_path = checks.free_picture(request.picture, request.force)
     assert picture_path is not None  # draw's --picture has a default
     saved = checks.saved_run(path) if path is not None else None
-    checks.check_device(request.device)
+    check_device(request.device)
     settings = checks.env_settings(request, None if saved is None else saved.settings)
 
     from campusnav_env import evaluate_routes
