@@ -25,7 +25,8 @@ from campusnav_env.maps.campus import generate_campus
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, with_levers
-from sb3_dcqn.zoo_files import ZooEntry, default_hyperparams_path, load_zoo_entry, paper_hyperparams_path
+from sb3_dcqn.zoo_entry import ZooEntry, load_zoo_entry
+from sb3_dcqn.zoo_files import default_hyperparams_path, paper_hyperparams_path
 
 
 @dataclass(frozen=True)

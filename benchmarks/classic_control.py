@@ -39,7 +39,7 @@ def run_one(algo_name: str, env_id: str, seed: int, n_eval_episodes: int = 20) -
     from stable_baselines3.common.monitor import Monitor
 
     from sb3_dcqn import DCQN
-    from sb3_dcqn.zoo_files import load_zoo_entry
+    from sb3_dcqn.zoo_entry import load_zoo_entry
 
     th.set_num_threads(1)
     entry = load_zoo_entry(HYPERPARAMS, env_id)

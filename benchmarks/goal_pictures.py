@@ -44,7 +44,8 @@ from benchmarks.campusnav_runs import APPEARANCES, HELD_OUT_FRACTION, TRAINING_P
 from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish, write_results
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
 from sb3_dcqn.place_recognition import NOT_IN_MEMORY, NearestPlace, fit_place_matcher
-from sb3_dcqn.zoo_files import default_hyperparams_path, load_zoo_entry
+from sb3_dcqn.zoo_entry import load_zoo_entry
+from sb3_dcqn.zoo_files import default_hyperparams_path
 
 ENTRY = "CampusNavGoal-v0"
 SEEDS = (0, 1, 2)

@@ -111,7 +111,8 @@ def city_id(size: int) -> str:
 
 def job_entry(job: Job) -> Any:
     """The row's zoo entry (YAML settings, overrides applied), exploration kept in steps whatever the step cap."""
-    from sb3_dcqn.zoo_files import default_hyperparams_path, load_zoo_entry
+    from sb3_dcqn.zoo_entry import load_zoo_entry
+    from sb3_dcqn.zoo_files import default_hyperparams_path
 
     row = ROWS[job.row]
     entry = load_zoo_entry(default_hyperparams_path(), BASE_ENTRY if row.entry == "base" else city_id(job.size))

@@ -59,7 +59,7 @@ from campusnav_env.env import CampusNavEnv
 from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.optimal_values import optimal_q_values
 from campusnav_env.route_evaluation import evaluate_routes
-from sb3_dcqn.zoo_files import ZooEntry
+from sb3_dcqn.zoo_entry import ZooEntry
 
 SCRIPT = "overestimation.py"
 Road = tuple[int, int]

@@ -12,16 +12,20 @@ as in the zoo's own CLI (``train`` when the first argument is an option)::
     dcqn-zoo plot_train -a dcqn -e CartPole-v1 -f logs/ -w 20 -o curve.png   # -o FILE: ours, saved with Agg
 
 The plot commands need seaborn and scipy (in our ``zoo`` extra); ``record_video`` an env with ``rgb_array`` rendering.
-``train`` reads and checks the entry with :mod:`sb3_dcqn.zoo_files` first, as ``dcqn-campusnav`` does (see
-:func:`_train`). rl_zoo3 2.9 problems worked around: ``enjoy`` imports ``requests`` undeclared; ``record_video``
-ignores the ``env_kwargs`` saved in ``config.yml``; ``-n -5`` trains the entry's budget; tracebacks for bad input.
+Before the zoo's ``train`` runs (as it is: none of its methods replaced), the entry it will read is read and checked
+through the schema ``dcqn-campusnav`` reads it with (:mod:`sb3_dcqn.zoo_entry`; see :func:`_prepare_train`).
+rl_zoo3 2.9 problems worked around: ``enjoy`` imports ``requests`` undeclared; ``record_video`` ignores the
+``env_kwargs`` saved in ``config.yml``; ``train``'s evaluation envs lack the entry's ``env_kwargs``; ``-n -5`` trains
+the entry's budget; tracebacks for bad input.
 
 Registers no env (:mod:`sb3_dcqn.campusnav.zoo` registers CampusNav's; ``--gym-packages`` others'); needs the zoo extra.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
+import importlib
 import runpy
 import shutil
 import sys
@@ -31,7 +35,8 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from sb3_dcqn.dcqn import DCQN
-from sb3_dcqn.zoo_files import check_hyperparams, default_hyperparams_path, hyperparams_namespace, load_zoo_entry
+from sb3_dcqn.zoo_entry import EntryError, ZooEntry, load_zoo_entry
+from sb3_dcqn.zoo_files import default_hyperparams_path, hyperparams_namespace
 
 ALGO_NAME = "dcqn"
 
@@ -76,7 +81,6 @@ _HELP_FLAGS = ("-h", "--help")
 _STEP_COMMANDS = ("train", "enjoy", "record_video")
 # The zoo's commands that take --env and --num-threads
 _THREADED_COMMANDS = ("train", "enjoy")
-_PLOT_OUTPUT_FLAGS = ("-o", "--output")
 
 
 def usage() -> str:
@@ -126,10 +130,11 @@ def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()
                 f"\ndcqn-zoo: error: unknown command {command!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr
             )
             raise SystemExit(2)
+    options = _options(command, args)
     if command in _STEP_COMMANDS and not asks_for_help:
-        _check_timesteps(command, args)
+        _check_timesteps(command, options.n_timesteps)
     register_dcqn()
-    runner, args = _prepare(command, _with_default_threads(command, args, single_thread_envs))
+    runner, args = _prepare(command, _with_default_threads(command, args, options, single_thread_envs), options)
     saved_argv = sys.argv
     sys.argv = [prog, *args]  # argparse takes its usage line's program name from sys.argv[0]
     try:
@@ -155,9 +160,31 @@ def require_zoo(argv: list[str] | None = None) -> None:
         raise SystemExit(2) from None
 
 
-def _check_timesteps(command: str, args: list[str]) -> None:
+def _options(command: str, args: list[str]) -> argparse.Namespace:
+    """
+    The options of the zoo's commands that ``dcqn-zoo`` looks at, read as the zoo's own parsers read them (prefixes,
+    ``--name=value``, ``-n5``; ``-params`` and ``--env-kwargs`` evaluated as Python), with the zoo's defaults.
+    """
+    from rl_zoo3.utils import StoreDict
+
+    parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    for *flags, default in (("--algo", "ppo"), ("--env", "CartPole-v1"), ("-f", "--log-folder", "logs")):
+        parser.add_argument(*flags, default=default)
+    for flags in (("-n", "--n-timesteps"), ("-conf", "--conf-file"), ("--num-threads",)):
+        parser.add_argument(*flags)
+    parser.add_argument("--gym-packages", nargs="+", default=[])
+    for flags in (("-params", "--hyperparams"), ("--env-kwargs",), ("--eval-env-kwargs",)):
+        parser.add_argument(*flags, nargs="+", action=StoreDict)
+    try:
+        return parser.parse_known_args(args)[0]
+    except argparse.ArgumentError as error:
+        _refuse(command, str(error))
+    except (NameError, SyntaxError) as error:  # the zoo's StoreDict evaluates the values as Python
+        _refuse(command, _first_line(error) + _EVALUATED_VALUE_HINT)
+
+
+def _check_timesteps(command: str, value: str | None) -> None:
     """Refuse a ``-n``/``--n-timesteps`` that is not a positive whole number (the zoo reads -5 as "not given")."""
-    value = _option_value(args, "--n-timesteps", shortest="--n-ti", alias="-n")
     if value is None:
         return
     try:
@@ -168,23 +195,20 @@ def _check_timesteps(command: str, args: list[str]) -> None:
         _refuse(command, f"-n/--n-timesteps: expected a positive number of steps, got {value!r}")
 
 
-def _with_default_threads(command: str, args: list[str], single_thread_envs: Collection[str]) -> list[str]:
+def _with_default_threads(
+    command: str, args: list[str], options: argparse.Namespace, single_thread_envs: Collection[str]
+) -> list[str]:
     """``args`` with ``--num-threads 1`` added for an env of ``single_thread_envs`` (none given, command takes it)."""
-    env_id = (_option_value(args, "--env") or "").rpartition(":")[2]  # "module:EnvId" names EnvId too
-    wanted = command in _THREADED_COMMANDS and env_id in single_thread_envs
-    if wanted and _option_value(args, "--num-threads", shortest="--nu") is None:
+    env_id = options.env.rpartition(":")[2]  # "module:EnvId" names EnvId too
+    if command in _THREADED_COMMANDS and env_id in single_thread_envs and options.num_threads is None:
         return [*args, "--num-threads", "1"]
     return args
 
 
-def _prepare(command: str, args: list[str]) -> tuple[Callable[[], None], list[str]]:
+def _prepare(command: str, args: list[str], options: argparse.Namespace) -> tuple[Callable[[], None], list[str]]:
     """The function that runs ``command`` (it parses ``sys.argv``) and the arguments to give it."""
     if command == "train":
-        from rl_zoo3.train import train
-
-        if _option_value(args, "--conf-file", shortest="--conf", alias="-conf") is None:
-            args = [*args, "-conf", str(default_hyperparams_path())]
-        return (lambda: _train(train)), args
+        return _prepare_train(args, options)
     if command == "enjoy":
         _allow_enjoy_without_requests()
         from rl_zoo3 import enjoy
@@ -206,83 +230,96 @@ def _prepare(command: str, args: list[str]) -> tuple[Callable[[], None], list[st
     return getattr(_import_plots(), command), args
 
 
-def _option_value(args: list[str], name: str, shortest: str | None = None, alias: str | None = None) -> str | None:
+def _prepare_train(args: list[str], options: argparse.Namespace) -> tuple[Callable[[], None], list[str]]:
     """
-    The value given to option ``name`` as argparse reads it (``--name value``, ``--name=value``, ``-n value``,
-    ``-n5``; the last one wins), else None.
-
-    :param name: The option's long name
-    :param shortest: Its shortest prefix that argparse takes for it (no other option of the command starts so)
+    The zoo's ``train`` (``-conf`` defaulting to the shipped ``dcqn.yml``), once the entry it will read is read and
+    checked (:func:`_checked_entry`): a bad entry is one line naming the file, the entry and the key, exit 2. Its
+    evaluation envs (``--eval-freq``, ``-optimize``'s trials) get the entry's ``env_kwargs`` as ``--eval-env-kwargs``
+    unless env kwargs are given (rl_zoo3 2.9 gives them only ``--env-kwargs``, not the entry's ``view_dim``).
     """
-    value = None
-    for i, arg in enumerate(args):
-        given, equals, attached = arg.partition("=")
-        if given == name or (shortest is not None and given.startswith(shortest) and name.startswith(given)):
-            value = attached if equals else (args[i + 1] if i + 1 < len(args) else value)
-        elif alias is not None and arg == alias and i + 1 < len(args):
-            value = args[i + 1]
-        elif alias is not None and arg.startswith(alias) and not arg.startswith("--") and len(arg) > len(alias):
-            value = arg[len(alias) :].lstrip("=")
-    return value
+    from rl_zoo3.train import train
+
+    if any(arg in _HELP_FLAGS for arg in args):
+        return train, args
+    if options.conf_file is None:
+        options.conf_file = str(default_hyperparams_path())
+        args = [*args, "-conf", options.conf_file]
+    entry = _checked_entry(options)
+    if entry is not None and entry.env_kwargs and options.env_kwargs is None and options.eval_env_kwargs is None:
+        args = [*args, "--eval-env-kwargs", *(f"{key}:{value!r}" for key, value in entry.env_kwargs.items())]
+    run = _next_run_folder(options)
+    return (lambda: _train(train, None if entry is None else entry.source, run)), args
 
 
-def _train(train: Callable[[], None]) -> None:
+def _checked_entry(options: argparse.Namespace) -> ZooEntry | None:
     """
-    Run the zoo's ``train`` (which makes its own ``ExperimentManager``: its methods are wrapped) so that
-
-    - the entry is read and checked first (:func:`_check_entry`): a bad entry, like an error in setting the run up (the
-      env, the model) or in the zoo's own argument checks, is one line naming the file, the entry and the key, exit 2;
-    - the evaluation envs (``--eval-freq``, ``-optimize``'s trials) get the training env's ``env_kwargs`` unless
-      ``--eval-env-kwargs`` is given (rl_zoo3 2.9 gives them only ``--env-kwargs``, not the entry's ``view_dim``);
-    - a run that fails before it wrote results (:func:`_holds_results`) leaves no folder, nor log folders made for it.
+    The entry the zoo will read (``-params`` applied), read and checked against the algorithm now; ``None`` where the
+    zoo reads no YAML entry (a Python config) or will refuse the command line itself (an unknown env or algorithm).
     """
+    import gymnasium as gym
     from rl_zoo3.exp_manager import ExperimentManager
     from rl_zoo3.utils import ALGOS
 
-    read, preprocess, setup = (
-        ExperimentManager.read_hyperparameters,
-        ExperimentManager._preprocess_hyperparams,
-        ExperimentManager.setup_experiment,
+    algo, env_id, conf = options.algo, options.env, options.conf_file
+    try:
+        for package in options.gym_packages:  # as the zoo imports them, so that their envs are known
+            importlib.import_module(package)
+    except ImportError:
+        return None
+    if algo not in ALGOS or env_id not in gym.registry or not conf.endswith((".yml", ".yaml")):
+        return None
+    fallbacks = ("atari", "default") if ExperimentManager.is_atari(env_id) else ("default",)
+    try:
+        entry = load_zoo_entry(conf, env_id, options.hyperparams, fallbacks, ALGOS[algo])
+        entry.budget(None if options.n_timesteps is None else int(options.n_timesteps))
+    except EntryError as error:
+        _refuse("train", str(error))
+    return entry
+
+
+def _next_run_folder(options: argparse.Namespace) -> Path | None:
+    """The folder the zoo's run will write (``logs/dcqn/CartPole-v1_3``), named by the zoo's rule and functions."""
+    from rl_zoo3.utils import EnvironmentName, get_latest_run_id
+
+    log_path = f"{options.log_folder}/{options.algo}/"  # as the zoo's ExperimentManager names it
+    try:
+        env_name = EnvironmentName(options.env)
+    except ValueError:  # more than one colon: the zoo refuses it
+        return None
+    return Path(log_path) / f"{env_name}_{get_latest_run_id(log_path, env_name) + 1}"
+
+
+def _train(train: Callable[[], None], source: str | None, run: Path | None) -> None:
+    """
+    Run the zoo's ``train``. Bad input it meets before training (its own argument checks; an env or model that cannot
+    be set up with the entry, named by ``source``) is one line, exit 2; a run that fails before it wrote results
+    leaves no folder, nor log folders made for it (:func:`_remove_unfinished_run`).
+    """
+    existed = (
+        set() if run is None else {*_run_folders(run), *(p for p in (run.parent, run.parent.parent) if p.exists())}
     )
-    runs: list[tuple[Any, set[Path], str]] = []  # each manager, the folders of its run that existed, its entry
+    try:
+        train()
+    except BaseException as error:
+        if run is not None and not (isinstance(error, SystemExit) and error.code in (0, None)):
+            _remove_unfinished_run(run, existed)
+        if isinstance(error, _INPUT_ERRORS) and not _raised_in(error, *_TRAINING):
+            where = f"{source}: " if source is not None and _raised_in(error, "setup_experiment") else ""
+            _refuse("train", where + _first_line(error))
+        raise
 
-    def read_checked(self: Any) -> Any:
-        existed = {folder for folder in _run_folders(self) if folder.exists()}
-        runs.append((self, existed, _check_entry(self, ALGOS[self.algo])))
-        return read(self)
 
-    def preprocess_and_share_env_kwargs(self: Any, hyperparams: dict[str, Any]) -> Any:
-        processed = preprocess(self, hyperparams)  # sets self.env_kwargs from the entry or the command line
-        if self._eval_env_kwargs_args is None:  # no --eval-env-kwargs
-            self.eval_env_kwargs = self.env_kwargs
-        return processed
+def _raised_in(error: BaseException, *methods: str) -> bool:
+    """Whether ``error`` was raised inside one of these methods of the zoo's ``ExperimentManager``."""
+    from rl_zoo3.exp_manager import ExperimentManager
 
-    def setup_or_refuse(self: Any) -> Any:
-        try:
-            return setup(self)
-        except _SETUP_ERRORS as error:
-            source = next((source for run, _, source in runs if run is self), self.config)
-            _refuse("train", f"{source}: {_first_line(error)}")
-
-    with (
-        _replaced(ExperimentManager, "read_hyperparameters", read_checked),
-        _replaced(ExperimentManager, "_preprocess_hyperparams", preprocess_and_share_env_kwargs),
-        _replaced(ExperimentManager, "setup_experiment", setup_or_refuse),
-    ):
-        try:
-            try:
-                train()
-            except (*_SETUP_ERRORS, NameError, SyntaxError) as error:
-                if runs:  # raised while training: not an input error
-                    raise
-                # train.py's own checks (an unknown --env, a bad -i path), its evaluation of -params/--env-kwargs
-                hint = _EVALUATED_VALUE_HINT if isinstance(error, NameError | SyntaxError) else ""
-                _refuse("train", _first_line(error) + hint)
-        except BaseException as error:
-            if not (isinstance(error, SystemExit) and error.code in (0, None)):
-                for run, existed, _ in runs:
-                    _remove_unfinished_run(run, existed)
-            raise
+    codes = {getattr(ExperimentManager, name).__code__ for name in methods}
+    traceback = error.__traceback__
+    while traceback is not None:
+        if traceback.tb_frame.f_code in codes:
+            return True
+        traceback = traceback.tb_next
+    return False
 
 
 @contextlib.contextmanager
@@ -308,42 +345,30 @@ def _model_path_or_refuse(command: str, get_model_path: Callable[..., Any]) -> C
     return found
 
 
-# What setting a zoo run up raises on bad input: SB3's and the envs' checks (assertions, wrong values or keywords)
-_SETUP_ERRORS = (AssertionError, ImportError, KeyError, TypeError, ValueError)
+# What the zoo raises on bad input before training: its checks, SB3's and the envs' (assertions, wrong values or
+# keywords), evaluated strings; raised inside these ExperimentManager methods, it is an error while training
+_INPUT_ERRORS = (AssertionError, ImportError, KeyError, TypeError, ValueError, NameError, SyntaxError)
+_TRAINING = ("learn", "hyperparameters_optimization", "save_trained_model")
 _EVALUATED_VALUE_HINT = " (-params/--env-kwargs values are Python: quote strings, e.g. policy:'MlpPolicy')"
 # Files that make a run folder worth keeping: models and checkpoints, evaluations, saved replay buffers
 _RESULT_SUFFIXES = (".zip", ".npz", ".pkl")
 
 
-def _check_entry(manager: Any, algo: type) -> str:
-    """Read the manager's entry as the zoo will (``-params`` applied), check it against ``algo`` or refuse; its name."""
-    if not str(manager.config).endswith((".yml", ".yaml")):
-        return str(manager.config)  # hyperparameters in Python: the zoo's alone
-    fallbacks = ("atari", "default") if manager._is_atari else ("default",)  # the zoo's, for an env without its own
-    try:
-        entry = load_zoo_entry(manager.config, manager.env_name.gym_id, manager.custom_hyperparams, fallbacks)
-        check_hyperparams(entry.hyperparams, algo, entry.source)
-    except KeyError as error:
-        _refuse("train", f"{error.args[0]} (choose another --env or -conf)")
-    except (FileNotFoundError, ValueError) as error:
-        _refuse("train", str(error))
-    if manager.n_timesteps <= 0 and entry.n_timesteps < 1:
-        _refuse("train", f"{entry.source}: n_timesteps: expected a positive integer, got {entry.n_timesteps}")
-    return entry.source
+def _run_folders(run: Path) -> list[Path]:
+    """The run's folder as the zoo made it: ``run``, or with ``-uuid`` the same and a suffix (``_<uuid>``)."""
+    return [
+        path
+        for path in run.parent.glob(f"{run.name}*")
+        if path.name == run.name or path.name.startswith(f"{run.name}_")
+    ]
 
 
-def _run_folders(manager: Any) -> tuple[Path, ...]:
-    """The folders a zoo run makes, innermost first: ``logs/dcqn/CartPole-v1_3``, ``logs/dcqn``, ``logs``."""
-    return Path(manager.save_path), Path(manager.log_path), Path(manager.log_folder)
-
-
-def _remove_unfinished_run(manager: Any, existed: set[Path]) -> None:
+def _remove_unfinished_run(run: Path, existed: set[Path]) -> None:
     """Remove a failed run's folder when it holds no results, and the log folders made for it if left empty."""
-    run_folder, *parents = _run_folders(manager)
-    if run_folder in existed or not run_folder.is_dir() or _holds_results(run_folder):
-        return
-    shutil.rmtree(run_folder, ignore_errors=True)
-    for folder in parents:
+    for folder in _run_folders(run):
+        if folder not in existed and folder.is_dir() and not _holds_results(folder):
+            shutil.rmtree(folder, ignore_errors=True)
+    for folder in (run.parent, run.parent.parent):
         if folder not in existed and folder.is_dir() and not any(folder.iterdir()):
             folder.rmdir()
 
@@ -406,19 +431,14 @@ def _record_video() -> None:
 
 
 def _pop_plot_output(args: list[str]) -> tuple[str | None, list[str]]:
-    """Split ``-o FILE``/``--output FILE``/``--output=FILE`` (this script's option of ``plot_train``) from ``args``."""
-    output, rest = None, []
-    items = iter(args)
-    for arg in items:
-        if arg in _PLOT_OUTPUT_FLAGS:
-            output = next(items, None)
-            if output is None:
-                _refuse("plot_train", f"{arg} needs a file name")
-        elif arg.startswith("--output="):
-            output = arg.split("=", 1)[1]
-        else:
-            rest.append(arg)
-    return output, rest
+    """Split ``-o FILE``/``--output FILE`` (this script's option of ``plot_train``) from ``args``."""
+    parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    parser.add_argument("-o", "--output")
+    try:
+        options, rest = parser.parse_known_args(args)
+    except argparse.ArgumentError as error:
+        _refuse("plot_train", str(error))
+    return options.output, rest
 
 
 def _import_plots() -> types.ModuleType:

@@ -21,7 +21,8 @@ from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.cli import CommandError, build_parser, main, run
 from sb3_dcqn.fusion import EmbeddingFusionExtractor
 from sb3_dcqn.replay import RevisionDictReplayBuffer
-from sb3_dcqn.zoo_files import default_hyperparams_path, load_zoo_entry
+from sb3_dcqn.zoo_entry import EntryError, load_zoo_entry
+from sb3_dcqn.zoo_files import default_hyperparams_path
 
 FAST = ("--encoder", "pixels", "--render-size", "64", "48")
 # A small CampusNav entry: short episodes, a small buffer (saved with the model) and small networks
@@ -82,16 +83,16 @@ def test_campusnav_entry_uses_the_fusion_extractor() -> None:
 
 
 def test_job_reports_bad_hyperparameter_files_clearly(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError, match=r"nope\.yml"):
+    with pytest.raises(EntryError, match=r"nope\.yml"):
         load_zoo_entry(tmp_path / "nope.yml", "CampusNav-v0")
     conf = tmp_path / "conf.yml"
     conf.write_text("CartPole-v1:\n  policy: MlpPolicy\n")
-    with pytest.raises(KeyError, match="CampusNav-v0"):
+    with pytest.raises(EntryError, match="CampusNav-v0"):
         load_zoo_entry(conf, "CampusNav-v0")
-    with pytest.raises(KeyError, match="n_timesteps"):
+    with pytest.raises(EntryError, match="n_timesteps"):
         load_zoo_entry(conf, "CartPole-v1")
     conf.write_text("CartPole-v1:\n  n_timesteps: 10\n  policy_kwargs: 'dict(net_arch=[64'\n")
-    with pytest.raises(ValueError, match="policy_kwargs"):
+    with pytest.raises(EntryError, match="policy_kwargs"):
         load_zoo_entry(conf, "CartPole-v1")
 
 

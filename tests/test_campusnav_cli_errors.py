@@ -71,7 +71,7 @@ def test_a_misspelt_hyperparameter_names_the_file_and_the_key(
     conf.write_text(GOOD_CONF.replace("learning_rate", "learnig_rate"))
     out = tmp_path / "out"
     _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(out)], capsys)
-    assert f"--conf: {conf}: entry 'CampusNav-v0': unknown DCQN hyperparameter 'learnig_rate'" in error
+    assert f"--conf: {conf}: entry 'CampusNav-v0': learnig_rate: unknown DCQN hyperparameter" in error
     assert "did you mean 'learning_rate'?" in error
     assert not out.exists()  # before any work
 
@@ -80,10 +80,12 @@ def test_a_misspelt_policy_or_env_kwargs_key_names_it(tmp_path: Path, capsys: py
     conf = tmp_path / "mine.yml"
     conf.write_text(GOOD_CONF + "  policy_kwargs: 'dict(net_arc=[16])'\n")
     _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(tmp_path / "out")], capsys)
-    assert "unknown policy_kwargs key 'net_arc' (did you mean 'net_arch'?)" in error
+    assert f"{conf}: entry 'CampusNav-v0': policy_kwargs: unknown key 'net_arc' of MultiInputPolicy" in error
+    assert "(did you mean 'net_arch'?)" in error
     conf.write_text(GOOD_CONF.replace("view_dim", "view_dimm"))
     _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(tmp_path / "out")], capsys)
-    assert "unknown env_kwargs key 'view_dimm' (did you mean 'view_dim'?)" in error
+    assert f"{conf}: entry 'CampusNav-v0': env_kwargs: unknown key 'view_dimm' of CampusNavEnv" in error
+    assert "(did you mean 'view_dim'?)" in error
     assert not (tmp_path / "out").exists()
 
 
@@ -134,7 +136,40 @@ def test_a_non_positive_n_timesteps_is_refused(tmp_path: Path, capsys: pytest.Ca
     conf = tmp_path / "mine.yml"
     conf.write_text(GOOD_CONF.replace("n_timesteps: 200", "n_timesteps: 0"))
     _, error = fails(["train", *FAST, "--conf", str(conf), "--out", str(tmp_path / "out")], capsys)
-    assert "--conf: entry 'CampusNav-v0': n_timesteps: expected a positive integer, got 0" in error
+    assert error == f"dcqn-campusnav train: error: --conf: {conf}: entry 'CampusNav-v0': n_timesteps: expected a " + (
+        "positive integer, got 0\n"
+    )
+
+
+@pytest.mark.parametrize(
+    ("line", "why"),
+    [
+        ("normalize: true", "VecNormalize: the route evaluation, the route memory and evaluate read the env's own"),
+        ("frame_stack: 4", "the route evaluation gives the model one observation at a time"),
+        ("env_wrapper: gymnasium.wrappers.TimeLimit", "evaluate, readapt and the route evaluation build the env as"),
+        ("vec_env_wrapper: stable_baselines3.common.vec_env.VecCheckNan", "the route evaluation, the route memory"),
+        ("monitor_kwargs: {info_keywords: [is_success]}", "no Monitor log is kept"),
+        ("seed: 3", "--seed sets it; remove it"),
+        ("tensorboard_log: tb", "each run logs to tb/ in its own folder"),
+    ],
+)
+def test_an_entry_key_dcqn_campusnav_does_not_apply_is_refused_naming_it(
+    tmp_path: Path, line: str, why: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    conf = tmp_path / "mine.yml"
+    conf.write_text(f"{GOOD_CONF}  {line}\n")
+    key = line.split(":")[0]
+    for argv in (
+        ["train", *FAST, "--out", str(tmp_path / "out")],
+        ["draw", *FAST, "--picture", str(tmp_path / "a.png")],
+    ):
+        _, error = fails([*argv, "--conf", str(conf)], capsys)
+        assert error.startswith(
+            f"dcqn-campusnav {argv[0]}: error: --conf: {conf}: entry 'CampusNav-v0': {key}: not applied by "
+            f"dcqn-campusnav ({why}"
+        ), error
+        assert error.count("\n") == 1
+    assert not (tmp_path / "out").exists() and not (tmp_path / "a.png").exists()
 
 
 # ------------------------------------------------------------------------------------------------ output paths

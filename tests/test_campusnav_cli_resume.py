@@ -134,12 +134,13 @@ def test_params_read_schedules_as_the_zoo_reads_them(tmp_path: Path, conf: Path)
 @pytest.mark.parametrize(
     ("params", "message"),
     [
-        (["learnig_rate:0.1"], "-params: unknown DCQN hyperparameter 'learnig_rate' (did you mean 'learning_rate'?)"),
-        (["batch_size:-3"], "-params: batch_size: expected a positive integer, got -3"),
-        (["gamma:1.5"], "-params: gamma: expected a number in [0, 1], got 1.5"),
+        (["learnig_rate:0.1"], "-params learnig_rate: unknown DCQN hyperparameter (did you mean 'learning_rate'?)"),
+        (["batch_size:-3"], "-params batch_size: expected a positive integer, got -3"),
+        (["gamma:1.5"], "-params gamma: expected a number in [0, 1], got 1.5"),
         (["n_timesteps:0"], "-params n_timesteps: expected a positive integer, got 0"),
         (["learning_rate"], "-params learning_rate: expected key:value"),
-        (["learning_rate:lin_x"], "-params: learning_rate: expected a linear schedule lin_<initial value>"),
+        (["learning_rate:lin_x"], "-params learning_rate: expected a linear schedule lin_<initial value>"),
+        (["normalize:true"], "-params normalize: not applied by dcqn-campusnav (VecNormalize: "),
     ],
 )
 def test_bad_params_are_one_line_naming_the_key(

@@ -38,7 +38,7 @@ from sb3_dcqn.campusnav.levers import (
 )
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS, is_solved
 from sb3_dcqn.replay import DCQNHerReplayBuffer, replay_buffer_class
-from sb3_dcqn.zoo_files import ZooEntry
+from sb3_dcqn.zoo_entry import ZooEntry
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 # The scripts that train to the solved bar or run closures through the glue (scale.py and throughput.py: elsewhere)

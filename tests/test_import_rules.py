@@ -36,11 +36,17 @@ ALGORITHM_MODULES = (
     "targets",
     "adaptation_boost",
     "zoo_files",
+    "zoo_entry",
     "zoo",
 )
 ALGORITHM_DEPENDENCIES = {"stable_baselines3", "torch", "gymnasium", "numpy"}
-# The zoo's hyperparameter files are YAML; the zoo glue also drives the RL Zoo (an optional extra) and its plots
-EXTRA_DEPENDENCIES = {"zoo_files": {"yaml"}, "zoo": {"yaml", "rl_zoo3", "matplotlib"}}
+# The zoo's hyperparameter files are YAML, their strings read by rl_zoo3's own code where that optional extra is
+# installed (lazily: the entry schema must read without it); the zoo glue also drives the RL Zoo and its plots
+EXTRA_DEPENDENCIES = {
+    "zoo_files": {"yaml", "rl_zoo3"},
+    "zoo_entry": {"yaml"},
+    "zoo": {"yaml", "rl_zoo3", "matplotlib"},
+}
 
 # CampusNav's stages, top to bottom: a module imports from its own stage and the stages above it, never below
 STAGES = (

@@ -40,7 +40,8 @@ from campusnav_env.callbacks import RoadClosureCallback
 from campusnav_env.closures import ClosureEvent
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
-from sb3_dcqn.zoo_files import default_hyperparams_path, load_zoo_entry
+from sb3_dcqn.zoo_entry import load_zoo_entry
+from sb3_dcqn.zoo_files import default_hyperparams_path
 
 pytestmark = [
     pytest.mark.slow,

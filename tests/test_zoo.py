@@ -5,7 +5,8 @@ One tiny CartPole run (``dcqn-zoo train``) and one tiny CampusNav run (``dcqn-zo
 trains the goal-conditioned ``CampusNavGoal-v0`` from the shipped entry as it is (``-n`` short, ``--env-kwargs`` with
 the ``pixels`` encoder in place of the entry's ``env_kwargs``): the zoo evaluates ``replay_buffer_class:
 HerReplayBuffer`` and the ``replay_buffer_kwargs`` string itself and builds DCQN with the env, which DCQN's HER buffer
-needs (:mod:`sb3_dcqn.zoo_files`, tested in ``test_zoo_files.py``, reads the same classes for ``dcqn-campusnav``).
+needs (:mod:`sb3_dcqn.zoo_entry`, tested in ``test_zoo_files.py``, reads the same classes for ``dcqn-campusnav``).
+Before the zoo's own ``train`` runs, untouched, ``dcqn-zoo`` reads and checks the entry through that schema.
 """
 
 from __future__ import annotations
@@ -385,7 +386,7 @@ def one_error_line(capsys: pytest.CaptureFixture[str]) -> str:
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
-        ({"learning_rat": 0.001}, r"unknown DCQN hyperparameter 'learning_rat' \(did you mean 'learning_rate'\?\)"),
+        ({"learning_rat": 0.001}, r"learning_rat: unknown DCQN hyperparameter \(did you mean 'learning_rate'\?\)"),
         ({"batch_size": "64"}, r"batch_size: expected a positive integer, got '64'"),
         ({"learning_rate": "lin_1e-3x"}, r"learning_rate: expected a linear schedule lin_<initial value>"),
         ({"train_freq": [4, "episodes"]}, r"train_freq: unknown unit 'episodes' .*did you mean 'episode'"),
@@ -427,8 +428,8 @@ def test_malformed_yaml_a_missing_entry_and_an_unknown_env_are_one_line(
 def test_a_bad_params_override_is_one_line_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     conf, logs = write_tiny(tmp_path / "tiny.yml"), tmp_path / "logs"
     for params, message in [
-        (["batch_siz:32"], r"entry 'CartPole-v1' with -params batch_siz: unknown DCQN hyperparameter 'batch_siz'"),
-        (["learning_rate:'lin_x'"], r"with -params learning_rate: learning_rate: expected a linear schedule lin_"),
+        (["batch_siz:32"], r": error: -params batch_siz: unknown DCQN hyperparameter \(did you mean 'batch_size'"),
+        (["learning_rate:'lin_x'"], r": error: -params learning_rate: expected a linear schedule lin_"),
         (["learning_rate:lin_1e-3"], r"NameError: name 'lin_1e' is not defined \(-params/--env-kwargs values are"),
     ]:
         with pytest.raises(SystemExit) as exit_info:
@@ -438,11 +439,30 @@ def test_a_bad_params_override_is_one_line_naming_it(tmp_path: Path, capsys: pyt
     assert not logs.exists()
 
 
+def test_the_zoo_trains_with_its_own_experiment_manager_and_the_entrys_eval_env_kwargs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from rl_zoo3 import train as train_module
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    methods = dict(vars(ExperimentManager))
+    ran: list[tuple[bool, list[str]]] = []
+    monkeypatch.setattr(train_module, "train", lambda: ran.append((dict(vars(ExperimentManager)) == methods, sys.argv)))
+    conf = write_tiny(tmp_path / "tiny.yml", env_kwargs={"sutton_barto_reward": True})
+    zoo_train(conf, tmp_path / "logs")
+    ((untouched, argv),) = ran
+    assert untouched  # no method of the zoo's replaced: dcqn-zoo checked the entry before the zoo ran
+    # The evaluation envs get the entry's env_kwargs (the zoo gives them only --env-kwargs), as the zoo reads them
+    assert argv[-2:] == ["--eval-env-kwargs", "sutton_barto_reward:True"]
+    zoo_train(conf, tmp_path / "logs", "--env-kwargs", "sutton_barto_reward:False")  # given: the zoo's own rule
+    assert "--eval-env-kwargs" not in ran[-1][1]
+
+
 def test_dcqn_zoo_reports_a_bad_entry_in_one_line_as_a_command(tmp_path: Path) -> None:
     write_tiny(tmp_path / "tiny.yml", learning_rat=0.001)
     result = run_zoo(["train", "--algo", "dcqn", "--env", "CartPole-v1", "-conf", "tiny.yml"], tmp_path)
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
-    assert "tiny.yml: entry 'CartPole-v1': unknown DCQN hyperparameter 'learning_rat'" in result.stderr
+    assert "tiny.yml: entry 'CartPole-v1': learning_rat: unknown DCQN hyperparameter" in result.stderr
     assert not (tmp_path / "logs").exists()
 
 

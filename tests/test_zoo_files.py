@@ -1,13 +1,19 @@
-"""The zoo's hyperparameter files: one reader (``sb3_dcqn.zoo_files``) for ``dcqn-campusnav`` and ``dcqn-zoo``.
+"""The zoo's hyperparameter files: one typed entry schema (``sb3_dcqn.zoo_entry``) for ``dcqn-campusnav`` and
+``dcqn-zoo``.
 
 An entry reads as rl_zoo3 2.9 reads it (``ExperimentManager.read_hyperparameters`` and ``_preprocess_hyperparams``):
 ``lin_`` schedules, evaluated strings, ``normalize``, ``frame_stack``, wrappers, callbacks, ``-params`` overrides and
-the ``default`` entry. The checks name the file, the entry and the key of a bad setting before anything is built.
+the ``default`` entry; with rl_zoo3 installed through its own code, without it through ours, and both agree with the
+zoo's ``ExperimentManager``. The checks raise an error carrying the file, the entry, the key and the value of a bad
+setting before anything is built.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +29,8 @@ from sb3_dcqn.replay import (
     LeanRevisionHerReplayBuffer,
     RevisionDictReplayBuffer,
 )
-from sb3_dcqn.zoo_files import ZooEntry, check_hyperparams, default_hyperparams_path, load_zoo_entry
+from sb3_dcqn.zoo_entry import EntryError, ZooEntry, check_params, load_zoo_entry, read_entry
+from sb3_dcqn.zoo_files import class_by_path, default_hyperparams_path
 
 GOAL_ENV = "CampusNavGoal-v0"
 # One entry with every key the zoo preprocesses, a lin_ learning rate first of all
@@ -64,6 +71,19 @@ def as_rl_zoo3_reads(conf: Path, env_id: str, log_folder: Path, overrides: dict[
     return manager, algorithm_kwargs, env_wrapper, callbacks
 
 
+@contextlib.contextmanager
+def without_rl_zoo3(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """rl_zoo3 cannot be imported inside the block, as where the zoo extra is not installed."""
+    with monkeypatch.context() as hidden:
+        hidden.setitem(sys.modules, "rl_zoo3", None)
+        yield
+
+
+def entry_of(**settings: Any) -> ZooEntry:
+    """An entry of ``conf.yml`` for CartPole-v1 with these settings (and a small ``n_timesteps``)."""
+    return read_entry({"n_timesteps": 10, **settings}, Path("conf.yml"), "CartPole-v1")
+
+
 def assert_same_algorithm_kwargs(ours: dict[str, Any], zoo: dict[str, Any]) -> None:
     """The same keys and values; schedules (the zoo makes constants schedules too) compared where they are evaluated."""
     assert set(ours) == set(zoo)
@@ -76,11 +96,17 @@ def assert_same_algorithm_kwargs(ours: dict[str, Any], zoo: dict[str, Any]) -> N
 
 
 # ------------------------------------------------------------------------------------------------ as rl_zoo3 reads it
-def test_an_entry_with_a_lin_schedule_reads_as_rl_zoo3_reads_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize("zoo_installed", [True, False], ids=["with rl_zoo3", "without rl_zoo3"])
+def test_an_entry_with_a_lin_schedule_reads_as_rl_zoo3_reads_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, zoo_installed: bool
+) -> None:
     conf = tmp_path / "conf.yml"
     conf.write_text(EVERY_KEY)
-    entry = load_zoo_entry(conf, "CartPole-v1")
     manager, algorithm_kwargs, env_wrapper, callbacks = as_rl_zoo3_reads(conf, "CartPole-v1", tmp_path / "logs")
+    with contextlib.nullcontext() if zoo_installed else without_rl_zoo3(monkeypatch):
+        entry = load_zoo_entry(conf, "CartPole-v1")
+    schedule = entry.hyperparams["learning_rate"]
+    assert type(schedule).__module__.startswith("rl_zoo3") is zoo_installed  # the zoo's own schedule, or ours
 
     assert_same_algorithm_kwargs(entry.hyperparams, algorithm_kwargs)
     assert entry.hyperparams["learning_rate"](0.5) == pytest.approx(5e-4)  # from 1e-3 at the start to 0 at the end
@@ -90,10 +116,10 @@ def test_an_entry_with_a_lin_schedule_reads_as_rl_zoo3_reads_it(tmp_path: Path) 
     assert entry.normalize == {"norm_obs": True, "norm_reward": False, "gamma": 0.98}
     assert entry.frame_stack == manager.frame_stack == 2
     assert entry.monitor_kwargs == manager.monitor_kwargs == {"info_keywords": ()}
-    ours, zoo = entry.wrap_env(gym.make("CartPole-v1")), env_wrapper(gym.make("CartPole-v1"))
-    assert (
-        type(ours) is type(zoo) is gym.wrappers.TimeLimit and ours._max_episode_steps == zoo._max_episode_steps == 100
-    )
+    ((path, kwargs),) = entry.env_wrappers
+    ours, zoo = class_by_path(path)(gym.make("CartPole-v1"), **kwargs), env_wrapper(gym.make("CartPole-v1"))
+    assert isinstance(ours, gym.wrappers.TimeLimit) and isinstance(zoo, gym.wrappers.TimeLimit)
+    assert ours._max_episode_steps == zoo._max_episode_steps == 100
     built = entry.make_callbacks()
     assert [type(c) for c in built] == [type(c) for c in callbacks] and built[0].max_episodes == callbacks[
         0
@@ -109,8 +135,11 @@ def test_params_overrides_replace_the_entrys_settings_before_they_are_read(tmp_p
     _, algorithm_kwargs, _, _ = as_rl_zoo3_reads(conf, "CartPole-v1", tmp_path / "logs", overrides)
     assert_same_algorithm_kwargs(entry.hyperparams, algorithm_kwargs)
     assert entry.hyperparams["batch_size"] == 16 and entry.env_kwargs == {}
-    with pytest.raises(ValueError, match=r"conf.yml: entry 'CartPole-v1' with -params learning_rate: learning_rate: "):
+    assert entry.params == ("learning_rate", "batch_size", "env_kwargs")
+    # A bad override is named as the override it is, not as the file's
+    with pytest.raises(EntryError, match=r"^-params learning_rate: expected a linear schedule") as raised:
         load_zoo_entry(conf, "CartPole-v1", {"learning_rate": "lin_fast"})
+    assert raised.value.from_params and (raised.value.file, raised.value.entry) == (conf, "CartPole-v1")
 
 
 def test_an_env_without_its_own_entry_reads_the_default_entry_as_the_zoo_does(tmp_path: Path) -> None:
@@ -120,7 +149,8 @@ def test_an_env_without_its_own_entry_reads_the_default_entry_as_the_zoo_does(tm
     _, algorithm_kwargs, _, _ = as_rl_zoo3_reads(conf, "Acrobot-v1", tmp_path / "logs")
     assert_same_algorithm_kwargs(entry.hyperparams, algorithm_kwargs)
     assert entry.hyperparams["learning_rate"] == 0.002  # a number stays a number: SB3 makes it a constant schedule
-    with pytest.raises(KeyError, match="no entry for 'Acrobot-v1'"):
+    assert entry.name == "default" and entry.source == f"{conf}: entry 'default'"
+    with pytest.raises(EntryError, match=r"conf.yml: no entry for 'Acrobot-v1' \(entries: \['default'\]\)"):
         load_zoo_entry(conf, "Acrobot-v1", fallbacks=())
 
 
@@ -128,8 +158,8 @@ def test_a_lin_schedule_passes_the_checks_and_reaches_dcqns_optimizer(tmp_path: 
     conf = tmp_path / "conf.yml"
     conf.write_text("CartPole-v1:\n  n_timesteps: 100\n  policy: MlpPolicy\n  learning_rate: lin_0.001\n")
     entry = load_zoo_entry(conf, "CartPole-v1")
-    check_hyperparams(entry.hyperparams, DCQN, "here")  # what dcqn-campusnav refused before
-    model = DCQN(env=gym.make("CartPole-v1"), **entry.hyperparams)
+    model = entry.make_model(gym.make("CartPole-v1"))
+    assert isinstance(model, DCQN) and entry.algorithm_class() is DCQN
     assert model.lr_schedule(1.0) == pytest.approx(1e-3) and model.lr_schedule(0.25) == pytest.approx(2.5e-4)
 
 
@@ -138,6 +168,8 @@ def test_a_lin_schedule_passes_the_checks_and_reaches_dcqns_optimizer(tmp_path: 
     [
         ("lin_abc", r"expected a linear schedule lin_<initial value> \(e.g. lin_0.001\), got 'lin_abc'"),
         ("lin_inf", r"expected a linear schedule lin_<initial value> \(e.g. lin_0.001\), got 'lin_inf'"),
+        ("lin_-1e-3", r"expected a linear schedule lin_<initial value> \(e.g. lin_0.001\), got 'lin_-1e-3'"),
+        ("1e-3", r"expected a positive number or a schedule .*\(YAML reads 1e-3 as a string: write 0.001 or !!float"),
         (
             "exp_0.001",
             r"expected a positive number or a schedule .*got 'exp_0.001' \(a linear schedule is written lin_",
@@ -149,41 +181,55 @@ def test_a_schedule_string_other_than_lin_and_a_number_is_named(tmp_path: Path, 
     # The zoo reads any word_<number> as linear and fails on the rest with a traceback
     conf = tmp_path / "conf.yml"
     conf.write_text(f"CartPole-v1:\n  n_timesteps: 100\n  learning_rate: {schedule}\n")
-    with pytest.raises(ValueError, match=rf"conf.yml: entry 'CartPole-v1': learning_rate: {message}"):
-        entry = load_zoo_entry(conf, "CartPole-v1")
-        check_hyperparams(entry.hyperparams, DCQN, f"{conf}: entry 'CartPole-v1'")
+    with pytest.raises(EntryError, match=rf"conf.yml: entry 'CartPole-v1': learning_rate: {message}") as raised:
+        load_zoo_entry(conf, "CartPole-v1")
+    assert (raised.value.key, raised.value.value) == ("learning_rate", schedule)
+
+
+def in_entry(line: str) -> str:
+    """A file whose CartPole-v1 entry has ``n_timesteps`` and this line."""
+    return f"CartPole-v1:\n  n_timesteps: 100\n  {line}\n"
 
 
 @pytest.mark.parametrize(
-    ("line", "message"),
+    ("text", "key", "message"),
     [
-        ("normalize: 3", r"normalize: expected true, false or a mapping"),
-        ("frame_stack: two", r"frame_stack: expected a whole number, got 'two'"),
-        ("env_wrapper: gymnasium.wrappers.NoSuchWrapper", r"env_wrapper: 'gymnasium.wrappers.NoSuchWrapper' cannot be"),
-        ("monitor_kwargs: '[1, 2]'", r"monitor_kwargs must be a mapping, got \[1, 2\]"),
-        ("policy: my_package.NoPolicy", r"policy: 'my_package.NoPolicy' cannot be imported"),
-        ("n_envs: 1.5", r"n_envs: expected a whole number, got 1.5"),
+        (in_entry("normalize: 3"), "normalize", r"entry 'CartPole-v1': normalize: expected true, false or a mapping"),
+        (in_entry("frame_stack: two"), "frame_stack", r"entry 'CartPole-v1': frame_stack: expected a positive integer"),
+        (in_entry("frame_stack: 0"), "frame_stack", r"entry 'CartPole-v1': frame_stack: expected a positive integer"),
+        (in_entry("env_wrapper: gym.NoSuchWrapper"), "env_wrapper", r".*: 'gym.NoSuchWrapper' cannot be imported"),
+        (in_entry("monitor_kwargs: '[1, 2]'"), "monitor_kwargs", r".*: expected a mapping, got \[1, 2\]"),
+        (in_entry("policy: my_package.NoPolicy"), "policy", r".*: 'my_package.NoPolicy' cannot be imported"),
+        (in_entry("n_envs: 1.5"), "n_envs", r"entry 'CartPole-v1': n_envs: expected a positive integer, got 1.5"),
+        (in_entry("env_kwargs: [1]"), "env_kwargs", r"entry 'CartPole-v1': env_kwargs: expected a mapping, got \[1\]"),
+        ("CartPole-v1:\n  policy: [MlpPolicy\n", None, r"not valid YAML \(line 3, column 1: "),
+        ("- CartPole-v1\n", None, r"not a zoo-format hyperparameter file"),
+        ("CartPole-v1: 3\n", None, r"entry 'CartPole-v1': not a mapping of hyperparameters"),
+        ("CartPole-v1:\n  policy: MlpPolicy\n", None, r"entry 'CartPole-v1': no 'n_timesteps'"),
     ],
 )
-def test_bad_zoo_settings_are_named_with_the_file_and_the_entry(tmp_path: Path, line: str, message: str) -> None:
+def test_a_bad_file_entry_or_zoo_setting_is_named(tmp_path: Path, text: str, key: str | None, message: str) -> None:
     conf = tmp_path / "conf.yml"
-    conf.write_text(f"CartPole-v1:\n  n_timesteps: 100\n  {line}\n")
-    with pytest.raises(ValueError, match=rf"conf.yml: entry 'CartPole-v1': {message}"):
+    conf.write_text(text)
+    with pytest.raises(EntryError, match=rf"^{conf}: {message}") as raised:
         load_zoo_entry(conf, "CartPole-v1")
+    assert (raised.value.file, raised.value.key, raised.value.from_params) == (conf, key, False)
+    with pytest.raises(EntryError, match=r"^hyperparameter file not found: .*nope\.yml$"):
+        load_zoo_entry(tmp_path / "nope.yml", "CartPole-v1")
 
 
 def test_an_entry_without_zoo_only_settings_says_so() -> None:
     entry = load_zoo_entry(default_hyperparams_path(), "CartPole-v1")
     assert entry.zoo_only_settings == () and entry.normalize is None and entry.frame_stack is None
-    assert entry.wrap_env(env := gym.make("CartPole-v1")) is env
+    assert entry.env_wrappers == entry.vec_env_wrappers == () and entry.monitor_kwargs == {}
 
 
 # ------------------------------------------------------------------------------------------------ the shipped entries
 @pytest.mark.parametrize("env_id", ["CampusNavCity-v0", "CampusNavCity10k-v0"])
 def test_the_shipped_city_entries_pass_the_checks_and_bring_their_curriculum(env_id: str) -> None:
     entry = load_zoo_entry(default_hyperparams_path(), env_id)
-    check_hyperparams(entry.hyperparams, DCQN, f"dcqn.yml: entry {env_id!r}")
     assert entry.hyperparams["replay_buffer_class"] is LeanDictReplayBuffer and entry.hyperparams["n_steps"] > 1
+    assert entry.route_memory is True and entry.algorithm_kwargs["route_memory"] is True
     assert [type(c).__name__ for c in entry.make_callbacks()] == ["StartCurriculumCallback"]
 
 
@@ -191,35 +237,48 @@ def test_the_shipped_goal_entry_reads_as_sb3s_her_buffer_and_passes_the_checks()
     entry = load_zoo_entry(default_hyperparams_path(), GOAL_ENV)
     assert entry.hyperparams["replay_buffer_class"] is HerReplayBuffer
     assert entry.hyperparams["replay_buffer_kwargs"] == {"n_sampled_goal": 4, "goal_selection_strategy": "future"}
-    check_hyperparams(entry.hyperparams, DCQN, "dcqn.yml: entry 'CampusNavGoal-v0'")
     # DCQN's HER buffer's own arguments are accepted for HerReplayBuffer (DCQN serves it with that buffer)
     extra = {**entry.hyperparams["replay_buffer_kwargs"], "terminal_relabels": False, "relabel_tries": 2}
-    check_hyperparams({**entry.hyperparams, "replay_buffer_kwargs": extra}, DCQN, "here")
+    assert check_params({"replay_buffer_class": HerReplayBuffer, "replay_buffer_kwargs": extra})["replay_buffer_kwargs"]
+
+
+# ------------------------------------------------------------------------------------------------ the route memory
+def test_the_route_memory_is_a_typed_field_and_the_algorithm_is_chosen_in_one_place() -> None:
+    multi = load_zoo_entry(default_hyperparams_path(), "CampusNavMulti-v0")
+    single = load_zoo_entry(default_hyperparams_path(), "CampusNav-v0")
+    assert multi.route_memory is True and single.route_memory is False
+    assert multi.algorithm_class() is single.algorithm_class() is DCQN
+    # Off, it is not passed at all (a class without the memory takes no route_memory); on, it is passed through
+    assert "route_memory" not in entry_of(route_memory=False).algorithm_kwargs
+    assert entry_of(route_memory={"explore": False}).algorithm_kwargs["route_memory"] == {"explore": False}
+    with pytest.raises(EntryError, match=r"route_memory: expected true, false or a mapping of the memory's settings"):
+        entry_of(route_memory="yes")
 
 
 # ------------------------------------------------------------------------------------------------ the checks
 def test_bad_replay_buffer_settings_are_named(tmp_path: Path) -> None:
-    her = {"policy": "MultiInputPolicy", "replay_buffer_class": HerReplayBuffer}
+    her = {"policy": "MultiInputPolicy", "replay_buffer_class": "HerReplayBuffer"}
     misspelt = {**her, "replay_buffer_kwargs": {"n_sampled_goals": 4}}
     with pytest.raises(
-        ValueError, match=r"here: unknown replay_buffer_kwargs key 'n_sampled_goals' .*'n_sampled_goal'"
+        EntryError, match=r"entry 'CartPole-v1': replay_buffer_kwargs: unknown key 'n_sampled_goals' .*'n_sampled_goal'"
     ):
-        check_hyperparams(misspelt, DCQN, "here")
-    with pytest.raises(ValueError, match="here: replay_buffer_class 'HerReplayBuffer' is not a replay buffer class"):
-        check_hyperparams({**her, "replay_buffer_class": "HerReplayBuffer"}, DCQN, "here")  # not evaluated
+        entry_of(**misspelt)
+    with pytest.raises(EntryError, match="replay_buffer_class: 'HerReplayBuffer' is not a replay buffer class"):
+        check_params({**her, "replay_buffer_class": "'HerReplayBuffer'"})  # a string, not the class
     # The keys are those of the buffer named: DCQN's own buffer does no relabelling
-    own = {**her, "replay_buffer_class": DCQNDictReplayBuffer, "replay_buffer_kwargs": {"n_sampled_goal": 4}}
-    with pytest.raises(ValueError, match="unknown replay_buffer_kwargs key 'n_sampled_goal'"):
-        check_hyperparams(own, DCQN, "here")
+    own = {**her, "replay_buffer_class": "DCQNDictReplayBuffer", "replay_buffer_kwargs": {"n_sampled_goal": 4}}
+    with pytest.raises(EntryError, match="replay_buffer_kwargs: unknown key 'n_sampled_goal' of DCQNDictReplayBuffer"):
+        entry_of(**own)
+    assert DCQNDictReplayBuffer.__name__ in own["replay_buffer_class"]
     # Variants that do not combine are named, both of them, with the entry
-    with pytest.raises(ValueError, match=r"here: n-step returns \(nstep\) does not combine with experience revision"):
-        check_hyperparams({"replay_buffer_class": RevisionDictReplayBuffer, "n_steps": 3}, DCQN, "here")
+    with pytest.raises(EntryError, match=r"replay_buffer_class: n-step returns \(nstep\) does not combine with exp"):
+        entry_of(replay_buffer_class=RevisionDictReplayBuffer.__name__, n_steps=3)
     # Every combination's class is a name a YAML entry may give
     conf = tmp_path / "conf.yml"
     conf.write_text(f"{GOAL_ENV}:\n  n_timesteps: 10\n  replay_buffer_class: LeanRevisionHerReplayBuffer\n")
     assert load_zoo_entry(conf, GOAL_ENV).hyperparams["replay_buffer_class"] is LeanRevisionHerReplayBuffer
     conf.write_text(f"{GOAL_ENV}:\n  n_timesteps: 10\n  replay_buffer_class: HerReplayBufer\n")
-    with pytest.raises(ValueError, match="replay_buffer_class: cannot evaluate 'HerReplayBufer'"):
+    with pytest.raises(EntryError, match=r"replay_buffer_class: cannot evaluate 'HerReplayBufer' .*NameError"):
         load_zoo_entry(conf, GOAL_ENV)
 
 
@@ -243,7 +302,7 @@ def test_an_entrys_callbacks_are_read_as_the_zoo_reads_them_and_built_anew_for_e
     ]
     conf.write_text("CampusNav-v0:\n  n_timesteps: 10\n  callback: campusnav_env.callbacks.NoSuchCallback\n")
     with pytest.raises(
-        ValueError, match=r"conf.yml: entry 'CampusNav-v0': callback: 'campusnav_env.callbacks.NoSuchCallback'"
+        EntryError, match=r"conf.yml: entry 'CampusNav-v0': callback: 'campusnav_env.callbacks.NoSuchCallback'"
     ):
         load_zoo_entry(conf, "CampusNav-v0")
     # Made by hand (a model saved with its entry's callbacks), an entry builds them the same way
@@ -258,15 +317,43 @@ def test_counts_and_train_freq_are_read_as_the_zoo_reads_them(tmp_path: Path) ->
     conf.write_text("CartPole-v1:\n  n_timesteps: !!float 2e3\n  policy: MlpPolicy\n  train_freq: [2, episode]\n")
     entry = load_zoo_entry(conf, "CartPole-v1")
     assert entry.n_timesteps == 2000 and entry.hyperparams["train_freq"] == (2, "episode")  # a tuple, as the zoo's
-    check_hyperparams(entry.hyperparams, DCQN, "here")
     conf.write_text("CartPole-v1:\n  n_timesteps: abc\n")
     with pytest.raises(
-        ValueError, match=r"conf.yml: entry 'CartPole-v1': n_timesteps: expected a whole number, got 'abc'"
+        EntryError, match=r"conf.yml: entry 'CartPole-v1': n_timesteps: expected a whole number, got 'abc'"
     ):
         load_zoo_entry(conf, "CartPole-v1")
     conf.write_text("CartPole-v1:\n  n_timesteps: 3e4\n")  # YAML 1.1: a string
-    with pytest.raises(ValueError, match=r"YAML reads 3e4 as a string"):
+    with pytest.raises(EntryError, match=r"YAML reads 3e4 as a string: write 30000 or !!float 3e4"):
         load_zoo_entry(conf, "CartPole-v1")
-    conf.write_text("CartPole-v1:\n  policy: MlpPolicy\n")
-    with pytest.raises(KeyError, match=r"conf.yml: entry 'CartPole-v1': no 'n_timesteps'"):
-        load_zoo_entry(conf, "CartPole-v1")
+    # n_timesteps of 0 reads (a command line may give the steps), and is refused where it is the budget
+    zero = entry_of(n_timesteps=0)
+    assert zero.budget(500) == 500
+    with pytest.raises(EntryError, match=r"^conf.yml: entry 'CartPole-v1': n_timesteps: expected a positive integer"):
+        zero.budget()
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"learning_rat": 0.001}, r"learning_rat: unknown DCQN hyperparameter \(did you mean 'learning_rate'\?\)"),
+        ({"policy": "MlpPolicyy"}, r"policy: unknown policy 'MlpPolicyy' \(policies: MlpPolicy, CnnPolicy"),
+        ({"policy_kwargs": "dict(net_arc=[8])"}, r"policy_kwargs: unknown key 'net_arc' of DCQNPolicy .*'net_arch'"),
+        ({"policy_kwargs": "[8]"}, r"policy_kwargs: expected a mapping, got \[8\]"),
+        ({"train_freq": [4, "episodes"]}, r"train_freq: unknown unit 'episodes' .*did you mean 'episode'\?"),
+        ({"gradient_steps": -2}, r"gradient_steps: expected a positive integer, or -1 \(as many as env steps\)"),
+        ({"seed": 1.5}, r"seed: expected an integer or null, got 1.5"),
+        ({"max_grad_norm": 0}, r"max_grad_norm: expected a positive number, got 0"),
+        ({"optimize_memory_usage": "no"}, r"optimize_memory_usage: expected true or false, got 'no' \(write false"),
+    ],
+)
+def test_a_bad_algorithm_setting_carries_the_file_entry_key_and_value(settings: dict[str, Any], message: str) -> None:
+    settings = {"policy": "MlpPolicy", **settings}
+    with pytest.raises(EntryError, match=rf"^conf.yml: entry 'CartPole-v1': {message}") as raised:
+        entry_of(**settings)
+    key = message.split(":")[0]
+    assert (raised.value.file, raised.value.entry, raised.value.key) == (Path("conf.yml"), "CartPole-v1", key)
+    evaluated = {"policy_kwargs": eval(str(settings.get("policy_kwargs")), {"dict": dict})}  # the zoo's Python string
+    assert raised.value.value == evaluated.get(key, settings[key])
+    # The same settings given alone (-params for a loaded model) are named as -params
+    with pytest.raises(EntryError, match=rf"^-params {message}"):
+        check_params(settings)

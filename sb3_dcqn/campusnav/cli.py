@@ -179,8 +179,8 @@ def _picture_line(picture: Path, asked: str | None) -> str:
 
 
 def _cmd_evaluate(request: Request) -> dict[str, Any]:
-    from sb3_dcqn.campusnav.checks import check_device
     from sb3_dcqn.campusnav.closure_checks import close_roads
+    from sb3_dcqn.campusnav.entries import check_device
     from sb3_dcqn.campusnav.env_checks import env_settings
     from sb3_dcqn.campusnav.map_checks import check_goal, check_start
     from sb3_dcqn.campusnav.model_checks import find_model, saved_run
@@ -262,8 +262,8 @@ def _route_as_text(nav: CampusNavEnv, route: Any, picture: Path) -> dict[str, An
 
 
 def _cmd_draw(request: Request) -> dict[str, Any]:
-    from sb3_dcqn.campusnav.checks import check_device
     from sb3_dcqn.campusnav.closure_checks import close_roads
+    from sb3_dcqn.campusnav.entries import check_device
     from sb3_dcqn.campusnav.env_checks import env_settings
     from sb3_dcqn.campusnav.map_checks import check_goal, check_start
     from sb3_dcqn.campusnav.model_checks import find_model, saved_run

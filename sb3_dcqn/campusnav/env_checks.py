@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sb3_dcqn.campusnav.checks import zoo_entry
+from sb3_dcqn.campusnav.entries import conf_entry
 from sb3_dcqn.campusnav.errors import CommandError, note, said
 from sb3_dcqn.campusnav.map_checks import check_map, goal_refused, goals_source
 from sb3_dcqn.campusnav.output_paths import check_cache
@@ -19,7 +19,7 @@ from sb3_dcqn.campusnav.requests import Request
 from sb3_dcqn.campusnav.settings import DEFAULT_ENCODER, DEFAULT_ENV, EnvSettings
 
 if TYPE_CHECKING:
-    from sb3_dcqn.zoo_files import ZooEntry
+    from sb3_dcqn.zoo_entry import ZooEntry
 
 __all__ = ["env_creator", "env_error", "env_settings"]
 
@@ -49,13 +49,11 @@ def env_creator(env_id: str) -> Any:
 
 def _check_env_kwargs(creator: Any, env_kwargs: dict[str, Any], source: str) -> None:
     """Every ``env_kwargs`` key is an argument of the env (else a ``TypeError`` deep inside ``gym.make``)."""
-    from sb3_dcqn.zoo_files import check_keywords
+    from sb3_dcqn.zoo_entry import unknown_keyword
 
-    if isinstance(creator, type):
-        try:
-            check_keywords(env_kwargs, creator, source, "env_kwargs key")
-        except ValueError as error:
-            raise CommandError(str(error)) from None
+    problem = unknown_keyword(env_kwargs, creator) if isinstance(creator, type) else None
+    if problem is not None:
+        raise CommandError(f"{source}: env_kwargs: {problem}")
 
 
 def env_settings(
@@ -68,16 +66,15 @@ def env_settings(
     """
     env_id = request.env or (saved.env_id if saved else DEFAULT_ENV)
     creator = env_creator(env_id) if creator is None else creator
-    if entry is not None:
-        env_kwargs = entry.env_kwargs
-    elif saved is not None and env_id == saved.env_id and request.conf is None:
-        env_kwargs = saved.env_kwargs
+    if entry is None and saved is not None and env_id == saved.env_id and request.conf is None:
+        env_kwargs, source = saved.env_kwargs, f"{env_id} (as saved with the model)"
     else:
-        env_kwargs = zoo_entry(request.conf, env_id).env_kwargs
+        entry = conf_entry(request.conf, env_id) if entry is None else entry
+        env_kwargs, source = entry.env_kwargs, f"--conf: {entry.source}"
     goals = request.goals
     if goals:
         env_kwargs = {**env_kwargs, "goals": [int(goal) if goal.isdigit() else goal for goal in goals]}
-    _check_env_kwargs(creator, env_kwargs, f"--conf: entry {env_id!r}" if saved is None else f"{env_id} env_kwargs")
+    _check_env_kwargs(creator, env_kwargs, source)
     map_path = str(Path(request.map).resolve()) if request.map else (saved.map_path if saved else None)
     map_coords = request.map_coords or (saved.map_coords if saved and not request.map else "auto")
     if request.map_coords is not None and map_path is None:

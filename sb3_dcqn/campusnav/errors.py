@@ -2,7 +2,8 @@
 (:class:`Interrupted`: what was saved, exit status 130), notes and library warnings on stderr as one line each, and the
 refusals of ``campusnav_env`` (:class:`~campusnav_env.maps.refusals.Refusal`) said with the flags that set what they
 name (:func:`said`: ``coords='projected'`` is ``--map-coords projected``), from their values, never by editing their
-text.
+text. The modules that check the command line's input (the ``*_checks`` modules, :mod:`~sb3_dcqn.campusnav.entries`)
+raise these and import nothing else of each other for them.
 
 Importing this module is cheap (no torch, no CampusNav).
 """

@@ -93,7 +93,7 @@ def train_until_solved(
     :param eval_freq: Evaluate every this many env steps
     :param evaluation: An evaluation callback of your own (default: one at the solved bar)
     :param callbacks: More callbacks for the training (e.g. an entry's
-        :meth:`~sb3_dcqn.zoo_files.ZooEntry.make_callbacks`)
+        :meth:`~sb3_dcqn.zoo_entry.ZooEntry.make_callbacks`)
     :return: the first evaluation at the thresholds (or ``None``) and all evaluations
     """
     if evaluation is None:

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from sb3_dcqn.zoo_files import ZooEntry
+    from sb3_dcqn.zoo_entry import ZooEntry
 
 __all__ = [
     "DEMO_LEVERS",

@@ -33,7 +33,7 @@ class SavedRun:
     :param n_envs: Its number of training envs
     :param closed_roads: The roads closed when it was saved (evaluate and readapt start from them)
     :param levers: The re-adaptation levers it was trained with (``None``: not recorded, an older file)
-    :param callbacks: Its hyperparameter entry's ``callback`` specs, as :attr:`~sb3_dcqn.zoo_files.ZooEntry.callbacks`
+    :param callbacks: Its hyperparameter entry's ``callback`` specs, as :attr:`~sb3_dcqn.zoo_entry.ZooEntry.callbacks`
         (``None``: not recorded)
     """
 

@@ -27,8 +27,15 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from campusnav_env import CampusNavEnv
 from campusnav_env.recovery import RouteEvaluation
 from sb3_dcqn.campusnav import experiments
-from sb3_dcqn.campusnav.checks import check_device, parse_params, training_entry, zoo_entry
 from sb3_dcqn.campusnav.closure_checks import check_plan, closure_plan, plan_source, road_refused
+from sb3_dcqn.campusnav.entries import (
+    check_device,
+    checked_params,
+    conf_entry,
+    parse_params,
+    training_budget,
+    training_entry,
+)
 from sb3_dcqn.campusnav.env_checks import env_creator, env_error, env_settings
 from sb3_dcqn.campusnav.errors import PROG, CommandError, Interrupted, note
 from sb3_dcqn.campusnav.experiments import ClosurePlan, TrainingOutcome
@@ -154,7 +161,7 @@ def _new_logger(model: DCQN, out: Path, verbose: int) -> Path:
 
 def _make_callbacks(specs: Sequence[tuple[str, dict[str, Any]]]) -> list[BaseCallback]:
     """New callbacks from ``(class path, keyword arguments)`` specs, as the zoo builds an entry's ``callback``."""
-    from sb3_dcqn.zoo_files import ZooEntry
+    from sb3_dcqn.zoo_entry import ZooEntry
 
     try:
         return ZooEntry(n_timesteps=0, hyperparams={}, callbacks=tuple(specs)).make_callbacks()
@@ -208,7 +215,7 @@ def _saved_callbacks(request: Request, saved: SavedRun, env_id: str) -> tuple[tu
     if request.conf is None and saved.callbacks is not None:
         return saved.callbacks
     try:
-        return zoo_entry(request.conf, env_id).callbacks
+        return conf_entry(request.conf, env_id).callbacks
     except CommandError:
         if request.conf is not None:
             raise
@@ -217,8 +224,6 @@ def _saved_callbacks(request: Request, saved: SavedRun, env_id: str) -> tuple[tu
 
 def _load_changes(request: Request) -> dict[str, Any]:
     """``-params`` for a loaded model: checked as the YAML's keys; those it was built with cannot change."""
-    from sb3_dcqn.zoo_files import check_hyperparams
-
     changes = parse_params(request.params)
     fixed = sorted(set(changes) & {*_BUILT_WITH, "n_timesteps"})
     if fixed:
@@ -226,11 +231,7 @@ def _load_changes(request: Request) -> dict[str, Any]:
             f"-params {', '.join(fixed)}: set when a model is built (or, n_timesteps, by --timesteps); a loaded "
             "model keeps them"
         )
-    try:
-        check_hyperparams(changes, DCQN, "-params")
-    except ValueError as error:
-        raise CommandError(str(error)) from None
-    return changes
+    return checked_params(changes)
 
 
 # ------------------------------------------------------------------------------------------------ checkpoints
@@ -304,22 +305,18 @@ class Run:
         env_id = request.env or DEFAULT_ENV
         creator = env_creator(env_id)
         entry, levers = training_entry(request, env_id)
-        if entry.n_timesteps < 1 and request.timesteps is None:
-            raise CommandError(
-                f"--conf: entry {env_id!r}: n_timesteps: expected a positive integer, got {entry.n_timesteps}"
-            )
+        budget = training_budget(entry, request.timesteps)
         check_device(request.device)
         settings = env_settings(request, entry=entry, creator=creator)
-        budget = entry.n_timesteps if request.timesteps is None else request.timesteps
         recovery_budget = max(1, budget // 2) if request.recovery_budget is None else request.recovery_budget
         n_envs = entry.n_envs if request.n_envs is None else request.n_envs
         venv, nav = _training_envs(request, settings, n_envs, request.seed)
         check_plan(plan, nav, plan_source(request))
-        hyperparams = {**entry.hyperparams, **({"device": request.device} if request.device else {})}
+        device = {"device": request.device} if request.device else {}
         try:
-            model = DCQN(env=venv, seed=request.seed, verbose=int(request.verbose >= 2), **hyperparams)
+            model = entry.make_model(venv, seed=request.seed, verbose=int(request.verbose >= 2), **device)
         except (ValueError, TypeError, AssertionError) as error:  # settings DCQN refuses together, SB3's asserts
-            raise CommandError(f"--conf: entry {env_id!r}: {error}") from None
+            raise CommandError(f"--conf: {entry.source}: {error}") from None
         if levers:
             title += f" (re-adaptation levers: {', '.join(levers)})"
         run = cls(
@@ -378,7 +375,7 @@ class Run:
         out = free_folder(asked, request.force)
         saved = saved_run(path)
         env_id = request.env or (saved.settings.env_id if saved.settings else DEFAULT_ENV)
-        budget = request.timesteps or zoo_entry(request.conf, env_id).n_timesteps
+        budget = request.timesteps or training_budget(conf_entry(request.conf, env_id), None)
         recovery_budget = max(1, budget // 2) if request.recovery_budget is None else request.recovery_budget
         title = f"DCQN training, resumed from {path}"
         budgets = (budget, recovery_budget)
