@@ -98,8 +98,9 @@ class ViewSource:
     :param progress: Show a progress bar while building
     :param workers: Processes that render and encode the open map's views; None: one per available core
         (:func:`~campusnav_env.features.view_worker.default_workers`) on maps of at least
-        :data:`MIN_NODES_FOR_WORKERS` nodes, else this process; 1: this process. With ``backend="ray"``: the number of
-        Ray actors (None: :mod:`~campusnav_env.features.ray_build`'s plan, one per GPU or per CPU but one)
+        :data:`MIN_NODES_FOR_WORKERS` nodes (counting each of a variation's K renders as one), else this process; 1:
+        this process. With ``backend="ray"``: the number of Ray actors (None: :mod:`~campusnav_env.features.ray_build`'s
+        plan, one per GPU or per CPU but one)
     :param backend: ``"local"`` (this machine) or ``"ray"`` (a Ray cluster, ``pip install "sb3-dcqn[ray]"``)
     :param ray_address: The Ray cluster (``"auto"``, ``"ray://<head>:10001"``; None: ``$RAY_ADDRESS`` or a local Ray),
         where Ray is not initialised in this process yet; only with ``backend="ray"``
@@ -199,7 +200,8 @@ class ViewSource:
         """The number of processes that build the open map's views on this machine (1: this process)."""
         if self.workers is not None:
             return self.workers
-        return default_workers() if self.graph.n_nodes >= MIN_NODES_FOR_WORKERS else 1
+        # A varied world's K renders are K nodes' worth of work each
+        return default_workers() if self.graph.n_nodes * self.renders >= MIN_NODES_FOR_WORKERS else 1
 
     def open_renders(self) -> np.ndarray:
         """``(N, K, 4, *encoding)``: every node's K renders of its views of the open map (K = 1: the fixed views)."""
