@@ -289,6 +289,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
 
         :param path: The ``.h5`` file
         :param goals: Goal locations: node ids (location indices) or names given in the file
+        :param normalize_features: Standardise each feature over the file's views (as ``view_build`` does for built
+            views; nothing else of a build applies to a file's views)
         :param visible_closures: Must be False: a scene file's views are fixed, there is nothing to draw a barrier in
         :return: the environment; other arguments as in the constructor
         :raises ValueError: if ``visible_closures`` is True
