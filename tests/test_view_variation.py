@@ -345,3 +345,6 @@ def test_registered_ids_take_the_variation_as_yaml_gives_it(cache_dir: Path) -> 
     nav = env.unwrapped
     assert nav.view_variation == ViewVariation(renders=2, hours=(9.0, 17.0)) and nav._open_renders.shape[1] == 2
     assert isinstance(nav, CampusNavEnv) and nav.view_build.render_settings == SMALL_VIEWS
+    for env_id in ("CampusNavGoal-v0", "CampusNavCity-v0"):  # the other envs pass it on
+        other = gym.make(env_id, world=GRAPH, encoder="pixels", view_variation=2, view_build=small_build(cache_dir))
+        assert other.unwrapped.observations_vary and other.unwrapped._open_renders.shape[1] == 2, env_id
