@@ -20,6 +20,7 @@ import numpy as np
 
 from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.maps.campus import generate_city
 from campusnav_env.rendering.street_view import RenderSettings
 
@@ -45,11 +46,13 @@ def aliased_pairs(views: np.ndarray, tolerance: float) -> tuple[int, int]:
 
 
 def count(world: str, map_seed: int, size: int, encoder: str) -> dict[str, Any]:
-    kwargs: dict[str, Any] = {"progress": False, "view_dim": 64, "encoder": encoder}
-    if encoder == PIXELS:
-        kwargs["render_settings"] = RenderSettings(64, 48)
+    build = ViewBuild(
+        render_settings=RenderSettings(64, 48) if encoder == PIXELS else None,
+        progress=False,
+        fit_views_to_encoder=world != "campus",
+    )
     graph = "campus" if world == "campus" else generate_city(size, seed=map_seed)
-    env = CampusNavEnv(world=graph, fit_views_to_encoder=world != "campus", **kwargs)
+    env = CampusNavEnv(world=graph, view_dim=64, encoder=encoder, view_build=build)
     equal, close = aliased_pairs(env._open_views, TOLERANCE)
     return {"map": world, "map_seed": map_seed, "size": env.graph.n_nodes, "encoder": encoder, "equal": equal,
             "close": close}  # fmt: skip

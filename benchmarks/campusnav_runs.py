@@ -21,6 +21,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 import campusnav_env  # noqa: F401  (registers the CampusNav ids)
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.features.view_build import ViewBuild, with_view_build
 from campusnav_env.maps.campus import generate_campus
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
@@ -59,7 +60,7 @@ class Task:
 
     def make_env(self, entry: ZooEntry, **env_kwargs: Any) -> gym.Env:
         """The training env (the evaluation runs on the same env, between episodes' steps)."""
-        kwargs = {**entry.env_kwargs, "progress": False, **self.env_kwargs, **env_kwargs}
+        kwargs = with_view_build({**entry.env_kwargs, **self.env_kwargs, **env_kwargs}, progress=False)
         if self.env_id is not None:
             return gym.make(self.env_id, **kwargs)
         # A generated campus keeps the default campus's landmark names; its goal is Dreese Lab
@@ -79,7 +80,7 @@ TASKS = {
         # A smoke run: small street views, a cheap pixel encoder, a few hundred steps (tests and --quick)
         Task("quick", "smoke run (CampusNav-v0, 64x48 pixel features)", "CampusNav-v0", "CampusNav-v0", 101,
              max_steps=600, budget_seconds=30, goal_seconds=30, eval_freq=300,
-             env_kwargs={"encoder": "pixels", "render_settings": RenderSettings(width=64, height=48)}),
+             env_kwargs={"encoder": "pixels", "view_build": ViewBuild(render_settings=RenderSettings(64, 48))}),
     )
 }  # fmt: skip
 
@@ -195,9 +196,7 @@ LEVER_SETS = {
 
 def quick_env_kwargs() -> dict[str, Any]:
     """Cheap env settings for smoke runs: pixel features of 64x48 views (no CNN, views rendered in seconds)."""
-    from campusnav_env.rendering.street_view import RenderSettings
-
-    return {"encoder": "pixels", "render_settings": RenderSettings(width=64, height=48)}
+    return {"encoder": "pixels", "view_build": ViewBuild(render_settings=RenderSettings(width=64, height=48))}
 
 
 # ------------------------------------------------------------------------------------------------ any-goal benchmarks

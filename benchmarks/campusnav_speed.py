@@ -29,6 +29,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 import campusnav_env  # noqa: F401  (registers the ids)
 from benchmarks.report import RESULTS_DIR, command_line, machine_line, write_results
 from campusnav_env.features.encoders import PixelProjectionEncoder, make_encoder
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.maps.campus import generate_campus
 from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
 from campusnav_env.rendering.world import build_world
@@ -106,7 +107,7 @@ def main(argv: list[str] | None = None) -> None:
     all_views = views.reshape(-1, *views.shape[2:])
     projection_name, projection_rate = pixel_projection_views_per_second(all_views)
     # The env as users get it: default encoder, features from the on-disk cache (built on first use)
-    make_campus = dict(encoder=args.encoder, progress=False)
+    make_campus = dict(encoder=args.encoder, view_build=ViewBuild(progress=False))
     rates = {
         "FrozenLake-v1, single env": single_env_steps_per_second(gym.make("FrozenLake-v1"), args.steps),
         "CampusNav-v0, single env": single_env_steps_per_second(gym.make("CampusNav-v0", **make_campus), args.steps),

@@ -60,6 +60,7 @@ from benchmarks.campusnav_runs import TASKS, VARIANTS, Task
 from benchmarks.report import RESULTS_DIR, machine_line, publish, run_missing
 from benchmarks.workers import workers_argument
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.features.view_build import with_view_build
 from campusnav_env.figures import figure_image, write_figure
 from campusnav_env.maps.campus import GOALS
 from campusnav_env.optimal_values import optimal_q_values
@@ -372,7 +373,7 @@ def task_for(quick: bool) -> Task:
 def env_factory(task: Task, goal: str | int) -> Callable[[], CampusNavEnv]:
     """A function that builds a fresh single-goal env (the shipped entry's env settings)."""
     entry = VARIANTS["DCQN"].entry(task)
-    kwargs = {**entry.env_kwargs, "progress": False, **task.env_kwargs}
+    kwargs = with_view_build({**entry.env_kwargs, **task.env_kwargs}, progress=False)
     return lambda: CampusNavEnv(goals=goal, **kwargs)
 
 

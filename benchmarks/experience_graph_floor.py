@@ -47,6 +47,7 @@ import numpy as np
 from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, measured_on, publish, run_missing
 from benchmarks.scale_common import GOAL, PIXELS, env_kwargs_for, fmt, make_graph
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.features.view_build import with_view_build
 from campusnav_env.recovery import RouteEvaluation
 from campusnav_env.route_evaluation import RouteReport, evaluate_routes
 from sb3_dcqn.campusnav.solved import is_solved, solved_bar
@@ -237,7 +238,7 @@ def make_env(n_nodes: int, map_seed: int = 0) -> CampusNavEnv:
     from campusnav_env.maps.campus import generate_city
 
     world = make_graph(n_nodes, "scaled") if map_seed == 0 else generate_city(n_nodes, seed=map_seed)
-    return CampusNavEnv(world=world, goals=GOAL, progress=False, **env_kwargs_for(PIXELS))
+    return CampusNavEnv(world=world, goals=GOAL, **with_view_build(env_kwargs_for(PIXELS), progress=False))
 
 
 def run_one(

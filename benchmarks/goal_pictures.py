@@ -42,6 +42,7 @@ import torch as th
 
 from benchmarks.campusnav_runs import APPEARANCES, HELD_OUT_FRACTION, TRAINING_PHOTOS, quick_env_kwargs
 from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish, write_results
+from campusnav_env.features.view_build import with_view_build
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
 from sb3_dcqn.place_recognition import NOT_IN_MEMORY, NearestPlace, fit_place_matcher
 from sb3_dcqn.zoo_entry import load_zoo_entry
@@ -61,7 +62,8 @@ def goal_tables(quick: bool) -> np.ndarray:
     env_kwargs = dict(load_zoo_entry(default_hyperparams_path(), ENTRY).env_kwargs)
     if quick:
         env_kwargs.update(quick_env_kwargs())
-    env = CampusNavGoalEnv(goal_render_settings=[*TRAINING_PHOTOS, *APPEARANCES.values()], progress=False, **env_kwargs)
+    conditions = [*TRAINING_PHOTOS, *APPEARANCES.values()]
+    env = CampusNavGoalEnv(goal_render_settings=conditions, **with_view_build(env_kwargs, progress=False))
     return env._goal_tables
 
 

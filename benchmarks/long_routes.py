@@ -137,12 +137,14 @@ def make_env(job: Job, env_kwargs: dict[str, Any]) -> Any:
     import gymnasium as gym
 
     import campusnav_env  # noqa: F401  (registers the ids)
+    from campusnav_env.features.view_build import with_view_build
     from campusnav_env.maps.campus import generate_city
     from campusnav_env.rendering.street_view import RenderSettings
 
-    kwargs = {**env_kwargs, "progress": False, "encoder": job.encoder, "map_seed": job.map_seed}
-    if job.encoder == PIXELS:
-        kwargs["render_settings"] = RenderSettings(64, 48)
+    small_views = {"render_settings": RenderSettings(64, 48)} if job.encoder == PIXELS else {}
+    kwargs = with_view_build(
+        {**env_kwargs, "encoder": job.encoder, "map_seed": job.map_seed}, progress=False, **small_views
+    )
     if ROWS[job.row].her:
         from campusnav_env.goal_env import CampusNavGoalEnv
 

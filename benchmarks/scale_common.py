@@ -75,11 +75,12 @@ class Plan:
 
 def env_kwargs_for(encoder: str) -> dict[str, Any]:
     """The env arguments that select one of the two feature builds (EfficientNet on full views, pixels on small)."""
+    from campusnav_env.features.view_build import ViewBuild
     from campusnav_env.rendering.street_view import RenderSettings
 
     if encoder == EFFNET:
-        return {"encoder": EFFNET, "render_settings": RenderSettings(*FULL_VIEW)}
-    return {"encoder": PIXELS, "render_settings": RenderSettings(*SMALL_VIEW)}
+        return {"encoder": EFFNET, "view_build": ViewBuild(render_settings=RenderSettings(*FULL_VIEW))}
+    return {"encoder": PIXELS, "view_build": ViewBuild(render_settings=RenderSettings(*SMALL_VIEW))}
 
 
 def make_graph(n_nodes: int, extent: str) -> Any:

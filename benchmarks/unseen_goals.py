@@ -60,6 +60,7 @@ from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, measure
 from benchmarks.workers import workers_argument
 from campusnav_env.callbacks import RouteEvaluationCallback
 from campusnav_env.closures import ClosureEvent
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
 from campusnav_env.maps.campus import GOALS
 from campusnav_env.recovery import RouteEvaluation
@@ -266,7 +267,7 @@ def appearance_change(model: Any, task: Task, entry: Any) -> dict[str, list[floa
 
 def _sized(settings: RenderSettings | None, task: Task) -> RenderSettings | None:
     """Goal photo conditions at the agent's image size (the smoke run's views are small)."""
-    views = task.env_kwargs.get("render_settings") or RenderSettings()
+    views = ViewBuild.of(task.env_kwargs.get("view_build")).render_settings or RenderSettings()
     return None if settings is None else replace(settings, width=views.width, height=views.height)
 
 

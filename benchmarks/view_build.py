@@ -105,7 +105,7 @@ def measure(args: argparse.Namespace) -> tuple[list[dict[str, Any]], dict[str, A
         for path in args.paths:
             with tempfile.TemporaryDirectory(prefix="view-build-") as cache_dir:
                 source = make_source(
-                    graph, world, encoder, kwargs["render_settings"], Path(cache_dir), path, args.workers
+                    graph, world, encoder, kwargs["view_build"].render_settings, Path(cache_dir), path, args.workers
                 )
                 begin = time.perf_counter()
                 features = source.open_views()

@@ -178,6 +178,8 @@ class RouteEvaluationCallback(_TrainingProgress):
         if eval_freq < 1:
             raise ValueError(f"eval_freq must be at least 1, got {eval_freq}")
         self.eval_env = None if eval_env is None else campus_env(eval_env, "route evaluation")
+        # The env as the policy observes it (eval_env with its wrappers, e.g. observation noise): routes run in it
+        self.observed_env: gym.Env | None = eval_env
         self.eval_freq = eval_freq
         self.unit = unit
         self.goals = goals
@@ -209,6 +211,7 @@ class RouteEvaluationCallback(_TrainingProgress):
                     "eval_env=gym.make(...) with the same map; closures are applied to it as well"
                 )
             self.eval_env = campus_env(env.envs[0], "route evaluation")
+            self.observed_env = env.envs[0]
             self.shares_training_env = True
 
     @property
@@ -258,7 +261,7 @@ class RouteEvaluationCallback(_TrainingProgress):
 
     def evaluate(self) -> RouteEvaluation:
         """Evaluate now, record the result, log it and return it (its time does not count as training)."""
-        assert self.eval_env is not None, "the callback is not initialised"
+        assert self.eval_env is not None and self.observed_env is not None, "the callback is not initialised"
         start = time.perf_counter()
         # Read before evaluating: the evaluation's own time is subtracted only once it has finished
         train_seconds = self.train_seconds
@@ -268,9 +271,10 @@ class RouteEvaluationCallback(_TrainingProgress):
             return model.predict(observations, deterministic=True)[0]
 
         policy = greedy if self.policy is None else self.policy(model)
-        report = evaluate_routes(self.eval_env, policy, goals=self.goals, max_steps=self.max_steps)
+        observed = self.observed_env
+        report = evaluate_routes(observed, policy, goals=self.goals, max_steps=self.max_steps)
         others = {
-            name: evaluate_routes(self.eval_env, policy, goals=goals, max_steps=self.max_steps)
+            name: evaluate_routes(observed, policy, goals=goals, max_steps=self.max_steps)
             for name, goals in self.other_goals.items()
         }
         critics = None
@@ -279,7 +283,7 @@ class RouteEvaluationCallback(_TrainingProgress):
             def critics_policy(observations: Any) -> np.ndarray:
                 return model.policy.predict(observations, deterministic=True)[0]
 
-            critics = evaluate_routes(self.eval_env, critics_policy, goals=self.goals, max_steps=self.max_steps)
+            critics = evaluate_routes(observed, critics_policy, goals=self.goals, max_steps=self.max_steps)
         step = self.model.num_timesteps
         evaluation = RouteEvaluation(
             step=step,

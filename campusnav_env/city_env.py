@@ -72,19 +72,22 @@ class CampusNavCityEnv(CampusNavEnv):
       GraphML file's x / y are read, as in :class:`~campusnav_env.env.CampusNavEnv`.
     - ``goals``: one or several landmark names or node ids (default ``"Dreese Lab"``).
     - ``max_steps``: ``"auto"`` (default, see Episode End) or an int.
-    - ``fit_views_to_encoder``: render the views at the size the CNN consumes (default True here, unlike CampusNav:
-      about 1.8x less work per view, which a city's cold build needs; see :class:`~campusnav_env.env.CampusNavEnv`).
+    - ``view_build``: as in :class:`~campusnav_env.env.CampusNavEnv`, except that the views are rendered at the size
+      the CNN consumes unless it says otherwise (``fit_views_to_encoder`` None means True here, unlike CampusNav:
+      about 1.8x less work per view, which a city's cold build needs).
     - every other argument as in :class:`~campusnav_env.env.CampusNavEnv` (``observation_mode``, ``encoder``,
-      ``encoder_kwargs``, ``render_settings``, ``world_seed``, rewards, ``normalize_features``, ``view_dim``,
-      ``cache_dir``, ``progress``, ``render_mode``, ``visible_closures``).
+      ``view_dim``, ``view_variation``, rewards, ``render_mode``, ``visible_closures``).
 
     Building the env renders and encodes four views per intersection (cached on disk, ``cache_dir``): at 10,000
     intersections a cold build takes minutes with ``encoder="pixels"`` and, with EfficientNet-Lite0, what
     ``benchmarks/scale_world_build.py`` measures (worker processes, one per core, views at the CNN's size).
 
     ## Version History
-    * v0: Initial version.
+    * v0: Initial version (CampusNav's arguments about building the views since gathered into ``view_build``, which
+      replaced this env's ``fit_views_to_encoder``; ``view_variation`` added).
     """
+
+    fits_views_to_encoder = True
 
     def __init__(
         self,
@@ -93,7 +96,6 @@ class CampusNavCityEnv(CampusNavEnv):
         world: RoadGraph | NavigationGraph | str | PathLike[str] | None = None,
         goals: str | int | Sequence[str | int] = "Dreese Lab",
         max_steps: int | str = "auto",
-        fit_views_to_encoder: bool = True,
         **env_kwargs: Any,
     ) -> None:
         if world is None:
@@ -111,6 +113,4 @@ class CampusNavCityEnv(CampusNavEnv):
                 "CampusNavCity: world must be a RoadGraph, a NavigationGraph or a GraphML file's path, got "
                 f"{type(world).__name__} {world!r}"
             )
-        super().__init__(
-            world=world, goals=goals, max_steps=max_steps, fit_views_to_encoder=fit_views_to_encoder, **env_kwargs
-        )
+        super().__init__(world=world, goals=goals, max_steps=max_steps, **env_kwargs)

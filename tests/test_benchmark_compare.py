@@ -18,6 +18,7 @@ sys.path.insert(0, str(ROOT))  # the benchmarks package, as `python -m benchmark
 
 from benchmarks.compare import AGENTS, BudgetHarness, campus_goals, episode_starts  # noqa: E402
 from campusnav_env import GOALS, CampusNavEnv  # noqa: E402
+from campusnav_env.features.view_build import ViewBuild  # noqa: E402
 from campusnav_env.rendering.street_view import RenderSettings  # noqa: E402
 
 BUDGET = 1.0
@@ -27,9 +28,11 @@ BUDGET = 1.0
 def env(tmp_path_factory: pytest.TempPathFactory) -> CampusNavEnv:
     return CampusNavEnv(
         encoder="pixels",
-        render_settings=RenderSettings(width=32, height=24),
-        cache_dir=tmp_path_factory.mktemp("cache"),
-        progress=False,
+        view_build=ViewBuild(
+            render_settings=RenderSettings(width=32, height=24),
+            cache_dir=tmp_path_factory.mktemp("cache"),
+            progress=False,
+        ),
     )
 
 

@@ -68,9 +68,12 @@ def test_a_compact_buffer_file_loads_back_as_the_live_buffer(tmp_path: Any, vari
 @pytest.mark.parametrize(("variants", "share"), [((), 1 / 20), (("lean",), 1.0), (("revision", "prioritized"), 1 / 20)])
 def test_a_campusnav_dict_buffer_loads_back_as_the_live_buffer(variants: tuple[str, ...], share: float) -> None:
     from campusnav_env import CampusNavEnv
+    from campusnav_env.features.view_build import ViewBuild
     from campusnav_env.rendering.street_view import RenderSettings
 
-    env = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(width=64, height=48), progress=False)
+    env = CampusNavEnv(
+        encoder="pixels", view_build=ViewBuild(render_settings=RenderSettings(width=64, height=48), progress=False)
+    )
     model = DCQN(
         "MultiInputPolicy", env, buffer_size=20_000, learning_starts=50, batch_size=16,
         replay_buffer_class=replay_buffer_class(*variants), policy_kwargs={"net_arch": [8]}, seed=0,

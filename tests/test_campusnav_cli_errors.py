@@ -229,11 +229,11 @@ def test_random_resnet50_features_asked_for_are_built_quietly_and_saved_with_the
     from sb3_dcqn.campusnav.settings import EnvSettings
 
     settings = EnvSettings("CampusNav-v0", encoder="resnet50", encoder_random_init=True)
-    assert settings.make_kwargs()["encoder_kwargs"] == {"random_init": True}
+    assert settings.make_kwargs()["view_build"].encoder_kwargs == {"random_init": True}
     assert EnvSettings.from_json(settings.to_json()) == settings and "(random init)" in settings.describe()
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # asked for: no "features are not pretrained" warning
-        encoder = ResNet50Encoder(**settings.make_kwargs()["encoder_kwargs"])
+        encoder = ResNet50Encoder(**settings.make_kwargs()["view_build"].encoder_kwargs)
     assert "random-seed0" in encoder.name
     with pytest.raises(ValueError, match="random_init=True and a weights_path"):
         ResNet50Encoder("resnet50.pth", random_init=True)
@@ -454,11 +454,14 @@ def test_pictures_are_titled_with_start_goal_closures_and_score(
 
 def test_route_title_names_the_route_and_its_score() -> None:
     from campusnav_env import CampusNavEnv
+    from campusnav_env.features.view_build import ViewBuild
     from campusnav_env.figures import pick_route
     from campusnav_env.rendering.street_view import RenderSettings
     from campusnav_env.route_evaluation import evaluate_routes
 
-    nav = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(width=64, height=48), progress=False)
+    nav = CampusNavEnv(
+        encoder="pixels", view_build=ViewBuild(render_settings=RenderSettings(width=64, height=48), progress=False)
+    )
     nav.close_road(14, 15)
     report = evaluate_routes(nav, lambda observations: np.zeros(len(observations["heading"]), dtype=np.int64))
     route = pick_route(report.routes, goal="Dreese Lab", start=3, heading=0)
@@ -589,7 +592,9 @@ def test_a_failed_route_says_why_it_stopped() -> None:
     from campusnav_env.rendering.street_view import RenderSettings
     from campusnav_env.route_evaluation import evaluate_routes
 
-    nav = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(width=64, height=48), progress=False)
+    nav = CampusNavEnv(
+        encoder="pixels", view_build={"render_settings": RenderSettings(width=64, height=48), "progress": False}
+    )
     back = ACTION_NAMES.index("back")
 
     def always(action: int) -> Any:

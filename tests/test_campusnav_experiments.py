@@ -19,6 +19,7 @@ from stable_baselines3.common.envs import BitFlippingEnv
 
 from campusnav_env import CampusNavEnv
 from campusnav_env.closures import ClosureEvent
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN, replay
 from sb3_dcqn.adaptation_boost import AdaptationBoost
@@ -61,7 +62,10 @@ def _feature_cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest
 
 def tiny_model(seed: int = 0) -> DCQN:
     env = CampusNavEnv(
-        encoder="pixels", render_settings=RenderSettings(width=64, height=48), view_dim=16, max_steps=30, progress=False
+        encoder="pixels",
+        view_dim=16,
+        max_steps=30,
+        view_build=ViewBuild(render_settings=RenderSettings(width=64, height=48), progress=False),
     )
     return DCQN(
         "MultiInputPolicy",

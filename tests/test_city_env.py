@@ -21,6 +21,7 @@ import campusnav_env.city_env as city_env
 import campusnav_env.env as env_module
 from campusnav_env import GOALS, CampusNavCityEnv, CampusNavEnv, NavigationGraph, RoadClosureError, evaluate_routes
 from campusnav_env.env import auto_max_steps, longest_shortest_route
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.maps.campus import default_campus, generate_campus, generate_city
 from campusnav_env.rendering.street_view import RenderSettings
 
@@ -33,9 +34,11 @@ LONGEST = 18  # hops from the farthest start to Dreese Lab
 def env_kwargs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     return dict(
         encoder="pixels",
-        render_settings=RenderSettings(width=64, height=48),
-        cache_dir=tmp_path_factory.mktemp("cache"),
-        progress=False,
+        view_build=ViewBuild(
+            render_settings=RenderSettings(width=64, height=48),
+            cache_dir=tmp_path_factory.mktemp("cache"),
+            progress=False,
+        ),
     )
 
 

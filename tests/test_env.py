@@ -14,6 +14,7 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from campusnav_env import GOALS, CampusNavEnv, NavigationGraph, RoadClosureError, road_key
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.maps.campus import generate_campus
 from campusnav_env.maps.compass import BACK, FORWARD
 from campusnav_env.rendering.street_view import RenderSettings
@@ -26,13 +27,17 @@ def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("campusnav-cache")
 
 
+def small_views(cache_dir: Path) -> ViewBuild:
+    return ViewBuild(render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False)
+
+
 def make_env(cache_dir: Path, **kwargs) -> CampusNavEnv:
-    defaults = dict(encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False)
+    defaults = dict(encoder="pixels", view_build=small_views(cache_dir))
     return CampusNavEnv(**{**defaults, **kwargs})
 
 
 def test_registered_ids_make_the_single_and_multi_goal_campus(cache_dir: Path) -> None:
-    kwargs = dict(encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False)
+    kwargs = dict(encoder="pixels", view_build=small_views(cache_dir))
     single = gym.make("CampusNav-v0", **kwargs)
     multi = gym.make("CampusNavMulti-v0", **kwargs)
     assert single.unwrapped.goal_names == ["Dreese Lab"]
@@ -47,9 +52,7 @@ def test_passes_gymnasium_and_sb3_env_checkers(cache_dir: Path) -> None:
             observation_mode=mode,
             render_mode="rgb_array",
             encoder="pixels",
-            render_settings=SMALL_VIEWS,
-            cache_dir=cache_dir,
-            progress=False,
+            view_build=small_views(cache_dir),
         ).unwrapped
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # not even a warning
@@ -269,7 +272,9 @@ def test_package_imports_without_sb3_or_sb3_dcqn_and_registers_the_ids() -> None
 
 
 def test_states_of_inverts_observations_at() -> None:
-    env = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(width=32, height=24), progress=False)
+    env = CampusNavEnv(
+        encoder="pixels", view_build=ViewBuild(render_settings=RenderSettings(width=32, height=24), progress=False)
+    )
     states = np.arange(env.graph.n_states)
     nodes, headings = env.graph.map.state_nodes[states], env.graph.map.state_headings[states]
     observations = env.observations_at(nodes, headings, env.goal)

@@ -12,6 +12,7 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from campusnav_env import GOALS, evaluate_routes
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
 from campusnav_env.rendering.street_view import RenderSettings
 
@@ -23,15 +24,17 @@ def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("campusnav-cache")
 
 
+def small_views(cache_dir: Path) -> ViewBuild:
+    return ViewBuild(render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False)
+
+
 def make_env(cache_dir: Path, **kwargs) -> CampusNavGoalEnv:
-    defaults = dict(encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False, view_dim=16)
+    defaults = dict(encoder="pixels", view_build=small_views(cache_dir), view_dim=16)
     return CampusNavGoalEnv(**{**defaults, **kwargs})
 
 
 def test_registered_id_makes_every_intersection_a_goal(cache_dir: Path) -> None:
-    env = gym.make(
-        "CampusNavGoal-v0", encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False
-    )
+    env = gym.make("CampusNavGoal-v0", encoder="pixels", view_build=small_views(cache_dir))
     goal_env = env.unwrapped
     assert isinstance(goal_env, CampusNavGoalEnv)
     assert goal_env.goal_nodes == list(range(101)) == goal_env.training_goals

@@ -14,6 +14,7 @@ import pytest
 import campusnav_env.env as env_module
 from campusnav_env import CampusNavCityEnv
 from campusnav_env.env import auto_max_steps, longest_shortest_route
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.goal_env import CampusNavGoalEnv
 from campusnav_env.maps.campus import generate_city
 from campusnav_env.maps.navigation import NavigationGraph
@@ -27,9 +28,11 @@ LONGEST_TO_DREESE = 18  # hops from the farthest start to Dreese Lab on SMALL_CI
 def env_kwargs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     return dict(
         encoder="pixels",
-        render_settings=RenderSettings(width=16, height=16),
-        cache_dir=tmp_path_factory.mktemp("cache"),
-        progress=False,
+        view_build=ViewBuild(
+            render_settings=RenderSettings(width=16, height=16),
+            cache_dir=tmp_path_factory.mktemp("cache"),
+            progress=False,
+        ),
         view_dim=16,
     )
 

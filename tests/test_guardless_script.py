@@ -25,11 +25,13 @@ import logging
 import gymnasium as gym
 
 import campusnav_env
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.rendering.street_view import RenderSettings
 
 logging.basicConfig(level=logging.INFO)  # the parallel build says which processes build the views
 env = gym.make(
-    "CampusNavCity-v0", n_intersections=300, encoder="pixels", render_settings=RenderSettings(32, 24), view_dim=16
+    "CampusNavCity-v0", n_intersections=300, encoder="pixels", view_dim=16,
+    view_build=ViewBuild(render_settings=RenderSettings(32, 24)),
 )
 observation, info = env.reset(seed=0)
 print("intersections", env.unwrapped.graph.n_nodes, "views", observation["views"].shape)

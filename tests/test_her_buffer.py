@@ -15,6 +15,7 @@ from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.envs import BitFlippingEnv
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
@@ -196,10 +197,12 @@ def strict_model(tmp_path_factory: pytest.TempPathFactory) -> tuple[DCQN, Campus
         goals=training,
         held_out_goals=held_out,
         encoder="pixels",
-        render_settings=RenderSettings(width=64, height=48),
         view_dim=16,
-        cache_dir=tmp_path_factory.mktemp("cache"),
-        progress=False,
+        view_build=ViewBuild(
+            render_settings=RenderSettings(width=64, height=48),
+            cache_dir=tmp_path_factory.mktemp("cache"),
+            progress=False,
+        ),
     )
     model = DCQN("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, learning_starts=10**6, seed=0)
     model.learn(3_000)
@@ -251,8 +254,8 @@ def test_the_buffer_survives_a_save_and_load(
 
 def test_revision_rewrites_a_closed_road_for_every_goal_its_transitions_carry(tmp_path: Path) -> None:
     env = CampusNavGoalEnv(
-        encoder="pixels", render_settings=RenderSettings(width=64, height=48), view_dim=16, cache_dir=tmp_path,
-        progress=False,
+        encoder="pixels", view_dim=16,
+        view_build=ViewBuild(render_settings=RenderSettings(width=64, height=48), cache_dir=tmp_path, progress=False),
     )  # fmt: skip
     model = DCQN(
         "MultiInputPolicy", env, replay_buffer_class=RevisionHerReplayBuffer, learning_starts=10**6, seed=0,

@@ -53,7 +53,7 @@ STAGES = (
     ("maps", ("maps/",)),
     ("rendering", ("rendering/",)),
     ("features", ("features/",)),
-    ("env", ("env.py", "goal_env.py", "city_env.py", "registration.py", "closures.py")),
+    ("env", ("env.py", "goal_env.py", "city_env.py", "registration.py", "closures.py", "wrappers.py")),
     ("evaluation", ("route_evaluation.py", "optimal_values.py", "recovery.py")),
     ("callbacks/figures", ("callbacks.py", "figures.py")),
 )

@@ -19,6 +19,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from campusnav_env import CampusNavEnv, generate_campus
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN, replay
 from sb3_dcqn.observation_table import ObservationTable
@@ -205,8 +206,8 @@ def test_the_lean_buffer_survives_pickle_and_dcqns_save_and_load(tmp_path: Path)
 
 def test_a_campusnav_transition_costs_at_most_64_bytes_at_view_dim_64(tmp_path: Path) -> None:
     env = CampusNavEnv(
-        world=generate_campus(N_INTERSECTIONS, seed=1), encoder="pixels", render_settings=RenderSettings(64, 48),
-        view_dim=64, cache_dir=tmp_path, progress=False,
+        world=generate_campus(N_INTERSECTIONS, seed=1), encoder="pixels", view_dim=64,
+        view_build=ViewBuild(render_settings=RenderSettings(64, 48), cache_dir=tmp_path, progress=False),
     )  # fmt: skip
     model = DCQN("MultiInputPolicy", env, replay_buffer_class=Lean, buffer_size=5_000, learning_starts=10**6, seed=0)
     model.learn(1_000)

@@ -111,7 +111,7 @@ def on_ray(renderer: NoiseRenderer, encoder: PixelProjectionEncoder, actors: int
 def test_without_ray_the_error_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray then raises ImportError
     with pytest.raises(
-        ImportError, match=r'build_backend="ray" needs Ray, which is not installed: pip install "sb3-dcqn\[ray\]"'
+        ImportError, match=r'view_build backend="ray" needs Ray, which is not installed: pip install "sb3-dcqn\[ray\]"'
     ):
         encode_batches_on_ray(node_batches(N_NODES), NoiseRenderer(), PixelProjectionEncoder())
     graph = generate_campus(16, seed=1)

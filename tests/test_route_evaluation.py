@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from campusnav_env import CampusNavEnv
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.rendering.street_view import RenderSettings
 from campusnav_env.route_evaluation import Route, RouteReport, evaluate_routes
 
@@ -14,9 +15,11 @@ from campusnav_env.route_evaluation import Route, RouteReport, evaluate_routes
 def env(tmp_path_factory: pytest.TempPathFactory) -> CampusNavEnv:
     return CampusNavEnv(
         encoder="pixels",
-        render_settings=RenderSettings(width=64, height=48),
-        cache_dir=tmp_path_factory.mktemp("cache"),
-        progress=False,
+        view_build=ViewBuild(
+            render_settings=RenderSettings(width=64, height=48),
+            cache_dir=tmp_path_factory.mktemp("cache"),
+            progress=False,
+        ),
     )
 
 

@@ -15,6 +15,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.envs import BitFlippingEnv
 
 from campusnav_env import CampusNavEnv
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.goal_env import CampusNavGoalEnv
 from campusnav_env.rendering.street_view import RenderSettings
 from campusnav_env.route_evaluation import evaluate_routes
@@ -37,7 +38,7 @@ from sb3_dcqn.route_memory import (
 
 pytestmark = pytest.mark.usefixtures("module_feature_cache")
 
-SMALL = {"encoder": "pixels", "render_settings": RenderSettings(64, 48), "progress": False}
+SMALL = {"encoder": "pixels", "view_build": ViewBuild(render_settings=RenderSettings(64, 48), progress=False)}
 
 
 def transitions(env: CampusNavEnv, goal: int, states: np.ndarray, actions: np.ndarray) -> tuple[Any, ...]:

@@ -22,6 +22,7 @@ import campusnav_env  # noqa: F401  (registers the ids)
 from campusnav_env import env as env_module
 from campusnav_env.closures import ClosureSchedule
 from campusnav_env.env import CampusNavEnv
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.maps.examples import EXAMPLES, example_path
 from campusnav_env.maps.extent import MAX_MAP_SPAN_M, MAX_ROAD_NETWORK_M, MapExtentError, check_map_extent
 from campusnav_env.maps.osm import CoordinatesWarning, load_graphml
@@ -32,7 +33,10 @@ from campusnav_env.rendering.world import build_world
 nx = pytest.importorskip("networkx")
 
 ROOT = Path(__file__).resolve().parents[1]
-FAST = {"encoder": "pixels", "render_settings": RenderSettings(width=64, height=48), "progress": False}
+FAST = {
+    "encoder": "pixels",
+    "view_build": ViewBuild(render_settings=RenderSettings(width=64, height=48), progress=False),
+}
 # 10 intersections over 100 m x 80 m (x/y in metres, all within the ranges of degrees): a 2 x 3 grid with four dead ends
 TOWN = {
     0: (0, 0),

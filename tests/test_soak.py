@@ -38,6 +38,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from campusnav_env.callbacks import RoadClosureCallback
 from campusnav_env.closures import ClosureEvent
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
 from sb3_dcqn.zoo_entry import load_zoo_entry
@@ -67,7 +68,8 @@ COMPARED_WINDOWS = 3
 def make_city_env() -> gym.Env:
     """``CampusNavCity-v0`` (1,000 intersections) with its entry's env_kwargs (view_dim 64) and cheap pixel views."""
     entry = load_zoo_entry(default_hyperparams_path(), ENV_ID)
-    kwargs = dict(entry.env_kwargs, encoder="pixels", render_settings=RenderSettings(64, 48), progress=False)
+    cheap = ViewBuild.of(entry.env_kwargs.get("view_build"), render_settings=RenderSettings(64, 48), progress=False)
+    kwargs = dict(entry.env_kwargs, encoder="pixels", view_build=cheap)
     return gym.make(ENV_ID, n_intersections=INTERSECTIONS, **kwargs)
 
 

@@ -19,6 +19,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from campusnav_env import CampusNavEnv, generate_campus
 from campusnav_env.callbacks import StartCurriculumCallback
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
 
@@ -32,9 +33,11 @@ def env_kwargs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
         world=WORLD,
         goals="Dreese Lab",
         encoder="pixels",
-        render_settings=RenderSettings(width=64, height=48),
-        cache_dir=tmp_path_factory.mktemp("cache"),
-        progress=False,
+        view_build=ViewBuild(
+            render_settings=RenderSettings(width=64, height=48),
+            cache_dir=tmp_path_factory.mktemp("cache"),
+            progress=False,
+        ),
         max_steps=30,
     )
 

@@ -13,6 +13,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from campusnav_env import CampusNavEnv, NavigationGraph, RoadClosureError
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.maps.campus import generate_campus
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.street_view import BARRIER_OFFSET, RenderSettings, StreetViewRenderer, view_bearings
@@ -26,8 +27,11 @@ def graph() -> RoadGraph:
     return generate_campus(16, seed=1)
 
 
-def make_env(graph: RoadGraph, cache_dir: Path, **kwargs) -> CampusNavEnv:
-    defaults = dict(world=graph, encoder="pixels", render_settings=SMALL_VIEWS, cache_dir=cache_dir, progress=False)
+def make_env(
+    graph: RoadGraph, cache_dir: Path, render_settings: RenderSettings | None = SMALL_VIEWS, **kwargs
+) -> CampusNavEnv:
+    build = ViewBuild(render_settings=render_settings, cache_dir=cache_dir, progress=False)
+    defaults = dict(world=graph, encoder="pixels", view_build=build)
     return CampusNavEnv(**{**defaults, "visible_closures": True, **kwargs})
 
 
@@ -188,8 +192,8 @@ def test_re_encoded_views_go_through_the_transform_fit_on_the_open_map(
     assert env._features is transform  # not refit
     # The one-node path (render, encode, transform) on the open roads reproduces the open map's rows
     for node in (u, v):
-        encoded = env._view_source.views_with(node, frozenset())
-        np.testing.assert_allclose(transform.transform(encoded[None])[0], env._open_views[node], atol=1e-4)
+        encoded = env._view_source.renders_with(node, frozenset())
+        np.testing.assert_allclose(transform.transform(encoded)[0], env._open_views[node], atol=1e-4)
 
 
 def test_image_observations_show_the_barrier(graph: RoadGraph, tmp_path: Path) -> None:
@@ -216,9 +220,7 @@ def test_passes_the_env_checkers_with_a_road_closed(graph: RoadGraph, tmp_path: 
         world=graph,
         observation_mode=mode,
         encoder="pixels",
-        render_settings=settings,
-        cache_dir=tmp_path,
-        progress=False,
+        view_build=ViewBuild(render_settings=settings, cache_dir=tmp_path, progress=False),
         visible_closures=True,
     ).unwrapped
     env.close_road(*road_away_from_goal(env))

@@ -25,6 +25,7 @@ import yaml
 
 pytest.importorskip("rl_zoo3")
 
+from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.goal_env import CampusNavGoalEnv
 from sb3_dcqn import DCQN
 from sb3_dcqn.replay import DCQNHerReplayBuffer
@@ -50,7 +51,7 @@ TINY_CAMPUSNAV = {
     "CampusNav-v0": {
         "n_timesteps": 150,
         "policy": "MultiInputPolicy",
-        "env_kwargs": {"encoder": "pixels", "progress": False, "view_dim": 16, "max_steps": 30},
+        "env_kwargs": {"encoder": "pixels", "view_build": {"progress": False}, "view_dim": 16, "max_steps": 30},
         "learning_starts": 100,
         "buffer_size": 1000,
         "batch_size": 16,
@@ -62,7 +63,7 @@ TINY_CAMPUSNAV = {
 }
 # CampusNavGoal-v0 from the shipped entry: its env_kwargs (view_dim 64) with the cheap encoder, no progress bar
 GOAL_ENV = "CampusNavGoal-v0"
-GOAL_PIXELS = ["--env-kwargs", "encoder:'pixels'", "view_dim:64", "progress:False"]
+GOAL_PIXELS = ["--env-kwargs", "encoder:'pixels'", "view_dim:64", "view_build:{'progress':False}"]
 PLOTS_INSTALLED = all(importlib.util.find_spec(name) is not None for name in ("seaborn", "scipy"))
 
 
@@ -336,7 +337,9 @@ def test_dcqn_zoo_trains_the_goal_env_from_the_shipped_entry_with_hindsight_rela
     run = goal_run / "logs" / "dcqn" / f"{GOAL_ENV}_1"
     config = dict(yaml.load((run / GOAL_ENV / "config.yml").read_text(), Loader=yaml.UnsafeLoader))
     assert config["replay_buffer_class"] == "HerReplayBuffer" and config["env_kwargs"]["encoder"] == "pixels"
-    env = CampusNavGoalEnv(**config["env_kwargs"], cache_dir=goal_run / "cache")  # the run's feature cache
+    env_kwargs = config["env_kwargs"]
+    run_cache = ViewBuild.of(env_kwargs["view_build"], cache_dir=goal_run / "cache")  # the run's feature cache
+    env = CampusNavGoalEnv(**{**env_kwargs, "view_build": run_cache})
     model = DCQN.load(run / f"{GOAL_ENV}.zip", env=env)  # SB3's HER buffer is built with the env
     assert isinstance(model.replay_buffer, DCQNHerReplayBuffer) and model.replay_buffer.n_sampled_goal == 4
     assert model.num_timesteps == 1500 and model._n_updates > 0

@@ -72,6 +72,7 @@ def measure_training(n_nodes: int, plan: Plan) -> dict[str, Any]:
     """
     from benchmarks.campusnav_runs import TASKS, VARIANTS
     from campusnav_env.env import CampusNavEnv
+    from campusnav_env.features.view_build import with_view_build
     from campusnav_env.route_evaluation import evaluate_routes
     from sb3_dcqn.campusnav.experiments import train_until_solved
 
@@ -84,10 +85,12 @@ def measure_training(n_nodes: int, plan: Plan) -> dict[str, Any]:
     graph = make_graph(n_nodes, plan.extent)
     with peak_memory() as peak:
         begin = time.perf_counter()
-        env_kwargs = {**entry.env_kwargs, **env_kwargs_for(encoder), "cache_dir": plan.cache_dir, "progress": False}
+        env_kwargs = with_view_build(
+            {**entry.env_kwargs, **env_kwargs_for(encoder)}, cache_dir=plan.cache_dir, progress=False
+        )
         env = CampusNavEnv(world=graph, goals=GOAL, **env_kwargs)
         record["env_seconds"] = time.perf_counter() - begin
-    settings = env_kwargs["render_settings"]
+    settings = env_kwargs["view_build"].render_settings
     record |= {"env_peak_mb": peak.peak_mb, "encoder": encoder, "view": f"{settings.width}x{settings.height}"}
 
     # Env step and reset costs at this size (random actions)

@@ -28,11 +28,11 @@ def campus_env_factory(graph: Any, encoder: str, cache_dir: str) -> Callable[[],
         import torch
 
         from campusnav_env.env import CampusNavEnv
+        from campusnav_env.features.view_build import with_view_build
 
         torch.set_num_threads(1)
-        return CampusNavEnv(
-            world=graph, goals=GOAL, view_dim=VIEW_DIM, cache_dir=cache_dir, progress=False, **env_kwargs_for(encoder)
-        )
+        env_kwargs = with_view_build(env_kwargs_for(encoder), cache_dir=cache_dir, progress=False)
+        return CampusNavEnv(world=graph, goals=GOAL, view_dim=VIEW_DIM, **env_kwargs)
 
     return make
 

@@ -126,7 +126,7 @@ def measure_views(graph: Any, world: Any, encoder: str, full: bool, plan: Plan) 
     from campusnav_env.features.view_source import ViewSource
     from campusnav_env.rendering.street_view import StreetViewRenderer
 
-    settings = env_kwargs_for(encoder)["render_settings"]
+    settings = env_kwargs_for(encoder)["view_build"].render_settings
     n_nodes = graph.n_nodes
     start = time.perf_counter()
     source = ViewSource(
@@ -194,6 +194,7 @@ def measure_views(graph: Any, world: Any, encoder: str, full: bool, plan: Plan) 
 def measure_env(graph: Any, encoder: str, plan: Plan) -> dict[str, Any]:
     """``CampusNavEnv(...)`` from the warm cache: seconds and memory."""
     from campusnav_env.env import CampusNavEnv
+    from campusnav_env.features.view_build import with_view_build
 
     gc.collect()
     with peak_memory() as env_peak:
@@ -202,9 +203,7 @@ def measure_env(graph: Any, encoder: str, plan: Plan) -> dict[str, Any]:
             world=graph,
             goals=GOAL,
             view_dim=VIEW_DIM,
-            cache_dir=plan.cache_dir,
-            progress=False,
-            **env_kwargs_for(encoder),
+            **with_view_build(env_kwargs_for(encoder), cache_dir=plan.cache_dir, progress=False),
         )
         seconds = time.perf_counter() - begin
     del env
@@ -225,7 +224,7 @@ def measure_worker_build(
     from campusnav_env.features.parallel_build import encode_views_in_workers
     from campusnav_env.features.view_source import ViewSource
 
-    requested = env_kwargs_for(encoder)["render_settings"]
+    requested = env_kwargs_for(encoder)["view_build"].render_settings
     n_nodes = graph.n_nodes
     start = time.perf_counter()
     kwargs = {"precision": precision}

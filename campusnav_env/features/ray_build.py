@@ -61,7 +61,7 @@ def import_ray() -> ModuleType:
     try:
         import ray
     except ImportError as e:
-        raise ImportError(f'build_backend="ray" needs Ray, which is not installed: {RAY_EXTRA}') from e
+        raise ImportError(f'view_build backend="ray" needs Ray, which is not installed: {RAY_EXTRA}') from e
     return ray
 
 

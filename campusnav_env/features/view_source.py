@@ -1,7 +1,11 @@
 """Where the env's view encodings come from: the on-disk cache, or the 3D world rendered and encoded now.
 
 :class:`ViewSource` hands out every node's four views of the open map and, for visible closures, one node's views with
-construction barriers on its closed roads (each a one-node cache entry). The 3D world and the renderer are built only
+construction barriers on its closed roads (each a one-node cache entry). On a varied world
+(:class:`~campusnav_env.rendering.variation.ViewVariation`) each of them comes K times, render after render: the
+cache's entries are then the ``N * K`` renders of the nodes (entry ``n * K + k``, keyed by the variation's key as
+well), built by the same pieces, K times the work; without a variation the keys and entries are exactly the fixed
+views' ones. The 3D world and the renderer are built only
 on a cache miss; a big map's open views are rendered and encoded by worker processes
 (:mod:`campusnav_env.features.parallel_build`) or on a Ray cluster (:mod:`campusnav_env.features.ray_build`), stored
 batch by batch so that a killed build resumes (:func:`~campusnav_env.features.feature_cache.cached_batched_features`).
@@ -33,6 +37,7 @@ from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.barriers import BARRIER_VERSION
 from campusnav_env.rendering.scene import WORLD_VERSION, World
 from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
+from campusnav_env.rendering.variation import VariedRenderer, ViewVariation, check_settings_vary
 from campusnav_env.rendering.world import build_world
 
 __all__ = ["BUILD_BACKENDS", "IMAGE_MODE_VIEW", "MIN_NODES_FOR_WORKERS", "ViewSource", "settings_for_encoder"]
@@ -93,8 +98,9 @@ class ViewSource:
     :param progress: Show a progress bar while building
     :param workers: Processes that render and encode the open map's views; None: one per available core
         (:func:`~campusnav_env.features.view_worker.default_workers`) on maps of at least
-        :data:`MIN_NODES_FOR_WORKERS` nodes, else this process; 1: this process. With ``backend="ray"``: the number of
-        Ray actors (None: :mod:`~campusnav_env.features.ray_build`'s plan, one per GPU or per CPU but one)
+        :data:`MIN_NODES_FOR_WORKERS` nodes (counting each of a variation's K renders as one), else this process; 1:
+        this process. With ``backend="ray"``: the number of Ray actors (None: :mod:`~campusnav_env.features.ray_build`'s
+        plan, one per GPU or per CPU but one)
     :param backend: ``"local"`` (this machine) or ``"ray"`` (a Ray cluster, ``pip install "sb3-dcqn[ray]"``)
     :param ray_address: The Ray cluster (``"auto"``, ``"ray://<head>:10001"``; None: ``$RAY_ADDRESS`` or a local Ray),
         where Ray is not initialised in this process yet; only with ``backend="ray"``
@@ -102,6 +108,10 @@ class ViewSource:
         at ``render_settings``' size, as before (the features of the caches made then)
     :param world: The 3D world of ``graph`` and ``world_seed``, where the caller has built it; None: built on a cache
         miss
+    :param variation: Render every view K times in varied conditions (the render settings' ``time_of_day`` and
+        ``cars`` unset); None: the fixed views
+    :raises ValueError: if the backend is unknown, ``ray_address`` is given without Ray, or the render settings fix
+        what the variation draws
     """
 
     def __init__(
@@ -120,6 +130,7 @@ class ViewSource:
         ray_address: str | None = None,
         fit_views_to_encoder: bool = True,
         world: World | None = None,
+        variation: ViewVariation | None = None,
     ) -> None:
         if observation_mode == "image":
             height, width = IMAGE_MODE_VIEW
@@ -140,6 +151,9 @@ class ViewSource:
         self.settings = (
             settings_for_encoder(self.requested_settings, encoder) if fit_views_to_encoder else self.requested_settings
         )
+        if variation is not None:
+            check_settings_vary(self.settings)
+        self.variation = variation
         self.world_seed = world_seed
         self.cache_dir = cache_dir
         self.progress = progress
@@ -147,13 +161,20 @@ class ViewSource:
         self.backend = backend
         self.ray_address = ray_address
         self._world = world
-        self._renderer: StreetViewRenderer | None = None
+        self._renderer: StreetViewRenderer | VariedRenderer | None = None
         # Keyed without building the world: its inputs (graph, seed, generator version) determine it
         self.key_parts = {
             "graph": graph.fingerprint(),
             "world": f"v{WORLD_VERSION}-seed{world_seed}",
             "render": self.settings.key(),
         }
+        if variation is not None:  # fixed views keep the keys they always had
+            self.key_parts["variation"] = variation.key()
+
+    @property
+    def renders(self) -> int:
+        """Renders of every view: the variation's K, 1 for fixed views."""
+        return 1 if self.variation is None else self.variation.renders
 
     @property
     def world(self) -> World:
@@ -163,31 +184,44 @@ class ViewSource:
         return self._world
 
     @property
-    def renderer(self) -> StreetViewRenderer:
+    def renderer(self) -> StreetViewRenderer | VariedRenderer:
+        """What draws the cache's entries (built once): the street views, or on a varied world their K renders."""
         if self._renderer is None:
-            self._renderer = StreetViewRenderer(self.world, self.settings)
+            self._renderer = self._renderer_factory()()
         return self._renderer
+
+    def _renderer_factory(self) -> functools.partial[StreetViewRenderer | VariedRenderer]:
+        """The picklable factory of :attr:`renderer` that the worker processes and Ray actors are sent."""
+        if self.variation is None:
+            return functools.partial(StreetViewRenderer, self.world, self.settings)
+        return functools.partial(VariedRenderer, self.world, self.settings, self.variation)
 
     def build_workers(self) -> int:
         """The number of processes that build the open map's views on this machine (1: this process)."""
         if self.workers is not None:
             return self.workers
-        return default_workers() if self.graph.n_nodes >= MIN_NODES_FOR_WORKERS else 1
+        # A varied world's K renders are K nodes' worth of work each
+        return default_workers() if self.graph.n_nodes * self.renders >= MIN_NODES_FOR_WORKERS else 1
 
-    def open_views(self) -> np.ndarray:
-        """``(N, 4, *encoding)``: every node's views of the open map."""
-        return cached_batched_features(
+    def open_renders(self) -> np.ndarray:
+        """``(N, K, 4, *encoding)``: every node's K renders of its views of the open map (K = 1: the fixed views)."""
+        entries = cached_batched_features(
             self.key_parts,
-            self.graph.n_nodes,
+            self.graph.n_nodes * self.renders,
             self.encoder,
             self._build_open_views,
             cache_dir=self.cache_dir,
             progress=self.progress,
         )
+        return entries.reshape(self.graph.n_nodes, self.renders, *entries.shape[1:])
+
+    def open_views(self) -> np.ndarray:
+        """``(N, 4, *encoding)``: every node's views of the open map (its first render on a varied world)."""
+        return self.open_renders()[:, 0]
 
     def _build_open_views(self, batches: Sequence[range]) -> Iterable[tuple[range, np.ndarray]]:
         """Render and encode batches of open views: on Ray, in worker processes where :meth:`build_workers` says so."""
-        make_renderer = functools.partial(StreetViewRenderer, self.world, self.settings)
+        make_renderer = self._renderer_factory()
         if self.backend == "ray":
             return encode_batches_on_ray(
                 batches, make_renderer, self.encoder, address=self.ray_address, actors=self.workers
@@ -204,12 +238,20 @@ class ViewSource:
             return encode_batches_in_workers(batches, make_renderer, self.encoder, workers=workers)
         return encode_batches(batches, lambda node: self.renderer.render_node(node), self.encoder)
 
-    def views_with(self, node: int, closed_roads: frozenset[tuple[int, int]]) -> np.ndarray:
-        """``(4, *encoding)``: one node's views with barriers on ``closed_roads`` (a one-node cache entry)."""
+    def renders_with(self, node: int, closed_roads: frozenset[tuple[int, int]]) -> np.ndarray:
+        """
+        ``(K, 4, *encoding)``: one node's K renders of its views with barriers on ``closed_roads``, each render in the
+        conditions of the open map's (a cache entry of K renders; K = 1: the fixed views).
+        """
         roads = ",".join(f"{u}-{v}" for u, v in sorted(closed_roads))
         key_parts = {**self.key_parts, "closures": f"barrier-v{BARRIER_VERSION}|node={node}|closed={roads}"}
+        renderer = self.renderer
 
-        def render(_: int) -> np.ndarray:  # the entry's only node, 0, is this node
-            return self.renderer.render_node(node, closed_roads=closed_roads)
+        def render(entry: int) -> np.ndarray:  # the entry's renders are this node's
+            if isinstance(renderer, VariedRenderer):
+                return renderer.render(node, entry, closed_roads=closed_roads)
+            return renderer.render_node(node, closed_roads=closed_roads)
 
-        return cached_view_features(key_parts, 1, render, self.encoder, cache_dir=self.cache_dir, progress=False)[0]
+        return cached_view_features(
+            key_parts, self.renders, render, self.encoder, cache_dir=self.cache_dir, progress=False
+        )

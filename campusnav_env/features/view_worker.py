@@ -86,7 +86,7 @@ class _NoMainPickler(pickle.Pickler):
             raise TypeError(
                 f"{obj.__qualname__} is defined in the script being run ({obj.__module__}), which view-build workers "
                 "do not import: define it in a module of its own and import it from there, or build in this process "
-                "(build_workers=1 / workers=1)"
+                "(ViewBuild(workers=1))"
             )
         return NotImplemented
 

@@ -24,13 +24,17 @@ view on one core), each drawing into the shared buffers of a :class:`~campusnav_
 
 Appearance changes (``RenderSettings.time_of_day``, ``RenderSettings.cars``) draw their random part (cloud cover,
 exposure, which windows are lit, where the cars are) from the ``rng`` passed to the render call, so they are
-reproducible; without an ``rng`` they come from a generator seeded by the world seed and the node.
+reproducible; without an ``rng`` they come from a generator seeded by the world seed and the node. A :class:`Shot`
+given to :meth:`StreetViewRenderer.render_view` replaces the settings' hour and cars for that one picture and turns the
+camera a few degrees off the view bearing: a world whose pictures vary between visits
+(:class:`~campusnav_env.rendering.variation.ViewVariation`) is drawn shot by shot.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, fields
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -49,13 +53,17 @@ __all__ = [
     "BARRIER_VERSION",
     "RENDERER_VERSION",
     "RenderSettings",
+    "Shot",
     "StreetViewRenderer",
+    "settings_from_mapping",
     "view_bearings",  # moved to campusnav_env.maps.compass, still importable from here
 ]
 
 # Bump when the drawing changes: feature caches key on RenderSettings.key().
 # v2: each view looks along its slot's road (RoadGraph.slot_bearings) instead of the compass bearing.
 RENDERER_VERSION = 2
+
+Settings = TypeVar("Settings")
 
 
 @dataclass(frozen=True)
@@ -97,6 +105,50 @@ class RenderSettings:
             value = getattr(self, f.name)
             parts.append(f"{f.name}={value!r}" if not isinstance(value, float) else f"{f.name}={value:.6g}")
         return "|".join(parts)
+
+
+def settings_from_mapping(cls: type[Settings], value: Mapping[str, Any], what: str) -> Settings:
+    """
+    A settings dataclass (:class:`RenderSettings`, a view variation, a view build) from a mapping of its fields, e.g. a
+    YAML entry's ``env_kwargs``.
+
+    :param cls: The dataclass
+    :param value: Its fields by name
+    :param what: The argument's name, for the message (e.g. ``"view_variation"``)
+    :return: ``cls(**value)``
+    :raises TypeError: naming the unknown fields and the fields there are
+    """
+    known = [f.name for f in fields(cls)]  # type: ignore[arg-type]
+    unknown = sorted(str(key) for key in value if key not in known)
+    if unknown:
+        raise TypeError(f"{what}: unknown field(s) {unknown}; the fields are {known}")
+    return cls(**value)
+
+
+@dataclass(frozen=True)
+class Shot:
+    """
+    The conditions of one picture where they change from picture to picture (a varied world, see
+    :class:`~campusnav_env.rendering.variation.ViewVariation`): they replace the settings' ``time_of_day`` and
+    ``cars`` for that picture, and the camera is turned ``yaw_offset_deg`` off the view bearing (a street-view car
+    never stops at exactly the same angle).
+
+    :param time_of_day: Hour in [0, 24] (random cloud cover and exposure drawn from the render call's rng), or
+        ``None`` for the fixed noon
+    :param cars: Draw passing cars (positions and colours from the render call's rng)
+    :param yaw_offset_deg: Degrees clockwise added to the view bearing, in [-45, 45]
+    :raises ValueError: if a field is out of range
+    """
+
+    time_of_day: float | None = None
+    cars: bool = False
+    yaw_offset_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.time_of_day is not None and not 0.0 <= float(self.time_of_day) <= 24.0:
+            raise ValueError(f"Shot.time_of_day must be an hour in [0, 24] or None, got {self.time_of_day}")
+        if not -45.0 <= float(self.yaw_offset_deg) <= 45.0:
+            raise ValueError(f"Shot.yaw_offset_deg must be in [-45, 45] degrees, got {self.yaw_offset_deg}")
 
 
 class StreetViewRenderer:
@@ -162,6 +214,7 @@ class StreetViewRenderer:
         *,
         closed_roads: Collection[tuple[int, int]] = (),
         rng: np.random.Generator | None = None,
+        shot: Shot | None = None,
     ) -> np.ndarray:
         """
         The view from ``node`` in compass slot ``direction`` (0 N, 1 E, 2 S, 3 W), looking along
@@ -170,7 +223,9 @@ class StreetViewRenderer:
         :param node: Intersection id
         :param direction: Compass slot
         :param closed_roads: Roads (node pairs, either order) that show a construction barrier at both ends
-        :param rng: Source of the random appearance changes (only used when the settings ask for them)
+        :param rng: Source of the random appearance changes (only used when the settings or the shot ask for them)
+        :param shot: This picture's hour, cars and camera yaw offset, in place of the settings' hour and cars
+            (``None``: the settings')
         :return: ``(height, width, 3)`` uint8 RGB image
         :raises ValueError: if the node or the direction is out of range
         :raises TypeError: if the node is not an int
@@ -179,8 +234,9 @@ class StreetViewRenderer:
         node = self._check_node(node)
         direction = self._check_direction(direction)
         barriers = self._barriers.on_roads(closed_roads)
-        lighting, cars = self._moment(node, rng, salt=direction + 1)
-        return self._render(node, direction, lighting, cars, barriers)
+        lighting, cars = self._moment(node, rng, salt=direction + 1, shot=shot)
+        yaw_offset_deg = 0.0 if shot is None else float(shot.yaw_offset_deg)
+        return self._render(node, direction, lighting, cars, barriers, yaw_offset_deg=yaw_offset_deg)
 
     def render_node(
         self, node: int, *, closed_roads: Collection[tuple[int, int]] = (), rng: np.random.Generator | None = None
@@ -221,26 +277,40 @@ class StreetViewRenderer:
             raise ValueError(f"direction must be 0 (N), 1 (E), 2 (S) or 3 (W), got {direction!r}")
         return int(direction)
 
-    def _moment(self, node: int, rng: np.random.Generator | None, salt: int) -> tuple[Lighting, list[Car]]:
-        """The light and the cars of one moment at ``node`` (``salt`` tells apart the render calls without an rng)."""
-        settings = self.settings
-        if settings.time_of_day is None and not settings.cars:
+    def _moment(
+        self, node: int, rng: np.random.Generator | None, salt: int, shot: Shot | None = None
+    ) -> tuple[Lighting, list[Car]]:
+        """
+        The light and the cars of one moment at ``node`` (``salt`` tells apart the render calls without an rng): the
+        settings' hour and cars, or the shot's where one is given.
+        """
+        conditions = self.settings if shot is None else shot
+        hour, with_cars = conditions.time_of_day, conditions.cars
+        if hour is None and not with_cars:
             return lighting_at(None, None), []
         if rng is None:
             rng = np.random.default_rng([self.world.seed, node, salt, 0x5EED])
-        lighting = lighting_at(settings.time_of_day, rng if settings.time_of_day is not None else None)
+        lighting = lighting_at(hour, rng if hour is not None else None)
         cars = (
             sample_cars(self._ground.roads, self._ground.road_index, self.world.road_width, self.positions[node], rng)
-            if settings.cars
+            if with_cars
             else []
         )
         return lighting, cars
 
     def _render(
-        self, node: int, direction: int, lighting: Lighting, cars: list[Car], barriers: list[Barrier]
+        self,
+        node: int,
+        direction: int,
+        lighting: Lighting,
+        cars: list[Car],
+        barriers: list[Barrier],
+        *,
+        yaw_offset_deg: float = 0.0,
     ) -> np.ndarray:
-        # The road in this slot, or its compass bearing
-        view = View.looking(self.camera, node, self.positions[node], self.view_bearings[node, direction], lighting)
+        # The road in this slot, or its compass bearing (turned by a shot's yaw offset)
+        bearing = self.view_bearings[node, direction] + yaw_offset_deg
+        view = View.looking(self.camera, node, self.positions[node], bearing, lighting)
         self._sky.draw(view)
         self._ground.draw(view)
         visible_walls = self._buildings.draw_walls(view)

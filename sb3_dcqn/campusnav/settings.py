@@ -59,17 +59,21 @@ class EnvSettings:
 
     def make_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for ``gym.make``."""
+        from campusnav_env.features.view_build import ViewBuild
         from campusnav_env.rendering.street_view import RenderSettings
 
         kwargs: dict[str, Any] = {**self.env_kwargs, "encoder": self.encoder}
         if self.map_path is not None:
             kwargs["world"] = load_map(self.map_path, self.map_coords)
+        build: dict[str, Any] = {}  # over the entry's own view_build
         if self.encoder_weights is not None:
-            kwargs["encoder_kwargs"] = {"weights_path": self.encoder_weights}
+            build["encoder_kwargs"] = {"weights_path": self.encoder_weights}
         elif self.encoder_random_init:
-            kwargs["encoder_kwargs"] = {"random_init": True}
+            build["encoder_kwargs"] = {"random_init": True}
         if self.render_size is not None:
-            kwargs["render_settings"] = RenderSettings(width=self.render_size[0], height=self.render_size[1])
+            build["render_settings"] = RenderSettings(width=self.render_size[0], height=self.render_size[1])
+        if build:
+            kwargs["view_build"] = ViewBuild.of(kwargs.get("view_build"), **build)
         return kwargs
 
     def to_json(self) -> dict[str, Any]:
