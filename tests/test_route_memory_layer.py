@@ -408,3 +408,18 @@ def test_sb3s_evaluate_policy_passes_episode_starts_and_the_guard_keeps_each_env
     model._without_repeated_bumps = spy
     evaluate_policy(model, model.get_env(), n_eval_episodes=2)
     assert guard_sizes and set(guard_sizes) == {1} and model._bumps.n_envs == 1
+
+
+# ----------------------------------------------------------------------------------------------- the benchmark rows
+def test_the_benchmarks_memory_rows_are_each_algorithm_wearing_the_same_memory() -> None:
+    from benchmarks.campusnav_runs import TASKS, VARIANTS
+
+    task = TASKS["quick"]
+    rows = {"DQN + memory": "DQN + memory", "QRDQN + memory": "QRDQN + memory", "DCQN + memory": "DCQN + memory"}
+    rows["DCQN, critics alone"] = "DCQN"  # the shipped entry's memory turned off
+    for row, ran in rows.items():
+        variant = VARIANTS[row]
+        entry = variant.entry(task)
+        model = variant.make_model(task.make_env(entry), entry, seed=0)
+        assert algorithm_name(model) == ran and (model.memory is not None) == ran.endswith("memory")
+    assert VARIANTS["DCQN, route memory"] is VARIANTS["DCQN + memory"]  # earlier results' name of the row

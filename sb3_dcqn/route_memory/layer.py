@@ -45,6 +45,7 @@ __all__ = [
     "RouteMemoryDCQN",
     "RouteMemoryDQN",
     "RouteMemoryLayer",
+    "algorithm_class_for",
     "algorithm_name",
     "memory_settings",
     "with_route_memory",
@@ -530,6 +531,18 @@ def with_route_memory(algorithm_class: type[OffPolicyAlgorithm]) -> type[OffPoli
         made = type(name, (RouteMemoryLayer, algorithm_class), namespace)
         _MADE[algorithm_class] = made
     return made
+
+
+def algorithm_class_for(algorithm_class: type[OffPolicyAlgorithm], hyperparams: Mapping[str, Any]) -> type:
+    """
+    The class that takes an entry's hyperparameters: the algorithm wearing the route memory where they set
+    ``route_memory`` (any value: ``False`` is the memory off), the algorithm itself elsewhere (the command line's,
+    the zoo's and the benchmarks' entries name the memory as a hyperparameter).
+
+    :param algorithm_class: The algorithm (``DCQN``, ``DQN``, ``QRDQN``)
+    :param hyperparams: Its keyword arguments
+    """
+    return with_route_memory(algorithm_class) if "route_memory" in hyperparams else algorithm_class
 
 
 def algorithm_name(model_or_class: Any, *, for_files: bool = False) -> str:
