@@ -21,6 +21,7 @@ works in a fresh process. :func:`algorithm_name` says what ran: ``"DCQN"``, ``"D
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 from collections.abc import Hashable, Mapping
@@ -61,13 +62,14 @@ _ALGORITHM_HOMES = {"DQN": "stable_baselines3", "DCQN": "sb3_dcqn.dcqn", "QRDQN"
 _PREFIX = "RouteMemory"
 
 
-def _memory_keywords() -> tuple[set[str], bool]:
+@functools.cache
+def _memory_keywords() -> tuple[frozenset[str], bool]:
     """The settings the memory takes (its constructor's keyword arguments, and ``place_frame``), and whether it takes
     any other keyword as well (then an unknown one is found when the memory is made)."""
     parameters = inspect.signature(RouteMemory.__init__).parameters
     named = {name for name, p in parameters.items() if p.kind is not inspect.Parameter.VAR_KEYWORD}
     open_ended = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
-    return (named - {"self", "n_actions", "observation_space", "success_reward"}) | {"place_frame"}, open_ended
+    return frozenset(named - {"self", "n_actions", "observation_space", "success_reward"} | {"place_frame"}), open_ended
 
 
 def memory_settings(route_memory: bool | Mapping[str, Any] | None) -> dict[str, Any] | None:
@@ -89,7 +91,7 @@ def memory_settings(route_memory: bool | Mapping[str, Any] | None) -> dict[str, 
     return dict(route_memory)
 
 
-def _known_text(known: set[str]) -> str:
+def _known_text(known: frozenset[str]) -> str:
     return ", ".join([*_LAYER_SETTINGS, *sorted(known)])
 
 
@@ -123,9 +125,9 @@ class RouteMemoryLayer:
           ``DictReplayBuffer`` or ``HerReplayBuffer``, or one of :mod:`sb3_dcqn.replay`'s classes, it gains the
           ``revision`` variant (:mod:`sb3_dcqn.replay.revision`; ``HerReplayBuffer`` becomes DCQN's
           ``RevisionHerReplayBuffer``, with terminal relabels), said once at ``verbose >= 1``; not with n-step
-          returns, nor a user's own class. Revision matches on the memory's places and slots (a bump at one heading
-          revises the road's copies at every heading, in worlds whose pictures vary too), and a Dict base is given the
-          memory's goal keys: a closure is one fact for every goal;
+          returns or ``optimize_memory_usage``, nor a user's own class. Revision matches on the memory's places and
+          slots (a bump at one heading revises the road's copies at every heading, in worlds whose pictures vary
+          too), and a Dict base is given the memory's goal keys: a closure is one fact for every goal;
         - the memory is saved in the model's file; its statistics (where it has them) are logged under ``memory/``
           at the end of each rollout. Where it steps aside (it cannot recognise places), the algorithm acts alone.
 
@@ -146,6 +148,7 @@ class RouteMemoryLayer:
         self._explorer: UntriedExplorer | None = None
         self._bumps: _BumpGuard | None = None
         self._success_reward: float | None = None
+        self._explores = False
         super().__init__(*args, **kwargs)
 
     def __repr__(self) -> str:
@@ -154,8 +157,7 @@ class RouteMemoryLayer:
     @property
     def explores_untried(self) -> bool:
         """Whether exploration drives to the memory's untried moves (``route_memory``'s ``explore``)."""
-        settings = memory_settings(self.route_memory)
-        return settings is not None and bool(settings.get("explore", True))
+        return self._explores
 
     @property
     def _memory_speaks(self) -> bool:
@@ -167,6 +169,7 @@ class RouteMemoryLayer:
         settings = memory_settings(self.route_memory)
         if settings is not None:
             self._success_reward = settings.get("success_reward")
+            self._explores = bool(settings.get("explore", True))
             if self.memory is None:  # a loaded model has its own
                 self.memory = self._new_memory({k: v for k, v in settings.items() if k not in _LAYER_SETTINGS})
             self._revise_with_memory()
@@ -193,7 +196,9 @@ class RouteMemoryLayer:
         (see ``route_memory``)."""
         assert self.memory is not None
         given = self.replay_buffer_class  # type: ignore[has-type]
-        revising = _with_revision(given, isinstance(self.observation_space, spaces.Dict), self.n_steps > 1)  # type: ignore[attr-defined]
+        one_step = self.n_steps == 1 and not self.optimize_memory_usage  # type: ignore[attr-defined]
+        is_dict = isinstance(self.observation_space, spaces.Dict)  # type: ignore[attr-defined]
+        revising = _with_revision(given, is_dict, one_step)
         if revising is not given:
             self.replay_buffer_class = revising
             if self.verbose >= 1:  # type: ignore[attr-defined]
@@ -276,8 +281,7 @@ class RouteMemoryLayer:
             batched, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
             actions = self._uniform_where(np.full(_rows(batch), -1, dtype=np.int64))
             return (actions if batched else actions[0]), state
-        # Rollouts' greedy steps: routes up to ROLLOUT_STALENESS changes old, re-trying aged closures
-        return self._routes(observation, state, episode_start, ROLLOUT_STALENESS, retry=True)
+        return self._routes(observation, state, episode_start, rollout=True)
 
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
@@ -299,15 +303,21 @@ class RouteMemoryLayer:
         return actions if batched else actions[0]
 
     def _routes(
-        self, observation: Any, state: Any, episode_start: Any, staleness: int = 0, retry: bool = False
+        self, observation: Any, state: Any, episode_start: Any, rollout: bool = False
     ) -> tuple[np.ndarray, Any]:
-        """The memory's route where it has one, the algorithm's greedy action elsewhere (``staleness``, ``retry``: see
-        :meth:`RouteMemory.route_actions`); in evaluation with ``episode_start``, no bump twice (``_BumpGuard``)."""
+        """
+        The memory's route where it has one, the algorithm's greedy action elsewhere.
+
+        :param rollout: A rollout's greedy step: routes up to :data:`ROLLOUT_STALENESS` changes of the memory old, and
+            roads blocked long enough ago are tried again (:meth:`RouteMemory.route_actions`); else evaluation's exact
+            routes, with no bump twice in an episode where ``episode_start`` says which rows are envs
+        """
         assert self.memory is not None
         batched, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
-        actions = self.memory.route_actions(batch, staleness, retry)
+        staleness = ROLLOUT_STALENESS if rollout else 0
+        actions = self.memory.route_actions(batch, staleness, retry=rollout)
         actions, state = self._greedy_where(actions < 0, actions, batch, state, episode_start)
-        if staleness == 0 and episode_start is not None:
+        if not rollout and episode_start is not None:
             actions = self._without_repeated_bumps(batch, actions, np.asarray(episode_start, dtype=bool).reshape(-1))
         return (actions if batched else actions[0]), state
 
@@ -388,7 +398,8 @@ class RouteMemoryLayer:
 
     def _excluded_save_params(self) -> list[str]:
         # The memory is saved (pickled in the model's data); its explorer's paths and the bump guard are rebuilt
-        return [*super()._excluded_save_params(), "_explorer", "_bumps", "_success_reward"]  # type: ignore[misc]
+        excluded = ["_explorer", "_bumps", "_success_reward", "_explores"]  # rebuilt from route_memory on load
+        return [*super()._excluded_save_params(), *excluded]  # type: ignore[misc]
 
 
 class _BumpGuard:
@@ -466,10 +477,10 @@ class _Remembering:
             self.buffer.add(obs, next_obs, action, reward, done, infos)
 
 
-def _with_revision(buffer_class: type[ReplayBuffer] | None, is_dict: bool, n_step: bool) -> type[ReplayBuffer] | None:
-    """The buffer class with the ``revision`` variant, where it combines (not with n-step returns, nor a user's own
-    class); else as given."""
-    if n_step or (isinstance(buffer_class, type) and issubclass(buffer_class, RevisionReplay)):
+def _with_revision(buffer_class: type[ReplayBuffer] | None, is_dict: bool, one_step: bool) -> type[ReplayBuffer] | None:
+    """The buffer class with the ``revision`` variant, where it combines (one-step transitions, next observations
+    stored: not with n-step returns nor ``optimize_memory_usage``; not a user's own class); else as given."""
+    if not one_step or (isinstance(buffer_class, type) and issubclass(buffer_class, RevisionReplay)):
         return buffer_class
     try:
         return with_variants(buffer_class, "revision", base="Dict" if is_dict else "Box")
