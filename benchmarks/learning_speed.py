@@ -242,7 +242,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     th.set_num_threads(1)
 
-    profile_file = args.runs_file.with_name("learning_speed_profile.json")
+    # Beside its runs file: learning_speed_runs.jsonl -> learning_speed_profile.json (another runs file, its own)
+    profile_file = args.runs_file.with_name(args.runs_file.stem.removesuffix("_runs") + "_profile.json")
     if args.profile:
         profiles = {variant: profile_costs("campus", variant) for variant in args.variants}
         write_results(profile_file, json.dumps(profiles, indent=2))
