@@ -153,8 +153,9 @@ VARIANTS = {
             algo="QRDQN",
             drop_policy_kwargs=OTHER_POLICIES,
             overrides={"route_memory": True},
-            # The RL Zoo's quantiles for its small discrete tasks: QR-DQN's default 200 makes a gradient step on a batch
-            # of 256 some 20 times DQN's, and the time budget would measure that, not the memory
+            # The RL Zoo's quantiles for its small discrete tasks: with QR-DQN's default 200 an env step on the city
+            # (a gradient step on 256 every 4) cost 110 ms against DQN's 4 ms (2,185 steps in 240 s), and the time
+            # budget measured that, not the memory
             policy_overrides={"n_quantiles": 10},
         ),
         Variant("DCQN, paper settings", paper=True),
