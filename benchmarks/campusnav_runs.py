@@ -1,10 +1,12 @@
 """What the CampusNav benchmarks share: the tasks, the agents compared, the lever sets of the closure benchmarks, and
 the goal conditions of the any-goal benchmarks (``unseen_goals.py``, ``goal_pictures.py``).
 
-A *task* is a map and its goals (the built-in campus with one or four goals, or a generated campus of a few hundred
-intersections) with the shipped YAML entry that trains on it. A *variant* is an agent: DCQN as shipped, DCQN without
-the heading-relative critics (the network SB3's DQN can have too), SB3's DQN with the same settings, and DCQN with
-the paper's settings. A *lever set* is a combination of DCQN's re-adaptation levers (:mod:`sb3_dcqn.campusnav.levers`).
+A *task* is a map and its goals (the built-in campus with one or four goals, a generated campus of a few hundred
+intersections, or a 1,000-intersection city) with the shipped YAML entry that trains on it. A *variant* is an agent:
+DCQN as shipped, DCQN without the heading-relative critics (the network SB3's DQN can have too), SB3's DQN with the
+same settings, DCQN with the paper's settings, and DQN, QR-DQN and DCQN wearing the route memory
+(:func:`sb3_dcqn.with_route_memory`: an entry that sets ``route_memory`` builds the memory-wearing class). A *lever
+set* is a combination of DCQN's re-adaptation levers (:mod:`sb3_dcqn.campusnav.levers`).
 Training until solved, the solved bar and the train -> close -> recover loop are the glue's
 (:mod:`sb3_dcqn.campusnav.experiments`, :mod:`sb3_dcqn.campusnav.solved`).
 """
@@ -16,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
+from sb3_contrib import QRDQN
 from stable_baselines3 import DQN
 from stable_baselines3.common.base_class import BaseAlgorithm
 
@@ -26,6 +29,7 @@ from campusnav_env.maps.campus import generate_campus
 from campusnav_env.rendering.street_view import RenderSettings
 from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, with_levers
+from sb3_dcqn.route_memory.layer import algorithm_class_for
 from sb3_dcqn.zoo_entry import ZooEntry, load_zoo_entry
 from sb3_dcqn.zoo_files import default_hyperparams_path, paper_hyperparams_path
 
@@ -77,6 +81,9 @@ TASKS = {
              max_steps=200_000, budget_seconds=450, goal_seconds=300, eval_freq=2_000),
         Task("campus500", "generated campus, 500 nodes, 1 goal", "CampusNav-v0", None, 500,
              max_steps=600_000, budget_seconds=900, goal_seconds=900, eval_freq=5_000),
+        # The 1,000-intersection city (EfficientNet-Lite0 features, as shipped), its entry's start curriculum
+        Task("city", "CampusNavCity-v0 (1,000 nodes, 1 goal)", "CampusNavCity-v0", "CampusNavCity-v0", 1_000,
+             max_steps=100_000, budget_seconds=240, goal_seconds=60, eval_freq=2_500),
         # A smoke run: small street views, a cheap pixel encoder, a few hundred steps (tests and --quick)
         Task("quick", "smoke run (CampusNav-v0, 64x48 pixel features)", "CampusNav-v0", "CampusNav-v0", 101,
              max_steps=600, budget_seconds=30, goal_seconds=30, eval_freq=300,
@@ -91,7 +98,7 @@ class Variant:
     An agent: an algorithm, the hyperparameter file it reads, and changes to its entry.
 
     :param name: Name in tables
-    :param algo: ``"DCQN"`` or ``"DQN"``
+    :param algo: ``"DCQN"``, ``"DQN"`` or ``"QRDQN"`` (wearing the route memory where the entry sets ``route_memory``)
     :param paper: Read ``dcqn_paper.yml`` instead of ``dcqn.yml``
     :param drop_policy_kwargs: ``policy_kwargs`` keys removed from the entry (what the other policy does not have)
     :param overrides: Algorithm keyword arguments replaced in the entry
@@ -124,10 +131,13 @@ class Variant:
         return ZooEntry(task.max_steps, hyperparams, env_kwargs, entry.n_envs, entry.callbacks)
 
     def make_model(self, env: gym.Env, entry: ZooEntry, seed: int, **kwargs: Any) -> BaseAlgorithm:
-        algo = {"DCQN": DCQN, "DQN": DQN}[self.algo]
-        return algo(env=env, seed=seed, device="cpu", **{**entry.hyperparams, **kwargs})
+        hyperparams = {**entry.hyperparams, **kwargs}
+        algo = algorithm_class_for({"DCQN": DCQN, "DQN": DQN, "QRDQN": QRDQN}[self.algo], hyperparams)
+        return algo(env=env, seed=seed, device="cpu", **hyperparams)
 
 
+# DCQN's policy_kwargs that SB3's DQN and sb3-contrib's QR-DQN policies do not take
+OTHER_POLICIES = ("heading_key", "share_features_extractor")
 VARIANTS = {
     variant.name: variant
     for variant in (
@@ -135,9 +145,21 @@ VARIANTS = {
         # The critics read the heading like any other input: the network SB3's DQN can have too
         Variant("DCQN, no heading_key", policy_overrides={"heading_key": None}),
         # The route memory on an entry without it (CampusNavMulti-v0's has it: "DCQN, critics alone" leaves it out)
-        Variant("DCQN, route memory", overrides={"route_memory": True}),
+        Variant("DCQN + memory", overrides={"route_memory": True}),
         Variant("DCQN, critics alone", overrides={"route_memory": False}),
-        Variant("DQN", algo="DQN", drop_policy_kwargs=("heading_key", "share_features_extractor")),
+        Variant("DQN", algo="DQN", drop_policy_kwargs=OTHER_POLICIES),
+        # What the twin critics add once the memory routes: the same memory worn by DQN, QR-DQN and DCQN
+        Variant("DQN + memory", algo="DQN", drop_policy_kwargs=OTHER_POLICIES, overrides={"route_memory": True}),
+        Variant(
+            "QRDQN + memory",
+            algo="QRDQN",
+            drop_policy_kwargs=OTHER_POLICIES,
+            overrides={"route_memory": True},
+            # The RL Zoo's quantiles for its small discrete tasks: with QR-DQN's default 200 an env step on the city
+            # (a gradient step on 256 every 4) cost 110 ms against DQN's 4 ms (2,185 steps in 240 s), and the time
+            # budget measured that, not the memory
+            policy_overrides={"n_quantiles": 10},
+        ),
         Variant("DCQN, paper settings", paper=True),
         # The CampusNav-v0 entry before the learning-speed work: full 1280-d features, width 256, lr 1e-4
         Variant(
@@ -152,6 +174,10 @@ VARIANTS = {
         ),
     )
 }
+
+
+# The memory row's name before the memory was a layer (earlier results files and command lines)
+VARIANTS["DCQN, route memory"] = VARIANTS["DCQN + memory"]
 
 
 # ------------------------------------------------------------------------------------------------ closure experiments

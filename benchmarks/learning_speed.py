@@ -6,11 +6,15 @@ figure is the training wall time to that evaluation, evaluation time excluded, w
 took. A run that spends its step cap or time budget unsolved is a miss and is reported as one.
 
 Tasks (``--tasks``): ``campus`` (CampusNav-v0: 101 intersections, goal Dreese Lab), ``multi`` (CampusNavMulti-v0: the
-four goals), ``campus200`` and ``campus500`` (generated campuses of 200 and 500 intersections, goal Dreese Lab). All
-use EfficientNet-Lite0 features projected to 64 dimensions per view (the shipped ``env_kwargs``). Agents
-(``--variants``): ``DCQN`` as shipped (``hyperparams/dcqn.yml``), ``DCQN, no heading_key`` (the critics read the
-heading as an input: the network DQN has), ``DQN`` (SB3's DQN, same settings and network), ``DCQN, paper settings``
-(``hyperparams/dcqn_paper.yml``: lr 1e-4, buffer 412, full 1280-d features).
+four goals), ``campus200`` and ``campus500`` (generated campuses of 200 and 500 intersections, goal Dreese Lab),
+``city`` (CampusNavCity-v0: 1,000 intersections, goal Dreese Lab, its entry's start curriculum). All use
+EfficientNet-Lite0 features projected to 64 dimensions per view (the shipped ``env_kwargs``). An entry's callbacks
+train along (the city's curriculum). Agents (``--variants``): ``DCQN`` as shipped (``hyperparams/dcqn.yml``; the
+multi-goal and city entries wear the route memory), ``DCQN, no heading_key`` (the critics read the heading as an
+input: the network DQN has), ``DQN`` (SB3's DQN, same settings and network), ``DCQN, paper settings``
+(``hyperparams/dcqn_paper.yml``: lr 1e-4, buffer 412, full 1280-d features), and what the twin critics add once the
+memory routes: ``DQN + memory``, ``QRDQN + memory``, ``DCQN + memory`` (the same route memory worn by each,
+:func:`sb3_dcqn.with_route_memory`) against ``DCQN, critics alone``.
 
 Runs go one after another in this process (one torch thread), each finished run appended to a JSON-lines file, so
 an interrupted benchmark keeps its results and a rerun skips what is done. Writes ``results/learning_speed.md`` and
@@ -20,6 +24,8 @@ Usage::
 
     python benchmarks/learning_speed.py                                    # campus and multi, seeds 0 1 2
     python benchmarks/learning_speed.py --tasks campus200 campus500 --variants DCQN DQN --seeds 0 1
+    python benchmarks/learning_speed.py --tasks multi city --seeds 0 1 2 \
+        --variants "DQN + memory" "QRDQN + memory" "DCQN + memory" "DCQN, critics alone"
 """
 
 from __future__ import annotations
@@ -63,7 +69,9 @@ def run_one(
     entry = variant.entry(task)
     env = task.make_env(entry)
     model = variant.make_model(env, entry, seed)
-    result = train_until_solved(model, task.max_steps, task.budget_seconds, task.eval_freq)
+    result = train_until_solved(
+        model, task.max_steps, task.budget_seconds, task.eval_freq, callbacks=entry.make_callbacks()
+    )
     last = result.evaluations[-1]
     solved = result.solved_at
     return {
@@ -234,7 +242,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     th.set_num_threads(1)
 
-    profile_file = args.runs_file.with_name("learning_speed_profile.json")
+    # Beside its runs file: learning_speed_runs.jsonl -> learning_speed_profile.json (another runs file, its own)
+    profile_file = args.runs_file.with_name(args.runs_file.stem.removesuffix("_runs") + "_profile.json")
     if args.profile:
         profiles = {variant: profile_costs("campus", variant) for variant in args.variants}
         write_results(profile_file, json.dumps(profiles, indent=2))

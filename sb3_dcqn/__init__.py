@@ -13,6 +13,7 @@ if TYPE_CHECKING:
     from sb3_dcqn.dcqn import DCQN
     from sb3_dcqn.policies import CnnPolicy, DCQNPolicy, MlpPolicy, MultiInputPolicy, TwinQNetwork
     from sb3_dcqn.route_memory import RouteMemory, UntriedExplorer
+    from sb3_dcqn.route_memory.layer import RouteMemoryDCQN, RouteMemoryDQN, algorithm_name, with_route_memory
     from sb3_dcqn.targets import blocked_actions, dcqn_td_target
 
 __version__ = "0.1.0"
@@ -28,6 +29,10 @@ _MODULE_OF = {
     "TwinQNetwork": "sb3_dcqn.policies",
     "RouteMemory": "sb3_dcqn.route_memory",
     "UntriedExplorer": "sb3_dcqn.route_memory",
+    "RouteMemoryDCQN": "sb3_dcqn.route_memory.layer",
+    "RouteMemoryDQN": "sb3_dcqn.route_memory.layer",
+    "algorithm_name": "sb3_dcqn.route_memory.layer",
+    "with_route_memory": "sb3_dcqn.route_memory.layer",
 }
 
 __all__ = [
@@ -37,11 +42,15 @@ __all__ = [
     "MlpPolicy",
     "MultiInputPolicy",
     "RouteMemory",
+    "RouteMemoryDCQN",
+    "RouteMemoryDQN",
     "TwinQNetwork",
     "UntriedExplorer",
     "__version__",
+    "algorithm_name",
     "blocked_actions",
     "dcqn_td_target",
+    "with_route_memory",
 ]
 
 

@@ -168,13 +168,39 @@ def test_dcqn_builds_the_buffer_class_it_is_given_and_trains_with_priorities_and
         seed=0,
         policy_kwargs=dict(net_arch=[16]),
     )
-    assert isinstance(model.replay_buffer, RevisionReplay) and isinstance(model.replay_buffer, PrioritizedReplay)
+    buffer = model.replay_buffer
+    assert isinstance(buffer, RevisionReplay) and isinstance(buffer, PrioritizedReplay)
     model.learn(300)
-    assert model.replay_buffer.priorities[:300].std() > 0  # TD errors came back from the training step
-    assert model.replay_buffer.beta > 0.4  # annealed towards 1
-    assert model.logger.name_to_value.get("train/revised_transitions", 0) >= 0
+    assert buffer.priorities[:300].std() > 0  # TD errors came back from the training step
+    # Annealed towards 1 with the share of training done at the last gradient step (all of it: 300 of 300 steps)
+    assert buffer.beta == pytest.approx(0.4 + 0.6 * (1.0 - model._current_progress_remaining), abs=1e-6)
+    assert buffer.beta == pytest.approx(1.0, abs=1e-6)
+    # A move stored twice, then contradicted: both copies revised, and the next training step reports it
+    state = np.zeros((1, 4), dtype=np.float32)
+    for reward in (1.0, 1.0, 0.0):
+        add(buffer, state, state + 1.0, 0, reward)
+    assert buffer.revised == 2
+    model.train(gradient_steps=1, batch_size=16)
+    assert model.logger.name_to_value["train/revised_transitions"] == 2
     dict_model = DCQN("MultiInputPolicy", DictCartPole(), replay_buffer_class=RevisionDict)
     assert isinstance(dict_model.replay_buffer, RevisionDict)
+
+
+def test_train_weights_the_loss_by_the_samples_importance_weights_through_the_feedback_channel() -> None:
+    seen = []
+
+    class Recording(DCQN):
+        def critic_loss(self, current_q_values, target_q_values, weights=None):
+            seen.append(weights)
+            return super().critic_loss(current_q_values, target_q_values, weights)
+
+    prioritized = Recording("MlpPolicy", "CartPole-v1", replay_buffer_class=PrioritizedBox, learning_starts=50, seed=0)
+    prioritized.learn(60)
+    assert seen and all(w is not None and w.shape == (prioritized.batch_size, 1) and w.max() <= 1.0 for w in seen)
+    seen.clear()
+    plain = Recording("MlpPolicy", "CartPole-v1", replay_buffer_class=ReplayBuffer, learning_starts=50, seed=0)
+    plain.learn(60)  # SB3's own buffer takes no feedback: an unweighted loss, nothing reported
+    assert seen and all(w is None for w in seen) and "train/revised_transitions" not in plain.logger.name_to_value
 
 
 def test_priorities_come_from_the_training_step_even_with_a_critic_loss_of_ones_own() -> None:

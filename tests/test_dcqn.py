@@ -2,20 +2,22 @@
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
-from gymnasium.wrappers import FlattenObservation
+from gymnasium.wrappers import FilterObservation, FlattenObservation
 from stable_baselines3 import DQN
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.envs import FakeImageEnv, IdentityEnv
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 
 from sb3_dcqn import DCQN, MlpPolicy, dcqn_td_target
 from sb3_dcqn.policies import EnsembleLinear, create_ensemble_mlp
@@ -193,6 +195,33 @@ def test_target_update_copies_each_critic_into_its_own_target() -> None:
 def test_rejects_continuous_action_spaces() -> None:
     with pytest.raises(AssertionError, match="only supports"):
         DCQN("MlpPolicy", "Pendulum-v1")
+
+
+def test_dcqn_takes_dqns_parameters_plus_the_targets_two_options_and_predicts_as_dqn() -> None:
+    dqn = set(inspect.signature(DQN.__init__).parameters)
+    dcqn = set(inspect.signature(DCQN.__init__).parameters)
+    assert dqn <= dcqn and dcqn - dqn == {"blocked_action_target", "pessimistic_target"}
+    assert DCQN.predict is DQN.predict  # epsilon-greedy over the greedy action: the mean of the critics
+
+
+@pytest.mark.usefixtures("module_feature_cache")
+@pytest.mark.parametrize("wrapping", ["flatten", "filter", "frame_stack"])
+def test_dcqn_builds_and_learns_on_campusnav_behind_wrappers_that_change_its_spaces(wrapping: str) -> None:
+    # DCQN reads nothing from the env's metadata: a frame declaration that no longer fits the wrapped spaces is none
+    # of its business (the critics score compass slots where policy_kwargs give heading_key)
+    from campusnav_env import CampusNavEnv
+    from campusnav_env.rendering.street_view import RenderSettings
+
+    env = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(64, 48), progress=False)
+    wrapped: Any = {
+        "flatten": lambda: FlattenObservation(env),
+        "filter": lambda: FilterObservation(env, ["views", "heading"]),
+        "frame_stack": lambda: VecFrameStack(DummyVecEnv([lambda: env]), 2),
+    }[wrapping]()
+    policy = "MlpPolicy" if wrapping == "flatten" else "MultiInputPolicy"
+    model = DCQN(policy, wrapped, seed=0, **SMALL)
+    model.learn(80)
+    assert model.num_timesteps == 80 and model.policy.q_net.heading_key is None
 
 
 # --- persistence -----------------------------------------------------------------------------------------------------

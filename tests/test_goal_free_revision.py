@@ -268,7 +268,15 @@ def test_dcqn_passes_goal_keys_to_a_revision_buffer() -> None:
         policy_kwargs=dict(net_arch=[8]),
     )  # fmt: skip
     model.learn(60)
-    assert model.replay_buffer.goal_keys == GOAL_KEYS and model.replay_buffer.revised >= 0
+    buffer = model.replay_buffer
+    assert buffer.goal_keys == GOAL_KEYS
+    assert buffer.revised == 0  # the walk never changed: nothing it stored contradicts anything else
+    # The road 1 -> 2 closes: one bump, seen on the way to goal B, revises every stored move along it (goal A's)
+    stored = buffer.observations["views"][: buffer.pos, 0]
+    along = int(((stored == views(1)).all(axis=1) & (buffer.actions[: buffer.pos, 0, 0] == 1)).sum())
+    assert along > 0
+    step(buffer, 1, B, 1, 1, COLLISION)
+    assert buffer.revised == along
 
 
 def test_goal_keys_that_do_not_fit_the_buffer_are_named() -> None:

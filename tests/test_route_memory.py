@@ -1,29 +1,22 @@
-"""The route memory: one graph of places for every goal, moves in compass slots, and DCQN acting with it."""
+"""The route memory: one graph of places for every goal, moves in compass slots (algorithms wearing it:
+test_route_memory_layer.py)."""
 
 from __future__ import annotations
 
 import pickle
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium import spaces
-from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.envs import BitFlippingEnv
 
 from campusnav_env import CampusNavEnv
 from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.goal_env import CampusNavGoalEnv
 from campusnav_env.rendering.street_view import RenderSettings
-from campusnav_env.route_evaluation import evaluate_routes
-from sb3_dcqn import DCQN
 from sb3_dcqn.place_frame import PlaceFrame, place_frame_of
-from sb3_dcqn.place_recognition import AlignedNearestPlace
-from sb3_dcqn.replay import DCQNHerReplayBuffer
-from sb3_dcqn.replay.revision import RevisionReplay
 from sb3_dcqn.route_memory import (
     BLOCKED,
     DEAD_END,
@@ -483,95 +476,6 @@ def test_bad_arguments_name_what_is_wrong() -> None:
         RouteMemory(4, spaces.Box(0, 1, (2,)), goal_keys=["goal"])
     with pytest.raises(ValueError, match="out of range"):
         RouteMemory(2).add(np.array([0.0]), 5, np.array([1.0]), 0.0, False)
-    with pytest.raises(ValueError, match="unknown settings \\['max_state'\\]"):
-        DCQN("MlpPolicy", "CartPole-v1", route_memory={"max_state": 3})
-
-
-# --------------------------------------------------------------------------------------------------- DCQN with it
-def test_dcqn_with_route_memory_reaches_frozen_lakes_goal_and_keeps_dqns_predict_otherwise(tmp_path: Path) -> None:
-    env = gym.make("FrozenLake-v1", is_slippery=False, map_name="8x8")
-    model = DCQN("MlpPolicy", env, route_memory=True, learning_starts=100, exploration_fraction=1.0, seed=0)
-    model.learn(3_000)
-    observation, _ = env.reset(seed=0)
-    for _ in range(30):
-        action, _ = model.predict(observation, deterministic=True)
-        observation, reward, terminated, truncated, _ = env.step(int(action))
-        if terminated or truncated:
-            break
-    assert reward == 1.0
-    batch = np.arange(64)
-    np.testing.assert_array_equal(model.predict(batch, deterministic=True)[0][batch < 60][:1], [1])
-    model.save(tmp_path / "lake.zip")
-    loaded = DCQN.load(tmp_path / "lake.zip")  # no replay buffer: the memory is in the model's file
-    np.testing.assert_array_equal(
-        loaded.predict(batch, deterministic=True)[0], model.predict(batch, deterministic=True)[0]
-    )
-    plain = DCQN("MlpPolicy", env, learning_starts=10, seed=0)
-    plain.learn(200)
-    assert plain.memory is None
-    np.testing.assert_array_equal(
-        plain.predict(batch, deterministic=True)[0], plain.policy.predict(batch, deterministic=True)[0]
-    )
-
-
-def test_dcqn_passes_the_memorys_settings_and_reads_the_envs_frame(plain_env: CampusNavEnv) -> None:
-    model = DCQN(
-        "MultiInputPolicy",
-        plain_env,
-        route_memory={"explore": False, "success_reward": -0.5, "max_states": 77, "retry_after": 9},
-        learning_starts=10,
-    )
-    memory = model.memory
-    assert (memory.success_reward, memory.max_states, memory.retry_after) == (-0.5, 77, 9)
-    assert memory.place_frame == place_frame_of(plain_env) and not model.explores_untried
-    assert model.policy.q_net.heading_key == "heading"  # the critics score compass slots, from the same declaration
-    opted_out = DCQN("MultiInputPolicy", plain_env, policy_kwargs={"heading_key": None})
-    assert opted_out.policy.q_net.heading_key is None
-
-
-def test_dcqn_matches_goals_pictured_otherwise_and_its_hindsight_buffer_revises() -> None:
-    night = CampusNavGoalEnv(goal_render_settings=RenderSettings(64, 48, time_of_day=19.5), **SMALL)
-    assert place_frame_of(night).goals_pictured_otherwise
-    model = DCQN("MultiInputPolicy", night, route_memory=True, replay_buffer_class=HerReplayBuffer, learning_starts=250)
-    assert isinstance(model.memory.place_matcher, AlignedNearestPlace)
-    # A closure the memory learns stops the stale transitions through it voting in the critics' replay too
-    assert isinstance(model.replay_buffer, RevisionReplay) and isinstance(model.replay_buffer, DCQNHerReplayBuffer)
-    model.learn(300)
-    assert len(model.memory.goal_pictures()) > 0  # the goal photos shown: the matcher's sample of their conditions
-    day = DCQN("MultiInputPolicy", CampusNavEnv(**SMALL), route_memory=True, learning_starts=10)
-    assert day.memory.place_matcher is None  # goals pictured as the views are: exact matches
-
-
-def test_dcqn_route_memory_on_bit_flipping_reaches_visited_goals_in_hamming_steps() -> None:
-    env = BitFlippingEnv(n_bits=4, continuous=False, max_steps=4)
-    model = DCQN("MultiInputPolicy", env, route_memory=True, learning_starts=200, seed=0)
-    model.learn(1_500)
-    reached = asked = 0
-    for episode in range(12):
-        observation, _ = env.reset(seed=episode)
-        distance = int(np.abs(observation["observation"] - observation["desired_goal"]).sum())
-        asked += distance > 0  # a goal drawn equal to the start ends the episode at any step
-        for step in range(1, 5):
-            action, _ = model.predict(observation, deterministic=True)
-            observation, _, terminated, _, _ = env.step(action)
-            if terminated:
-                reached += distance > 0 and step == distance
-                break
-    assert asked >= 8 and reached == asked
-
-
-def test_route_memory_on_campusnav_routes_every_start_and_heading_of_the_places_it_saw(plain_env) -> None:
-    model = DCQN("MultiInputPolicy", plain_env, route_memory=True, learning_starts=100, seed=0)
-    model.learn(600)
-    with_memory = evaluate_routes(plain_env, lambda obs: model.predict(obs, deterministic=True)[0], max_steps=40)
-    critics = evaluate_routes(plain_env, lambda obs: model.policy.predict(obs, deterministic=True)[0], max_steps=40)
-    assert with_memory.success_rate > critics.success_rate
-    # Every heading of a place the memory routed from at one heading is routed too: no unseen start states
-    routed = {(route.goal, route.start) for route in with_memory.routes if route.success}
-    failed_at_a_routed_place = [
-        route for route in with_memory.routes if (route.goal, route.start) in routed and not route.success
-    ]
-    assert routed and failed_at_a_routed_place == []
 
 
 def _batch(observation: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

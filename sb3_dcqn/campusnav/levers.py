@@ -68,7 +68,8 @@ LEVERS: dict[str, Lever] = {
     "blocked": Lever("blocked-action target", dcqn_options={"blocked_action_target": True}),
     "prioritized": Lever("prioritized replay", replay_variants=("prioritized",)),
     "visible": Lever("visible closures", env_options={"visible_closures": True}),
-    # The route memory: a collision removes its road from every goal's remembered routes at once
+    # The route memory: a collision removes its road from every goal's remembered routes at once. A layer, not DCQN's
+    # own option: an entry with route_memory is built as DCQN wearing it (sb3_dcqn.route_memory.algorithm_class_for)
     "route_memory": Lever(
         "route memory (greedy actions plan, exploration seeks the untried)", dcqn_options={"route_memory": True}
     ),

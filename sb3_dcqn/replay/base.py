@@ -9,7 +9,9 @@ one hook:
 - ``_transition_bytes`` / ``_outcome_bytes`` / ``_copy_outcome`` (with ``_goal_bytes`` / ``_holds_for_every_goal``
   and the ``goal_keys`` they leave out): what "the same observation and action" and "the same outcome" mean, and how a
   stored transition gets a new outcome (experience revision);
-- ``sample``: which slots are drawn (prioritized replay).
+- ``sample``: which slots are drawn (prioritized replay);
+- ``loss_weights`` / ``after_gradient_step`` (:class:`~sb3_dcqn.replay.feedback.TrainingFeedback`): what the
+  training step tells the buffer after each gradient step (prioritized replay's TD errors, revision's count).
 
 Next observations are always stored (no ``optimize_memory_usage``): the variants revise, window or share them.
 """
@@ -24,6 +26,8 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_dcqn.replay.feedback import TrainingFeedback
 
 __all__ = ["DCQNDictReplayBuffer", "DCQNReplayBuffer", "TransitionHooks", "observation_bytes"]
 
@@ -45,7 +49,7 @@ def observation_bytes(observation: Any, env: int, storage: Any, keys: list[str] 
     return np.ascontiguousarray(np.asarray(observation)[env], dtype=storage.dtype).tobytes()
 
 
-class TransitionHooks:
+class TransitionHooks(TrainingFeedback):
     """The hooks of DCQN's replay buffers, over SB3's ``ReplayBuffer`` or ``DictReplayBuffer`` (next in the MRO)."""
 
     buffer_size: int
@@ -139,24 +143,27 @@ class TransitionHooks:
         """The bytes that make two transitions "the same observation and action" (the goal keys left out)."""
         return observation_bytes(obs, env, self.observations, self._place_keys()) + np.asarray(action)[env].tobytes()
 
-    def _outcome_bytes(self, pos: int, env: int) -> bytes:
+    def _outcome_bytes(self, pos: int, env: int, arrival: bytes | None = None) -> bytes:
         """
         The world's answer to the transition at ``(pos, env)``: reward, real termination, where the agent ended.
 
         With goal keys, where the agent ended alone (every key but the goal keys): the reward and termination of a
         move are its goal's own (the goal reached or not), not the road's. Whether the agent stayed needs no byte of
         its own: the observation is in the key, so among one key's transitions a stay has one outcome digest.
+
+        :param arrival: Where the agent ended, as a route memory names the place (``None``: the next observation)
         """
         place = self._place_keys()
+        if arrival is None:
+            if isinstance(self.next_observations, dict):
+                keys = sorted(self.next_observations) if place is None else place
+                arrival = b"".join(self.next_observations[k][pos, env].tobytes() for k in keys)
+            else:
+                arrival = self.next_observations[pos, env].tobytes()
         if place is not None:
-            return b"".join(self.next_observations[k][pos, env].tobytes() for k in place)
+            return arrival
         terminated = self.dones[pos, env] * (1 - self.timeouts[pos, env])
-        head = np.array([self.rewards[pos, env], terminated], dtype=np.float32).tobytes()
-        if isinstance(self.next_observations, dict):
-            return head + b"".join(
-                self.next_observations[k][pos, env].tobytes() for k in sorted(self.next_observations)
-            )
-        return head + self.next_observations[pos, env].tobytes()
+        return np.array([self.rewards[pos, env], terminated], dtype=np.float32).tobytes() + arrival
 
     def _goal_bytes(self, obs: Any, env: int) -> bytes:
         """The bytes of the goal a transition was collected for (its goal keys; empty without goal keys)."""
@@ -164,17 +171,21 @@ class TransitionHooks:
             return b""
         return observation_bytes(obs, env, self.observations, sorted(self.goal_keys))
 
-    def _holds_for_every_goal(self, pos: int, env: int) -> bool:
+    def _holds_for_every_goal(self, pos: int, env: int, stayed: bool | None = None) -> bool:
         """
         Whether the outcome of ``(pos, env)`` is the same whatever the goal: the agent stayed where it was (every key
         but the goal keys unchanged: a collision) and the episode did not end for real (an ending is the goal's).
         Without goal keys, every key is part of the observation: ``True`` (there is no other goal to tell apart).
+
+        :param stayed: Whether the agent stayed, as a route memory knows it (``None``: the keys unchanged)
         """
         place = self._place_keys()
         if place is None:
             return True
         if self.dones[pos, env] * (1 - self.timeouts[pos, env]):
             return False
+        if stayed is not None:
+            return stayed
         return all(np.array_equal(self.next_observations[k][pos, env], self.observations[k][pos, env]) for k in place)
 
     def _copy_outcome(self, slots: np.ndarray, pos: int, env: int) -> None:
@@ -192,6 +203,16 @@ class TransitionHooks:
                 storage[row, row_env] = storage[pos, env]
         for array in (self.rewards, self.dones, self.timeouts):
             array[rows, envs] = array[pos, env]
+
+    def _stay_in_place(self, slots: np.ndarray) -> None:
+        """The stored transitions in ``slots`` end where they started: their next observation is their own
+        observation (the goal keys kept), as a bump's is."""
+        rows, envs = np.divmod(slots, self.n_envs)
+        if isinstance(self.next_observations, dict):
+            for key in self._place_keys() or self.next_observations:
+                self.next_observations[key][rows, envs] = self.observations[key][rows, envs]
+        else:
+            self.next_observations[rows, envs] = self.observations[rows, envs]
 
 
 def _gather(storage: Any, batch_inds: np.ndarray, env_inds: np.ndarray) -> Any:

@@ -40,11 +40,12 @@ from stable_baselines3.her.goal_selection_strategy import GoalSelectionStrategy
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
 from sb3_dcqn.replay.base import observation_bytes
+from sb3_dcqn.replay.feedback import TrainingFeedback
 
 __all__ = ["DCQNHerReplayBuffer"]
 
 
-class DCQNHerReplayBuffer(HerReplayBuffer):
+class DCQNHerReplayBuffer(TrainingFeedback, HerReplayBuffer):
     """
     SB3's ``HerReplayBuffer`` with relabelled transitions made terminal where they reach their new goal, the info
     entries ``compute_reward`` needs kept per transition, and goals that may not be relabelling targets left out (see
@@ -129,9 +130,18 @@ class DCQNHerReplayBuffer(HerReplayBuffer):
         """The observation without its goal, and the action: one transition for every goal."""
         return observation_bytes(obs, env, self.observations, self._physical_keys()) + np.asarray(action)[env].tobytes()
 
-    def _outcome_bytes(self, pos: int, env: int) -> bytes:
-        """Where the agent ended up (every key but the goal); the reward is each goal's own."""
+    def _outcome_bytes(self, pos: int, env: int, arrival: bytes | None = None) -> bytes:
+        """Where the agent ended up (every key but the goal, or the place a route memory names: ``arrival``); the
+        reward is each goal's own."""
+        if arrival is not None:
+            return arrival
         return b"".join(self.next_observations[k][pos, env].tobytes() for k in self._physical_keys())
+
+    def _stay_in_place(self, slots: np.ndarray) -> None:
+        """The stored transitions in ``slots`` end where they started (their physical keys), as a bump's do."""
+        rows, envs = np.divmod(slots, self.n_envs)
+        for k in self._physical_keys():
+            self.next_observations[k][rows, envs] = self.observations[k][rows, envs]
 
     def _copy_outcome(self, slots: np.ndarray, pos: int, env: int) -> None:
         """Give the stored transitions in ``slots`` the outcome of ``(pos, env)``, each for its own goal."""

@@ -3,8 +3,10 @@
 Transitions are sampled with probability ``p_i ** alpha / sum_k p_k ** alpha``, ``p_i`` the last absolute TD error
 (plus ``priority_eps``), new and revised transitions at the highest priority so far, so that what just surprised the
 agent is replayed at once. The samples carry importance weights ``(N * P(i)) ** -beta / max_j (N * P(j)) ** -beta``
-and their indices. The algorithm's training step weights each sample's loss and reports the batch's new TD errors
-(:meth:`PrioritizedReplay.update_priorities`); DCQN anneals ``beta`` from its initial value to 1 over training
+and their indices. The training step weights each sample's loss with them (:meth:`PrioritizedReplay.loss_weights`)
+and, after each gradient step, hands back the batch's new TD errors and how far training has come
+(:meth:`PrioritizedReplay.after_gradient_step`, :mod:`sb3_dcqn.replay.feedback`): they become the batch's priorities
+(:meth:`PrioritizedReplay.update_priorities`) and ``beta`` moves from its initial value towards 1
 (:meth:`PrioritizedReplay.anneal_beta`).
 """
 
@@ -107,6 +109,16 @@ class PrioritizedReplay:
             else PrioritizedReplayBufferSamples
         )
         return samples_type(*samples, weights_tensor, picks)
+
+    def loss_weights(self, samples: Any) -> th.Tensor | None:
+        """The batch's importance weights: each sample's loss is weighted by them."""
+        return samples.weights
+
+    def after_gradient_step(self, samples: Any, td_errors: th.Tensor, progress: float) -> dict[str, float]:
+        """The batch's new TD errors become its priorities; the importance correction anneals with ``progress``."""
+        self.update_priorities(samples.indices, td_errors.cpu().numpy())
+        self.anneal_beta(progress)
+        return super().after_gradient_step(samples, td_errors, progress)  # type: ignore[misc]
 
     def update_priorities(self, indices: np.ndarray, td_errors: np.ndarray) -> None:
         """

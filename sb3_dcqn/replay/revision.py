@@ -24,19 +24,29 @@ seen on the way to goal A revises goal A's copies only. ``goal_keys`` names the 
 - a new move (a reopened road) carries its goal's own reward and termination: only the stale copies collected for
   the same goal (equal goal keys) get it, the other goals' copies are left as they are (they are rewritten when the
   agent next drives that road for them; a route memory without goal keys learns the reopening for every goal).
+
+**By place, where a route memory knows the places.** Bytes match only where observations repeat exactly, and even
+then a heading is part of them: a bump at one heading leaves the copies of the same road driven at another heading
+as they were. A route memory (:mod:`sb3_dcqn.route_memory`) knows the *place* of an observation (whatever the
+heading, and in a world whose pictures vary, whatever the picture) and the compass *slot* of a move. Its layer hands
+``add`` the transitions' :class:`PlaceKeys` (``place * n_slots + slot``, the place arrived at, whether the agent
+stayed); the buffer then matches on them instead of the bytes, and a stay's stale copies end where each of them
+started (their own observation), not in the bump's picture. A transition whose place the memory does not know
+(``-1``) is not indexed: it neither revises nor is revised.
 """
 
 from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+import torch as th
 
 from sb3_dcqn.replay.base import TransitionHooks
 
-__all__ = ["RevisionReplay", "digest", "index_transition"]
+__all__ = ["PlaceKeys", "RevisionReplay", "digest", "index_transition", "unindex"]
 
 # The goal key of SB3's goal-env observations, which the hindsight-relabelling base leaves out of the match itself
 _HER_GOAL_KEY = "desired_goal"
@@ -74,12 +84,7 @@ def index_transition(
     :return: the other slots of the same key (and goal, with ``same_goal_only``) with another outcome: the caller
         rewrites them; their outcome is now ``outcome``
     """
-    old = key_of[slot]
-    if old is not None:
-        holders = slots_of[old]
-        holders.discard(slot)
-        if not holders:
-            del slots_of[old]
+    unindex(slots_of, key_of, slot)
     stale = [other for other in slots_of.get(key, ()) if outcome_of[other] != outcome]
     if same_goal_only:
         if goal_of is None:
@@ -93,6 +98,32 @@ def index_transition(
     if goal_of is not None:
         goal_of[slot] = goal
     return stale
+
+
+def unindex(slots_of: dict[bytes, set[int]], key_of: list[bytes | None], slot: int) -> None:
+    """Take ``slot``'s transition (if any) out of the revision index (it is overwritten, or not to be matched)."""
+    old = key_of[slot]
+    if old is None:
+        return
+    holders = slots_of[old]
+    holders.discard(slot)
+    if not holders:
+        del slots_of[old]
+    key_of[slot] = None
+
+
+class PlaceKeys(NamedTuple):
+    """
+    A route memory's identity of a batch of transitions, one per env (see the module docstring).
+
+    :param moves: ``place * n_slots + slot`` of each transition's move (-1: the memory does not know the place)
+    :param arrivals: The place each move led to (-1: unknown)
+    :param stays: Whether each move left the agent where it was (a bump)
+    """
+
+    moves: np.ndarray
+    arrivals: np.ndarray
+    stays: np.ndarray
 
 
 class RevisionReplay:
@@ -166,13 +197,30 @@ class RevisionReplay:
         reward: np.ndarray,
         done: np.ndarray,
         infos: list[dict[str, Any]],
+        places: PlaceKeys | None = None,
     ) -> None:
+        """
+        SB3's ``add``, then the new transitions revise the stored ones they contradict.
+
+        :param places: The transitions' places and slots from a route memory: matched on them instead of the bytes
+            (see the module docstring); ``None``: by the bytes
+        """
         pos = self.pos
         super().add(obs, next_obs, action, reward, done, infos)  # type: ignore[misc]
         for env in range(self.n_envs):
             slot = pos * self.n_envs + env
-            key = digest(self._transition_bytes(obs, action, env))  # type: ignore[attr-defined]
-            outcome = digest(self._outcome_bytes(pos, env))  # type: ignore[attr-defined]
+            stayed = None
+            if places is None:
+                key = digest(self._transition_bytes(obs, action, env))  # type: ignore[attr-defined]
+                outcome = digest(self._outcome_bytes(pos, env))  # type: ignore[attr-defined]
+            elif places.moves[env] < 0 or places.arrivals[env] < 0:
+                unindex(self._slots_of, self._key_of, slot)  # a place the memory does not know: not matched
+                continue
+            else:
+                key = digest(b"place" + np.int64(places.moves[env]).tobytes())
+                arrival = np.int64(places.arrivals[env]).tobytes()
+                outcome = digest(self._outcome_bytes(pos, env, arrival))  # type: ignore[attr-defined]
+                stayed = bool(places.stays[env])
             if self._goal_of is None:
                 stale = index_transition(self._slots_of, self._key_of, self._outcome_of, slot, key, outcome)
             else:
@@ -185,8 +233,15 @@ class RevisionReplay:
                     outcome,
                     goal_of=self._goal_of,
                     goal=digest(self._goal_bytes(obs, env)),  # type: ignore[attr-defined]
-                    same_goal_only=not self._holds_for_every_goal(pos, env),  # type: ignore[attr-defined]
+                    same_goal_only=not self._holds_for_every_goal(pos, env, stayed),  # type: ignore[attr-defined]
                 )
             if stale:
                 self._copy_outcome(np.array(stale), pos, env)  # type: ignore[attr-defined]
+                if stayed:  # each copy was a move from its own picture and heading of the place: it ends there
+                    self._stay_in_place(np.array(stale))  # type: ignore[attr-defined]
                 self.revised += len(stale)
+
+    def after_gradient_step(self, samples: Any, td_errors: th.Tensor, progress: float) -> dict[str, float]:
+        """Reports how many stored transitions were rewritten so far (``train/revised_transitions``)."""
+        statistics = super().after_gradient_step(samples, td_errors, progress)  # type: ignore[misc]
+        return {**statistics, "revised_transitions": float(self.revised)}
