@@ -1,13 +1,18 @@
 """The route memory: one graph of an agent's own transitions, over recognised places, for every goal.
 
-Its parts, one concern each, stand behind :class:`RouteMemory` (see :mod:`sb3_dcqn.route_memory.memory`).
+Its parts, one concern each, stand behind :class:`RouteMemory` (see :mod:`sb3_dcqn.route_memory.memory`):
+:mod:`~sb3_dcqn.route_memory.places` (the recogniser), :mod:`~sb3_dcqn.route_memory.edges` (the moves),
+:mod:`~sb3_dcqn.route_memory.goals` (where goals are), :mod:`~sb3_dcqn.route_memory.planner` (routes, the bounded
+cache) and :mod:`~sb3_dcqn.route_memory.explorer` (the way to the untried).
 """
 
+from sb3_dcqn.route_memory.edges import Outcome
 from sb3_dcqn.route_memory.memory import (
     BLOCKED,
     DEAD_END,
     DRIVEN,
     INFERRED,
+    INFERRED_BLOCKED,
     NO_ROUTE,
     OUTSIDE,
     UNTRIED,
@@ -18,16 +23,21 @@ from sb3_dcqn.route_memory.memory import (
     default_goal_keys,
     select_rows,
 )
+from sb3_dcqn.route_memory.places import Answer, PlaceRecogniser
 
 __all__ = [
     "BLOCKED",
     "DEAD_END",
     "DRIVEN",
     "INFERRED",
+    "INFERRED_BLOCKED",
     "NO_ROUTE",
     "OUTSIDE",
     "UNTRIED",
+    "Answer",
+    "Outcome",
     "PlaceMatcher",
+    "PlaceRecogniser",
     "RouteMemory",
     "UntriedExplorer",
     "batch_of_one",
