@@ -29,8 +29,9 @@ picture that is not an exact repeat of a remembered one is ``UNSURE``. Until the
 (``min_calibration`` distinct pictures) the same holds, so no state is made before it. The thresholds are
 renewed each time ``window`` new pictures have been shown, so they follow a world whose pictures drift.
 
-Cost: a search is ``views`` matrix-vector products over the prototypes (float32), then an exact recomputation of the
-two nearest; an expected place that matches costs one comparison. Bytes: per state a float32 prototype, an int32
+Cost: a search screens every place by a sketch of its prototype (a seeded random projection to ``SKETCH_DIM``
+numbers; a batch of pictures is one matrix product) and compares the ``SCREEN_CANDIDATES`` nearest exactly, view by
+view; an expected place that matches costs one comparison. Bytes: per state a float32 prototype, an int32
 count and a 16-byte digest for each of at most ``MAX_DIGESTS_PER_STATE`` pictures; the window's pictures.
 """
 
@@ -45,6 +46,10 @@ import numpy as np
 __all__ = ["MAX_DIGESTS_PER_STATE", "Answer", "PlaceRecogniser", "digest", "widest_gap"]
 
 MAX_DIGESTS_PER_STATE = 8  # exact pictures remembered per place: repeats are found at once, varied ones by search
+SEARCH = -1  # _quick's word for "a search is needed"
+SKETCH_DIM = 32  # numbers per picture in the screen
+SCREEN_CANDIDATES = 32  # states the screen hands to the exact comparison (all of them where there are fewer)
+SCREEN_CHUNK = 256  # pictures screened against every state at once
 RECENT_PICTURES = 256  # beyond those, the latest pictures recognised (a transition's end is the next one's start)
 PROTOTYPE_HORIZON = 32  # a prototype is the mean of a place's last pictures, about this many
 KNOWN_SHARE = 1 / 3  # of the log gap between repeat visits and other places: KNOWN below, UNSURE up to NEW_SHARE
@@ -122,8 +127,17 @@ class PlaceRecogniser:
         self._exact: dict[bytes, int] = {}
         self._recent: OrderedDict[bytes, int] = OrderedDict()  # pictures recognised lately (past the digest cap)
         self._digests_of = np.zeros(0, dtype=np.int8)  # per state: exact pictures remembered
-        self._prototypes = np.zeros((views, 0, dim // views), dtype=np.float32)  # (view, state, features)
-        self._squares = np.zeros((views, 0), dtype=np.float32)  # squared norm of each prototype view
+        self._prototypes = np.zeros((views, 0, max(dim, 1) // views), dtype=np.float32)  # (view, state, features)
+        # The screen: each prototype projected to SKETCH_DIM numbers by one seeded Gaussian matrix
+        self._projection = (
+            np.random.default_rng(0)
+            .normal(0.0, 1.0 / np.sqrt(SKETCH_DIM), (max(dim, 1), SKETCH_DIM))
+            .astype(np.float32)
+            if similar
+            else np.zeros((0, SKETCH_DIM), dtype=np.float32)
+        )
+        self._sketches = np.zeros((0, SKETCH_DIM), dtype=np.float32)
+        self._sketch_squares = np.zeros(0, dtype=np.float32)
         self._counts = np.zeros(0, dtype=np.int32)
         # Calibration: the latest distinct pictures (a ring), exact repeats among what was shown, and shown since
         self._window_rows = np.zeros((0, dim), dtype=np.float32)
@@ -147,7 +161,7 @@ class PlaceRecogniser:
 
     def nbytes(self) -> int:
         """Bytes of the prototypes, counts, digests and the calibration window."""
-        picture = self.dim * 4 if self.similar else 0
+        picture = (self.dim + SKETCH_DIM + 1) * 4 if self.similar else 0
         states = self.n_states * (picture + 4 + 1) + 16 * (len(self._exact) + len(self._recent))
         return states + self._window_rows.nbytes + 16 * len(self._window_digests)
 
@@ -237,13 +251,34 @@ class PlaceRecogniser:
         rows = self._as_rows(rows)
         states = np.full(len(rows), -1, dtype=np.int64)
         answers = np.full(len(rows), Answer.UNSURE, dtype=np.int8)
-        for index, row in enumerate(rows):
-            hint = -1 if expected is None else int(expected[index])
-            states[index], answers[index] = self._recognise_one(row, add, hint)
+        hints = np.full(len(rows), -1, dtype=np.int64) if expected is None else np.asarray(expected, dtype=np.int64)
+        keys = [digest(row.tobytes()) for row in rows]
+        if add:  # in order: each picture may make the state a later one is
+            for index, (row, key) in enumerate(zip(rows, keys, strict=True)):
+                states[index], answers[index] = self._recognise_one(row, key, add, int(hints[index]))
+            return states, answers
+        # Queries only (evaluation: many pictures at once): what needs a search is screened in one matrix product
+        searched = []
+        for index, (row, key) in enumerate(zip(rows, keys, strict=True)):
+            states[index], answers[index] = self._quick(row, key, int(hints[index]), add)
+            if answers[index] == SEARCH:
+                searched.append(index)
+        if searched:
+            pools = self._candidates(rows[searched])
+            for position, index in enumerate(searched):
+                pool = None if pools is None else pools[position]
+                states[index], answers[index] = self._search(rows[index], keys[index], add, int(hints[index]), pool)
         return states, answers
 
-    def _recognise_one(self, row: np.ndarray, add: bool, expected: int) -> tuple[int, Answer]:
-        key = digest(row.tobytes())
+    def _recognise_one(self, row: np.ndarray, key: bytes, add: bool, expected: int) -> tuple[int, int]:
+        state, answer = self._quick(row, key, expected, add)
+        if answer != SEARCH:
+            return state, answer
+        pool = self._candidates(row[None])
+        return self._search(row, key, add, expected, None if pool is None else pool[0])
+
+    def _quick(self, row: np.ndarray, key: bytes, expected: int, add: bool) -> tuple[int, int]:
+        """What needs no search: a picture seen before, the expected place, no calibration yet (else ``SEARCH``)."""
         state = self._exact.get(key, self._recent.get(key))
         if state is not None:
             return state, Answer.KNOWN
@@ -253,10 +288,17 @@ class PlaceRecogniser:
             return -1, Answer.UNSURE
         if self.n_states == 0:
             return self._new(row, key, add), Answer.NEW
-        assert self.known is not None and self.new is not None
-        if 0 <= expected < self.n_states and self._distance(row, expected) <= self.known:
+        assert self.known is not None
+        if 0 <= expected < self.n_states and self._exact_distances(row, np.array([expected]))[0] <= self.known:
             return self._known(row, key, expected, add), Answer.KNOWN
-        nearest, first, second = self._two_nearest(row)
+        return -1, SEARCH
+
+    def _search(
+        self, row: np.ndarray, key: bytes, add: bool, expected: int, pool: np.ndarray | None
+    ) -> tuple[int, int]:
+        """The answer from the nearest two states of the pool (every state where ``None``)."""
+        assert self.known is not None and self.new is not None
+        nearest, first, second = self._two_nearest(row, np.arange(self.n_states) if pool is None else pool)
         if first <= self.known and second >= self.new:
             return self._known(row, key, nearest, add), Answer.KNOWN
         if first >= self.new:
@@ -266,30 +308,43 @@ class PlaceRecogniser:
         return -1, Answer.UNSURE
 
     def distances(self, row: np.ndarray) -> np.ndarray:
-        """The place distance of one picture to every state (a screen: float32 arithmetic)."""
-        blocks = self._as_rows(row[None])[0].reshape(self.views, -1)
-        n = self.n_states
-        products = np.matmul(self._prototypes[:, :n], blocks[:, :, None])[:, :, 0]
-        per_view = self._squares[:, :n] + (blocks**2).sum(axis=1)[:, None] - 2.0 * products
-        per_view = np.sqrt(np.maximum(per_view, 0.0))
-        if self.kth == self.views:
-            return per_view.max(axis=0)
+        """The place distance of one picture to every state."""
+        return self._exact_distances(self._as_rows(np.asarray(row)[None])[0], np.arange(self.n_states))
+
+    def _exact_distances(self, row: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """The place distance of one picture to some states: the k-th smallest per-view L2 distance (float64)."""
+        blocks = row.reshape(self.views, 1, -1).astype(np.float64)
+        difference = self._prototypes[:, states].astype(np.float64) - blocks  # (view, state, features)
+        per_view = np.sqrt((difference**2).sum(axis=2))
         return np.partition(per_view, self.kth - 1, axis=0)[self.kth - 1]
 
-    def _distance(self, row: np.ndarray, state: int) -> float:
-        """The place distance of one picture to one state, computed exactly (float64 differences)."""
-        difference = row.reshape(self.views, -1).astype(np.float64) - self._prototypes[:, state].astype(np.float64)
-        per_view = np.sqrt((difference**2).sum(axis=1))
-        return float(np.partition(per_view, self.kth - 1)[self.kth - 1])
+    def _candidates(self, rows: np.ndarray) -> np.ndarray | None:
+        """
+        Per picture of a batch, the ``SCREEN_CANDIDATES`` states nearest in the sketch (a random projection of the whole
+        picture to ``SKETCH_DIM`` numbers: distances kept to within a few tens of percent, at a tenth of the reading);
+        ``None`` where there are few enough states to compare with all.
+        """
+        n = self.n_states
+        if n <= SCREEN_CANDIDATES:
+            return None
+        sketches = rows @ self._projection
+        chosen = np.empty((len(rows), SCREEN_CANDIDATES), dtype=np.int64)
+        for start in range(0, len(rows), SCREEN_CHUNK):  # a chunk of queries against every state at once
+            block = sketches[start : start + SCREEN_CHUNK]
+            squared = self._sketch_squares[:n] - 2.0 * block @ self._sketches[:n].T
+            chosen[start : start + SCREEN_CHUNK] = np.argpartition(squared, SCREEN_CANDIDATES - 1, axis=1)[
+                :, :SCREEN_CANDIDATES
+            ]
+        return chosen
 
-    def _two_nearest(self, row: np.ndarray) -> tuple[int, float, float]:
-        """The nearest state and the exact distances of the nearest two (the screen's float error removed)."""
-        screen = self.distances(row)
-        if self.n_states == 1:
-            return 0, self._distance(row, 0), np.inf
-        candidates = np.argpartition(screen, 2)[:3] if self.n_states > 3 else np.arange(self.n_states)
-        exact = sorted((self._distance(row, int(state)), int(state)) for state in candidates)
-        return exact[0][1], exact[0][0], exact[1][0]
+    def _two_nearest(self, row: np.ndarray, pool: np.ndarray) -> tuple[int, float, float]:
+        """The nearest state of a pool and the exact distances of the nearest two (``inf``: no second)."""
+        distances = self._exact_distances(row, pool)
+        if len(pool) == 1:
+            return int(pool[0]), float(distances[0]), np.inf
+        order = np.argpartition(distances, 1)[:2]
+        order = order[np.argsort(distances[order])]
+        return int(pool[order[0]]), float(distances[order[0]]), float(distances[order[1]])
 
     # ------------------------------------------------------------------ states
     def _new(self, row: np.ndarray, key: bytes, add: bool) -> int:
@@ -300,7 +355,7 @@ class PlaceRecogniser:
             self._grow(max(64, 2 * state))
         if self.similar:  # bit identity needs no picture kept
             self._prototypes[:, state] = row.reshape(self.views, -1)
-            self._squares[:, state] = (self._prototypes[:, state] ** 2).sum(axis=1)
+            self._sketch(state)
         self._counts[state] = 1
         self.n_states += 1
         self.version += 1
@@ -319,9 +374,14 @@ class PlaceRecogniser:
         agreeing = per_view <= np.partition(per_view, self.kth - 1)[self.kth - 1]
         count = min(int(self._counts[state]) + 1, PROTOTYPE_HORIZON)
         self._prototypes[agreeing, state] += difference[agreeing] / count
-        self._squares[:, state] = (self._prototypes[:, state] ** 2).sum(axis=1)
+        self._sketch(state)
         self._counts[state] = count
         return state
+
+    def _sketch(self, state: int) -> None:
+        sketch = self._prototypes[:, state].reshape(-1) @ self._projection
+        self._sketches[state] = sketch
+        self._sketch_squares[state] = sketch @ sketch
 
     def _remember_digest(self, key: bytes, state: int) -> None:
         if self._digests_of[state] < MAX_DIGESTS_PER_STATE:
@@ -342,9 +402,11 @@ class PlaceRecogniser:
             views, _, features = self._prototypes.shape
             prototypes = np.zeros((views, capacity, features), dtype=np.float32)
             prototypes[:, :old] = self._prototypes[:, :old]
-            squares = np.zeros((views, capacity), dtype=np.float32)
-            squares[:, :old] = self._squares[:, :old]
-            self._prototypes, self._squares = prototypes, squares
+            sketches = np.zeros((capacity, SKETCH_DIM), dtype=np.float32)
+            sketches[:old] = self._sketches[:old]
+            sketch_squares = np.zeros(capacity, dtype=np.float32)
+            sketch_squares[:old] = self._sketch_squares[:old]
+            self._prototypes, self._sketches, self._sketch_squares = prototypes, sketches, sketch_squares
         self._counts = np.concatenate([self._counts, np.zeros(capacity - old, dtype=np.int32)])
         self._digests_of = np.concatenate([self._digests_of, np.zeros(capacity - old, dtype=np.int8)])
 
@@ -364,7 +426,8 @@ class PlaceRecogniser:
         state = self.__dict__.copy()
         n = self.n_states  # the used rows only
         state["_prototypes"] = self._prototypes[:, :n].copy()
-        state["_squares"] = self._squares[:, :n].copy()
+        state["_sketches"] = self._sketches[:n].copy()
+        state["_sketch_squares"] = self._sketch_squares[:n].copy()
         state["_counts"] = self._counts[:n].copy()
         state["_digests_of"] = self._digests_of[:n].copy()
         return state
