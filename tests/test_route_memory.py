@@ -589,6 +589,35 @@ def test_pictures_that_never_separate_places_make_the_memory_step_aside_once() -
     assert memory.statistics()["stepped_aside"] == 1.0
 
 
+def test_a_transition_to_a_picture_the_memory_is_unsure_of_records_nothing(plain_env: CampusNavEnv) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    memory = RouteMemory.for_env(plain_env)
+    explore_fully(plain_env, memory, goal, sigma=NOISE)
+    recogniser = memory.recogniser
+    here = plain_env.observation_at(0, plain_env.headings_at(0)[0], goal)
+    state = memory.state_of(here)
+    slot = int(np.flatnonzero(memory.outcome[state] == BLOCKED)[0])  # an empty slot, bumped before
+    views = here["views"].reshape(4, -1)
+    blurred = views + np.sqrt(recogniser.known * recogniser.new) / np.sqrt(views.shape[1])  # in the unsure band
+    unsure = {**here, "views": blurred.reshape(-1).astype(np.float32)}
+    assert memory.state_of(unsure) == -1
+    clock, version = memory.clock, memory.version
+    memory.add(here, slot, unsure, plain_env.step_penalty, False)  # where did it go? the memory cannot say
+    assert memory.outcome[state, slot] == BLOCKED and memory.version == version and memory.clock == clock + 1
+    assert memory.statistics()["unsure_share"] > 0
+
+
+def test_pose_states_of_a_world_that_never_repeats_make_the_memory_step_aside() -> None:
+    space = spaces.Box(-5.0, 5.0, (4,))
+    memory = RouteMemory(2, space)  # no frame: a state is the observation, bit for bit
+    rng = np.random.default_rng(0)
+    with pytest.warns(UserWarning, match="new states in the last"):
+        for _ in range(20):
+            observations = rng.normal(0, 1, (100, 4))
+            memory.add_batch(observations[:-1], rng.integers(2, size=99), observations[1:], np.zeros(99), np.zeros(99))
+    assert memory.stepped_aside and memory.n_states <= 1_100
+
+
 # --------------------------------------------------------------------------------------------- FrozenLake, saving
 def test_frozen_lake_holes_are_dead_ends_and_routes_are_shortest() -> None:
     env = gym.make("FrozenLake-v1", is_slippery=False, map_name="8x8")
