@@ -118,6 +118,19 @@ def test_the_expected_place_settles_what_the_picture_leaves_unsure_and_a_wrong_o
     assert recogniser.recognise(visits(places, np.array([5]), seed=3), expected=np.array([9]))[0].tolist() == [5]
 
 
+def test_an_expected_place_is_no_reason_to_take_a_picture_that_another_place_claims_as_much() -> None:
+    places = world(40)
+    recogniser = calibrated(places)
+    direction = np.random.default_rng(8).normal(0.0, 1.0, (VIEWS, WIDTH))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    shift = (1.05 * recogniser.new * direction).reshape(-1).astype(np.float32)
+    neighbour = places[5] + shift  # a new place just far enough from place 5
+    assert recogniser.recognise(neighbour[None], add=True)[1].tolist() == [Answer.NEW]
+    between = (places[5] + shift / 2)[None]  # as near to place 5 as to its neighbour, in both unsure bands
+    states, answers = recogniser.recognise(between, expected=np.array([5]))
+    assert answers.tolist() == [Answer.UNSURE] and states.tolist() == [-1]
+
+
 def test_pictures_that_do_not_separate_places_say_so() -> None:
     recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=64, min_calibration=16)
     recogniser.show(np.random.default_rng(0).normal(0.0, 1.0, (64, VIEWS * WIDTH)))  # no place ever seen twice
