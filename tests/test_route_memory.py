@@ -60,6 +60,12 @@ def transitions(env: CampusNavEnv, goal: int, states: np.ndarray, actions: np.nd
     )
 
 
+def everything(env: CampusNavEnv, goal: int) -> tuple[Any, ...]:
+    """Every (state, action) of the env's open roads as a batch of transitions under ``goal``."""
+    n_states, n_actions = env.graph.transition_table.shape
+    return transitions(env, goal, np.repeat(np.arange(n_states), n_actions), np.tile(np.arange(n_actions), n_states))
+
+
 def explore_fully(
     env: CampusNavEnv, memory: RouteMemory, goal: int, through_goal: bool = False, sigma: float = 0.0
 ) -> None:
@@ -356,6 +362,9 @@ def test_a_road_closed_before_it_was_ever_driven_is_explored_again_once_nothing_
         plain_env.collision_penalty, False,
     )  # fmt: skip
     assert slot not in (memory.path_to_untried(here) or [])[:1]
+    memory.clock += 100  # everything closed is due again, this road too
+    due = memory.path_to_untried(here)
+    assert due is not None and len(due) == 1 and memory.outcome[here, due[0]] == BLOCKED  # a closed slot right here
     explorer = UntriedExplorer(memory)
     rng = np.random.default_rng(0)
 
@@ -384,7 +393,15 @@ def test_training_tries_an_aged_closure_when_passing_by_it_whatever_the_goal(pla
     _, dreese = plain_env.resolve_goal("Dreese Lab")
     memory = RouteMemory.for_env(plain_env, retry_after=50)
     explore_fully(plain_env, memory, dreese)
-    u, v = next(road for road in plain_env.graph.map.roads if dreese not in road)
+    hops = plain_env.node_distances(dreese)
+
+    def away(road: tuple[int, int]) -> bool:  # a road that no shortest route to Dreese Lab from its end u takes
+        u, v = road
+        return dreese not in road and hops[v] >= hops[u] and hops[u] >= 2
+
+    u, v = next(
+        road for road in (*plain_env.graph.map.roads, *(r[::-1] for r in plain_env.graph.map.roads)) if away(road)
+    )
     slot = int(np.flatnonzero(plain_env.graph.map.slots[u] == v)[0])
     heading = plain_env.headings_at(u)[0]
     here = plain_env.observation_at(u, heading, dreese)
@@ -459,7 +476,14 @@ def _first(batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 def test_the_memory_never_reads_the_achieved_goal_where_a_frame_is_declared(goal_env: CampusNavGoalEnv) -> None:
     memory = RouteMemory.for_env(goal_env)
-    explore_fully(goal_env, memory, goal=3, through_goal=True)
+    obs, actions, following, rewards, terminated, successes = everything(goal_env, goal=3)
+    rng = np.random.default_rng(0)  # achieved goals that lie: each the picture of some other place
+    liar = {**obs, "achieved_goal": obs["achieved_goal"][rng.permutation(len(actions))]}
+    lying_next = {**following, "achieved_goal": following["achieved_goal"][rng.permutation(len(actions))]}
+    memory.add_batch(liar, actions, lying_next, rewards, terminated, successes)
+    for goal in (40, 77):
+        lengths, hops = route_lengths(goal_env, memory, goal)
+        np.testing.assert_array_equal(lengths, hops)
     observation = goal_env.observation_at(0, goal_env.headings_at(0)[0], 50)
     withheld = {**observation, "achieved_goal": np.zeros_like(observation["achieved_goal"])}
     assert memory.route_from(withheld) == memory.route_from(observation) != []
@@ -594,17 +618,43 @@ def test_a_transition_to_a_picture_the_memory_is_unsure_of_records_nothing(plain
     memory = RouteMemory.for_env(plain_env)
     explore_fully(plain_env, memory, goal, sigma=NOISE)
     recogniser = memory.recogniser
-    here = plain_env.observation_at(0, plain_env.headings_at(0)[0], goal)
+    heading = plain_env.headings_at(0)[0]
+    here = plain_env.observation_at(0, heading, goal)
     state = memory.state_of(here)
-    slot = int(np.flatnonzero(memory.outcome[state] == BLOCKED)[0])  # an empty slot, bumped before
+    slot = int(np.flatnonzero(memory.outcome[state] == DRIVEN)[0])  # a road the memory knows leads elsewhere
     views = here["views"].reshape(4, -1)
     blurred = views + np.sqrt(recogniser.known * recogniser.new) / np.sqrt(views.shape[1])  # in the unsure band
-    unsure = {**here, "views": blurred.reshape(-1).astype(np.float32)}
+    unsure = {**here, "views": blurred.reshape(-1).astype(np.float32)}  # nearest this place, not clearly it
     assert memory.state_of(unsure) == -1
-    clock, version = memory.clock, memory.version
-    memory.add(here, slot, unsure, plain_env.step_penalty, False)  # where did it go? the memory cannot say
-    assert memory.outcome[state, slot] == BLOCKED and memory.version == version and memory.clock == clock + 1
-    assert memory.statistics()["unsure_share"] > 0
+    clock, version, tried = memory.clock, memory.version, int(memory.last_tried[state, slot])
+    unsure_before = memory.statistics()["unsure_share"]
+    memory.add(here, (slot - heading) % 4, unsure, plain_env.step_penalty, False)  # a bump? the memory cannot say
+    assert memory.outcome[state, slot] == DRIVEN and memory.version == version and memory.clock == clock + 1
+    assert memory.last_tried[state, slot] == tried  # not even a try
+    assert memory.statistics()["unsure_share"] > unsure_before
+
+
+def test_a_picture_the_memory_is_unsure_of_is_the_place_a_remembered_move_leads_to(plain_env: CampusNavEnv) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    memory = RouteMemory.for_env(plain_env)
+    explore_fully(plain_env, memory, goal, sigma=NOISE)
+    recogniser = memory.recogniser
+    here = plain_env.observation_at(0, plain_env.headings_at(0)[0], goal)
+    state = memory.state_of(here)
+    slot = int(np.flatnonzero(memory.outcome[state] == DRIVEN)[0])
+    arrival = int(memory.arrival[state, slot])
+    there = int(memory.target[state, slot])
+    node = int(plain_env.graph.map.slots[0, slot])  # the intersection that slot's road leads to
+    seen = plain_env.observation_at(node, arrival, goal)
+    assert memory.state_of(seen) == there
+    views = seen["views"].reshape(4, -1)
+    blurred = views + np.sqrt(recogniser.known * recogniser.new) / np.sqrt(views.shape[1])  # in the unsure band
+    unsure = {**seen, "views": blurred.reshape(-1).astype(np.float32)}
+    assert memory.state_of(unsure) == -1  # alone, the picture could be several places...
+    unsure_before = memory.statistics()["unsure_share"]
+    memory.add(here, (slot - int(here["heading"].argmax())) % 4, unsure, plain_env.step_penalty, False)
+    assert memory.last_tried[state, slot] == memory.clock  # ...after the move that leads there, it is that place
+    assert memory.statistics()["unsure_share"] <= unsure_before
 
 
 def test_pose_states_of_a_world_that_never_repeats_make_the_memory_step_aside() -> None:
