@@ -25,6 +25,7 @@ then keys its states by the whole observation (poses), as before. The same decla
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -130,7 +131,9 @@ class PlaceFrame:
 def place_frame_of(env: Any) -> PlaceFrame | None:
     """
     The place frame an env declares in its metadata (see the module docstring), read through Gymnasium wrappers and
-    SB3's vector envs; ``None`` where it declares none.
+    SB3's vector envs; ``None`` where it declares none. A declaration that does not fit the spaces the caller sees
+    (the env wrapped in ``FlattenObservation``, ``FilterObservation`` or ``VecFrameStack``: the metadata passes
+    through, the spaces change) means no frame, with one warning naming the misfit.
 
     :param env: A Gymnasium env, a wrapper, or an SB3 ``VecEnv``
     """
@@ -143,4 +146,12 @@ def place_frame_of(env: Any) -> PlaceFrame | None:
     declaration = (metadata or {}).get(PLACE_FRAME_KEY)
     if declaration is None:
         return None
-    return PlaceFrame.from_declaration(declaration, env.observation_space, env.action_space)
+    try:
+        return PlaceFrame.from_declaration(declaration, env.observation_space, env.action_space)
+    except ValueError as misfit:
+        warnings.warn(
+            f"The env declares a place frame that does not fit the spaces it is seen through ({misfit}): states are "
+            "poses (whole observations)",
+            stacklevel=2,
+        )
+        return None

@@ -1,9 +1,14 @@
-"""The route memory: one graph of places for every goal, moves in compass slots (algorithms wearing it:
-test_route_memory_layer.py)."""
+"""The route memory: one graph of recognised places for every goal, moves in compass slots (RouteMemory's facade).
+
+Worlds: CampusNav's fixed views (pictures repeat bit for bit), the same views with fresh Gaussian noise at every
+visit (no picture repeats), and small hand-made envs. The recogniser, the moves, the planner and the goals have tests
+of their own (``test_route_memory_*.py``); DCQN and SB3's DQN wearing the memory: ``test_route_memory_layer.py``.
+"""
 
 from __future__ import annotations
 
 import pickle
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -22,16 +27,19 @@ from sb3_dcqn.route_memory import (
     DEAD_END,
     DRIVEN,
     INFERRED,
+    INFERRED_BLOCKED,
     NO_ROUTE,
     OUTSIDE,
     UNTRIED,
     RouteMemory,
     UntriedExplorer,
 )
+from sb3_dcqn.route_memory.places import digest
 
 pytestmark = pytest.mark.usefixtures("module_feature_cache")
 
 SMALL = {"encoder": "pixels", "view_build": ViewBuild(render_settings=RenderSettings(64, 48), progress=False)}
+NOISE = 0.05  # of a standardised feature's spread, fresh at every visit
 
 
 def transitions(env: CampusNavEnv, goal: int, states: np.ndarray, actions: np.ndarray) -> tuple[Any, ...]:
@@ -46,17 +54,29 @@ def transitions(env: CampusNavEnv, goal: int, states: np.ndarray, actions: np.nd
         env.observations_at(nodes[next_states], headings[next_states], goal),
         rewards,
         arrived,
+        arrived,  # the env's word on success: arriving at the goal
     )
 
 
-def explore_fully(env: CampusNavEnv, memory: RouteMemory, goal: int, through_goal: bool = False) -> None:
+def everything(env: CampusNavEnv, goal: int) -> tuple[Any, ...]:
+    """Every (state, action) of the env's open roads as a batch of transitions under ``goal``."""
+    n_states, n_actions = env.graph.transition_table.shape
+    return transitions(env, goal, np.repeat(np.arange(n_states), n_actions), np.tile(np.arange(n_actions), n_states))
+
+
+def explore_fully(
+    env: CampusNavEnv, memory: RouteMemory, goal: int, through_goal: bool = False, sigma: float = 0.0
+) -> None:
     """Feed ``memory`` every (state, action) of the env's open roads under ``goal`` (``through_goal``: the moves from
-    the goal's own states too, as episodes for other goals drive them)."""
+    the goal's own states too, as episodes for other goals drive them; ``sigma``: fresh noise on every view)."""
     n_states, n_actions = env.graph.transition_table.shape
     states = np.repeat(np.arange(n_states), n_actions)
     actions = np.tile(np.arange(n_actions), n_states)
     keep = (env.graph.map.state_nodes[states] != goal) | through_goal  # the episode ends at the goal
-    memory.add_batch(*transitions(env, goal, states[keep], actions[keep]))
+    if sigma:
+        memory.add_batch(*noisy_transitions(env, goal, states[keep], actions[keep], seed=0, sigma=sigma))
+    else:
+        memory.add_batch(*transitions(env, goal, states[keep], actions[keep]))
 
 
 def once_per_slot(env: CampusNavEnv, goal: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -96,23 +116,52 @@ def route_lengths(env: CampusNavEnv, memory: RouteMemory, goal: int) -> tuple[np
 
 
 def drive(
-    env: CampusNavEnv, memory: RouteMemory, goal: int, policy: Any, episodes: int, seed: int, until: Any = None
+    env: CampusNavEnv,
+    memory: RouteMemory,
+    goal: int,
+    policy: Any,
+    episodes: int,
+    seed: int,
+    until: Any = None,
+    sigma: float = 0.0,
 ) -> int:
     """Episodes of ``policy(observation) -> action`` under ``goal``, every transition remembered, until ``until()``
-    holds; returns the steps."""
+    holds (``sigma``: fresh noise on the views of every observation); returns the steps."""
     steps = 0
+
+    def seen(observation: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return _first(with_noise(_batch(observation), seed + steps, sigma)) if sigma else observation
+
     for episode in range(episodes):
         if until is not None and until():
             break
         observation, _ = env.reset(seed=seed + episode, options={"goal": goal})
+        observation = seen(observation)
         for _ in range(env.max_steps):
             action = int(policy(observation))
             following, reward, terminated, truncated, info = env.step(action)
+            following = seen(following)
             memory.add(observation, action, following, reward, terminated, info.get("is_success"))
             observation, steps = following, steps + 1
             if terminated or truncated:
                 break
     return steps
+
+
+def with_noise(observations: Any, seed: int, sigma: float = NOISE) -> Any:
+    """The batch with fresh Gaussian noise on its current views (the goal's pictures untouched)."""
+    rng = np.random.default_rng(seed)
+    key = "views" if "views" in observations else "observation"
+    views = np.asarray(observations[key])
+    return {**observations, key: (views + rng.normal(0.0, sigma, views.shape)).astype(np.float32)}
+
+
+def noisy_transitions(
+    env: CampusNavEnv, goal: int, states: np.ndarray, actions: np.ndarray, seed: int, sigma: float = NOISE
+) -> tuple[Any, ...]:
+    """:func:`transitions` with fresh noise on every view."""
+    obs, actions, following, rewards, arrived, _ = transitions(env, goal, states, actions)
+    return with_noise(obs, seed, sigma), actions, with_noise(following, seed + 1, sigma), rewards, arrived, arrived
 
 
 @pytest.fixture(scope="module")
@@ -123,6 +172,10 @@ def goal_env() -> CampusNavGoalEnv:
 @pytest.fixture(scope="module")
 def plain_env() -> CampusNavEnv:
     return CampusNavEnv(goals=["Dreese Lab", "Cinema"], **SMALL)
+
+
+def _batch(observation: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    return {key: np.asarray(value)[None] for key, value in observation.items()}
 
 
 # ----------------------------------------------------------------------------------------------- the env's frame
@@ -142,10 +195,17 @@ def test_campusnav_declares_its_frame_and_it_is_read_through_wrappers_and_vec_en
     assert place_frame_of(gym.make("FrozenLake-v1")) is None  # no declaration: pose states, as before
 
 
-def test_the_goal_env_declares_its_agents_own_views_as_the_place_never_the_achieved_goal(goal_env) -> None:
-    frame = place_frame_of(goal_env)
-    assert frame.place_keys == ("observation",) and dict(frame.goal_pictures) == {"desired_goal": "observation"}
-    assert not frame.goals_pictured_otherwise
+def test_a_declaration_that_does_not_fit_the_wrapped_spaces_means_poses_with_one_warning(plain_env) -> None:
+    for wrapped in (
+        gym.wrappers.FlattenObservation(plain_env),
+        gym.wrappers.FilterObservation(plain_env, ["views", "heading"]),
+    ):
+        with pytest.warns(UserWarning, match="does not fit the spaces") as caught:
+            assert place_frame_of(wrapped) is None
+        assert len(caught) == 1
+        with pytest.warns(UserWarning, match="does not fit the spaces"):
+            memory = RouteMemory.for_env(wrapped)
+        assert memory.place_frame is None and not memory.recogniser.similar
 
 
 def test_a_declaration_that_does_not_fit_the_spaces_is_named() -> None:
@@ -161,13 +221,31 @@ def test_a_declaration_that_does_not_fit_the_spaces_is_named() -> None:
 
 
 # ------------------------------------------------------------------------------------------ places, not poses
-def test_a_place_is_one_state_at_every_heading_and_for_every_goal(goal_env: CampusNavGoalEnv) -> None:
+@pytest.mark.parametrize("sigma", [0.0, NOISE])
+def test_a_place_is_one_state_at_every_heading_and_for_every_goal_with_or_without_noise(goal_env, sigma) -> None:
     memory = RouteMemory.for_env(goal_env)
+    explore_fully(goal_env, memory, goal=3, through_goal=True, sigma=sigma)  # the recogniser calibrates on the campus
+    assert memory.n_states == goal_env.graph.n_nodes
     node = int(np.flatnonzero(goal_env.graph.map.degrees >= 3)[0])
     poses = [goal_env.observation_at(node, heading, goal) for heading in goal_env.headings_at(node) for goal in (1, 2)]
-    assert len(poses) >= 6 and {memory.state_of(obs, add=True) for obs in poses} == {0}
-    posed = RouteMemory.for_env(goal_env, place_frame=None)  # the memory before places: a state per heading
+    seen = {memory.state_of(with_noise(_batch(obs), seed) if sigma else obs) for seed, obs in enumerate(poses)}
+    assert len(poses) >= 6 and len(seen) == 1 and seen != {-1}
+    posed = RouteMemory.for_env(goal_env, place_frame=None)  # poses: a state per heading, bit for bit
     assert len({posed.state_of(obs, add=True) for obs in poses}) == len(goal_env.headings_at(node))
+
+
+def test_noise_on_the_views_leaves_as_many_states_as_places_and_every_route_shortest(plain_env) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    for sigma in (1e-6, NOISE):  # 1e-6 made one state per step when "the same place" was bit identity
+        memory = RouteMemory.for_env(plain_env)
+        explore_fully(plain_env, memory, goal, sigma=sigma)
+        assert memory.n_states == plain_env.graph.n_nodes and not memory.stepped_aside, sigma
+        nodes, headings = every_start(plain_env, goal)
+        lengths = [
+            len(memory.route_from(with_noise(_batch(plain_env.observation_at(node, heading, goal)), 9, sigma)))
+            for node, heading in zip(nodes, headings, strict=True)
+        ]
+        np.testing.assert_array_equal(lengths, plain_env.node_distances(goal)[nodes])
 
 
 def test_one_try_per_road_and_per_empty_slot_routes_every_start_at_every_heading(plain_env: CampusNavEnv) -> None:
@@ -182,16 +260,27 @@ def test_one_try_per_road_and_per_empty_slot_routes_every_start_at_every_heading
     np.testing.assert_array_equal(lengths, hops)
     nodes, headings = every_start(plain_env, goal)
     observations = plain_env.observations_at(nodes, headings, goal)
-    assert (memory.route_actions(observations) >= 0).all()  # no unseen start state, whatever its heading
+    assert (memory.route_actions(observations) >= 0).all()  # no unknown start, whatever its heading
     # The same tries as poses route only from the heading each was tried at
     posed = RouteMemory.for_env(plain_env, place_frame=None)
     posed.add_batch(*transitions(plain_env, goal, states, actions))
     assert (posed.route_actions(observations) < 0).mean() > 0.5
 
 
+def test_until_its_first_calibration_the_memory_holds_its_transitions_then_remembers_them_in_order(plain_env) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    states, actions, _ = once_per_slot(plain_env, goal)
+    memory = RouteMemory.for_env(plain_env)
+    first = transitions(plain_env, goal, states[:3], actions[:3])
+    assert memory.add_batch(*first) == 0 and memory.n_states == 0  # what "the same place" looks like: not known yet
+    assert (memory.route_actions(first[0]) == -1).all()
+    memory.add_batch(*transitions(plain_env, goal, states[3:], actions[3:]))
+    assert memory.n_tried == states.size and memory.n_states == plain_env.graph.n_nodes
+
+
 def test_an_inferred_way_back_routes_but_is_not_untried(plain_env: CampusNavEnv) -> None:
     _, goal = plain_env.resolve_goal("Dreese Lab")
-    memory = RouteMemory.for_env(plain_env)
+    memory = RouteMemory.for_env(plain_env, recognition="exact")
     start = int(plain_env.graph.map.state_of[0, plain_env.headings_at(0)[0]])
     memory.add_batch(*transitions(plain_env, goal, np.array([start]), np.array([0])))
     far = int(plain_env.graph.map.state_nodes[plain_env.graph.move(start, 0)[0]])
@@ -204,15 +293,18 @@ def test_an_inferred_way_back_routes_but_is_not_untried(plain_env: CampusNavEnv)
     assert memory.target[there, back] == here and back not in memory.untried_slots(there)
 
 
-def test_one_bump_closes_a_road_at_every_heading_both_ways_for_every_goal(goal_env: CampusNavGoalEnv) -> None:
+@pytest.mark.parametrize("sigma", [0.0, NOISE])
+def test_one_bump_closes_a_road_at_every_heading_both_ways_for_every_goal(goal_env, sigma) -> None:
     memory = RouteMemory.for_env(goal_env)
-    explore_fully(goal_env, memory, goal=3, through_goal=True)
+    explore_fully(goal_env, memory, goal=3, through_goal=True, sigma=sigma)
     graph = goal_env.graph
     u, v = next((u, v) for u, v in graph.map.roads if goal_env.node_distances(60)[u] > 2)
     slot = int(np.flatnonzero(graph.map.slots[u] == v)[0])
     heading = goal_env.headings_at(u)[0]
     seen = goal_env.observation_at(u, heading, 3)
-    memory.add(seen, (slot - heading) % 4, seen, goal_env.collision_penalty, False)  # one bump, under goal 3
+    bumped = with_noise(_batch(seen), 5, sigma) if sigma else _batch(seen)
+    again = with_noise(_batch(seen), 6, sigma) if sigma else _batch(seen)
+    memory.add_batch(bumped, [(slot - heading) % 4], again, [goal_env.collision_penalty], [False])  # under goal 3
     graph.close_road(u, v, force=True)
     try:
         for goal in (60, 77):  # goals never asked for: the road is gone from their routes too, from both ends
@@ -223,7 +315,7 @@ def test_one_bump_closes_a_road_at_every_heading_both_ways_for_every_goal(goal_e
         graph.reopen_road(u, v)
     there = memory.state_of(goal_env.observation_at(v, goal_env.headings_at(v)[0], 3))
     back = int(np.flatnonzero(graph.map.slots[v] == u)[0])
-    assert memory.outcome[memory.state_of(seen), slot] == BLOCKED and memory.outcome[there, back] == BLOCKED
+    assert memory.outcome[memory.state_of(seen), slot] == BLOCKED and memory.outcome[there, back] == INFERRED_BLOCKED
 
 
 def test_a_reopened_road_is_retried_in_training_once_it_has_aged_and_never_in_evaluation(plain_env) -> None:
@@ -237,7 +329,9 @@ def test_a_reopened_road_is_retried_in_training_once_it_has_aged_and_never_in_ev
     memory.add(observation, action, observation, plain_env.collision_penalty, False)  # closed: a bump
     detour = memory.route_actions(_batch(observation))[0]
     assert detour != action and memory.route_actions(_batch(observation), retry=True)[0] == detour  # too recent
-    memory.clock += 50  # transitions elsewhere: the closure is a fact that has aged
+    memory.clock += 49
+    assert memory.route_actions(_batch(observation), retry=True)[0] == detour
+    memory.clock += 1  # transitions elsewhere: the closure is a fact that has aged
     assert memory.route_actions(_batch(observation), retry=True)[0] == action  # training tries the road again
     assert memory.route_actions(_batch(observation))[0] == detour  # evaluation never drives a road seen closed
     next_state, _ = plain_env.graph.move(int(plain_env.graph.map.state_of[nodes[start], headings[start]]), action)
@@ -248,23 +342,64 @@ def test_a_reopened_road_is_retried_in_training_once_it_has_aged_and_never_in_ev
     assert memory.route_actions(_batch(observation))[0] == action
 
 
+def test_a_road_closed_before_it_was_ever_driven_is_explored_again_once_nothing_is_untried(plain_env) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    u, v = next((u, v) for u, v in plain_env.graph.map.roads if goal not in (u, v))
+    plain_env.graph.close_road(u, v, force=True)
+    try:
+        memory = RouteMemory.for_env(plain_env, retry_after=50)
+        explore_fully(plain_env, memory, goal)  # both ends bumped: to the memory, two empty slots
+    finally:
+        plain_env.graph.reopen_road(u, v)
+    slot = int(np.flatnonzero(plain_env.graph.map.slots[u] == v)[0])
+    heading = plain_env.headings_at(u)[0]
+    here = memory.state_of(plain_env.observation_at(u, heading, goal))
+    assert memory.outcome[here, slot] == BLOCKED and memory.frontier().size == 0
+    memory.add(  # bumped once more just now: not due again for retry_after transitions
+        plain_env.observation_at(u, heading, goal), (slot - heading) % 4, plain_env.observation_at(u, heading, goal),
+        plain_env.collision_penalty, False,
+    )  # fmt: skip
+    assert slot not in (memory.path_to_untried(here) or [])[:1]
+    memory.clock += 100  # everything closed is due again, this road too
+    due = memory.path_to_untried(here)
+    assert due is not None and len(due) == 1 and memory.outcome[here, due[0]] == BLOCKED  # a closed slot right here
+    explorer = UntriedExplorer(memory)
+    rng = np.random.default_rng(0)
+
+    def explore(observation: dict[str, np.ndarray]) -> int:
+        action = int(explorer.actions(_batch(observation))[0])
+        return action if action >= 0 else int(rng.integers(4))
+
+    drive(plain_env, memory, goal, explore, episodes=30, seed=0, until=lambda: memory.outcome[here, slot] == DRIVEN)
+    assert memory.outcome[here, slot] == DRIVEN  # the explorer went back to it, and it is open
+
+
 def test_a_barrier_in_the_views_leaves_a_place_the_place_it_was() -> None:
     env = CampusNavEnv(visible_closures=True, **SMALL)
     memory = RouteMemory.for_env(env)
+    explore_fully(env, memory, env.goal_nodes[0])
     u, v = env.graph.map.roads[0]
     open_views = [env.observation_at(u, heading, env.goal_nodes[0]) for heading in env.headings_at(u)]
-    states = {memory.state_of(obs, add=True) for obs in open_views}
+    states = {memory.state_of(obs) for obs in open_views}
     env.close_road(u, v, force=True)
     closed_view = env.observation_at(u, env.headings_at(u)[0], env.goal_nodes[0])
     assert not np.array_equal(closed_view["views"], open_views[0]["views"])  # the barrier is in the picture
-    assert {memory.state_of(closed_view, add=True)} == states and memory.n_states == 1
+    assert {memory.state_of(closed_view, add=True)} == states and memory.n_states == env.graph.n_nodes
 
 
 def test_training_tries_an_aged_closure_when_passing_by_it_whatever_the_goal(plain_env: CampusNavEnv) -> None:
     _, dreese = plain_env.resolve_goal("Dreese Lab")
     memory = RouteMemory.for_env(plain_env, retry_after=50)
     explore_fully(plain_env, memory, dreese)
-    u, v = next(road for road in plain_env.graph.map.roads if dreese not in road)
+    hops = plain_env.node_distances(dreese)
+
+    def away(road: tuple[int, int]) -> bool:  # a road that no shortest route to Dreese Lab from its end u takes
+        u, v = road
+        return dreese not in road and hops[v] >= hops[u] and hops[u] >= 2
+
+    u, v = next(
+        road for road in (*plain_env.graph.map.roads, *(r[::-1] for r in plain_env.graph.map.roads)) if away(road)
+    )
     slot = int(np.flatnonzero(plain_env.graph.map.slots[u] == v)[0])
     heading = plain_env.headings_at(u)[0]
     here = plain_env.observation_at(u, heading, dreese)
@@ -290,8 +425,8 @@ class AliasedLine(gym.Env):
 
 def test_two_places_that_picture_the_same_are_counted_and_never_routed_from() -> None:
     env = AliasedLine()
-    memory = RouteMemory.for_env(env)
-    memory.add(env.picture(1), 1, env.picture(0), 1.0, True)  # place 0 is the goal, reached from 1
+    memory = RouteMemory.for_env(env, recognition="exact")
+    memory.add(env.picture(1), 1, env.picture(0), 1.0, True, success=True)  # place 0 is the goal, reached from 1
     for place, action, following in ((0, 0, 1), (1, 0, 2), (2, 1, 1)):
         memory.add(env.picture(place), action, env.picture(following), 0.0, False)
     assert memory.n_states == 3 and memory.aliased == set()
@@ -314,9 +449,39 @@ def test_a_goal_never_asked_for_is_routed_to_by_its_pictures_over_the_same_graph
         np.testing.assert_array_equal(lengths, hops)
 
 
+def test_a_goal_at_a_place_never_visited_has_no_route(goal_env: CampusNavGoalEnv) -> None:
+    memory = RouteMemory.for_env(goal_env)
+    n_states, n_actions = goal_env.graph.transition_table.shape
+    states = np.repeat(np.arange(n_states), n_actions)
+    actions = np.tile(np.arange(n_actions), n_states)
+    nodes = goal_env.graph.map.state_nodes
+    following = nodes[goal_env.graph.move(states, actions)[0]]
+    half = (nodes[states] < 50) & (following < 50)  # half the campus explored, the rest never seen
+    memory.add_batch(*transitions(goal_env, 3, states[half], actions[half]))
+    assert memory.n_states == 50
+    starts = goal_env.observations_at(np.array([0]), np.array([goal_env.headings_at(0)[0]]), 3)
+    for goal in range(50, goal_env.graph.n_nodes):  # unseen places: no route, so the critics act
+        asked = {
+            **starts,
+            "desired_goal": goal_env.observations_at(np.array([goal]), np.array([0]), goal)["desired_goal"],
+        }
+        assert memory.route_actions(asked)[0] == -1 and memory.goal_states(_first(asked)).size == 0, goal
+
+
+def _first(batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    return {key: value[0] for key, value in batch.items()}
+
+
 def test_the_memory_never_reads_the_achieved_goal_where_a_frame_is_declared(goal_env: CampusNavGoalEnv) -> None:
     memory = RouteMemory.for_env(goal_env)
-    explore_fully(goal_env, memory, goal=3, through_goal=True)
+    obs, actions, following, rewards, terminated, successes = everything(goal_env, goal=3)
+    rng = np.random.default_rng(0)  # achieved goals that lie: each the picture of some other place
+    liar = {**obs, "achieved_goal": obs["achieved_goal"][rng.permutation(len(actions))]}
+    lying_next = {**following, "achieved_goal": following["achieved_goal"][rng.permutation(len(actions))]}
+    memory.add_batch(liar, actions, lying_next, rewards, terminated, successes)
+    for goal in (40, 77):
+        lengths, hops = route_lengths(goal_env, memory, goal)
+        np.testing.assert_array_equal(lengths, hops)
     observation = goal_env.observation_at(0, goal_env.headings_at(0)[0], 50)
     withheld = {**observation, "achieved_goal": np.zeros_like(observation["achieved_goal"])}
     assert memory.route_from(withheld) == memory.route_from(observation) != []
@@ -338,13 +503,19 @@ def test_goal_views_show_their_place_before_any_success_and_goals_match_within_t
     assert posed.route_from({**observation, "goal_views": observation["goal_views"] + np.float32(1e-3)}) == []
 
 
-def test_a_success_the_env_reports_attaches_a_goal_whatever_its_reward() -> None:
-    memory = RouteMemory(n_actions=2)
+def test_success_is_the_envs_word_and_a_reward_only_where_success_reward_is_set() -> None:
     a, b = np.array([0.0]), np.array([1.0])
+    memory = RouteMemory(n_actions=2)
     memory.add(a, 1, b, 0.0, True, success=True)  # BitFlipping-style: reward 0 at the goal, -1 elsewhere
     assert memory.outcome[0, 1] == DRIVEN and memory.route_from(a) == [1]
     memory.add(b, 0, a, 0.0, True, success=False)  # an end that is no success: a dead end
     assert memory.outcome[1, 0] == DEAD_END
+    falls = RouteMemory(n_actions=2)  # CartPole: +1 on every step, the fall included, and no is_success
+    falls.add(a, 0, b, 1.0, True)
+    assert falls.route_from(a) == [] and falls.outcome[0, 0] == DEAD_END  # a fall is no goal
+    told = RouteMemory(n_actions=2, success_reward=0.5)  # where the user says what a success pays
+    told.add(a, 0, b, 1.0, True)
+    assert told.route_from(a) == [0]
 
 
 # ------------------------------------------------------------------------------------------------ bounds
@@ -358,21 +529,30 @@ def test_a_full_memory_does_not_send_the_explorer_back_to_the_same_move_forever(
 
 
 def test_the_memory_grows_past_its_first_thousand_states_and_keeps_them() -> None:
-    memory = RouteMemory(n_actions=1)
+    memory = RouteMemory(n_actions=2)
     line = np.arange(3_000, dtype=np.float64)[:, None]
-    memory.add_batch(line[:-1], np.zeros(2_999, dtype=np.int64), line[1:], np.zeros(2_999), np.zeros(2_999, bool))
+    # Along a line of 3,000 places, bumping into the end of each (a new place every other transition)
+    starts = np.repeat(line[:-1], 2, axis=0)
+    actions = np.tile([0, 1], 2_999)
+    ends = np.stack([line[1:], line[1:]], axis=1).reshape(-1, 1)
+    bumps = np.repeat(line[1:], 2, axis=0)
+    ends[1::2] = bumps[1::2]
+    starts[1::2] = bumps[1::2]
+    memory.add_batch(starts, actions, ends, np.zeros(5_998), np.zeros(5_998, bool))
     assert memory.n_states == 3_000 and len(memory.route_from(line[0])) == 0  # no goal: no route
-    assert (memory.target[: memory.n_states - 1, 0] == np.arange(1, 3_000)).all()
+    assert (memory.target[: memory.n_states - 1, 0] == np.arange(1, 3_000)).all() and not memory.stepped_aside
     copy = pickle.loads(pickle.dumps(memory))
     assert copy.n_states == 3_000 and (copy.target[:2_999, 0] == memory.target[:2_999, 0]).all()
 
 
-def test_the_route_cache_is_bounded_in_bytes(goal_env: CampusNavGoalEnv) -> None:
+def test_everything_cached_stays_within_its_bound(goal_env: CampusNavGoalEnv) -> None:
     memory = RouteMemory.for_env(goal_env, max_cache_bytes=4096)
     explore_fully(goal_env, memory, goal=3, through_goal=True)
     for goal in range(goal_env.graph.n_nodes):
         memory.route_actions(goal_env.observations_at(np.array([0]), np.array([goal_env.headings_at(0)[0]]), goal))
-    assert 0 < memory.cache_nbytes() <= 4096 and memory.nbytes() > 0
+        assert memory.cache_nbytes() <= 4096
+    assert memory.cache_nbytes() > 0 and len(memory.cache) > 2  # routes and goals' places share the bound
+    assert memory.nbytes() > memory.n_states * 4 * goal_env.observation_space["observation"].shape[0]
 
 
 # ---------------------------------------------------------------------------------------------- exploration
@@ -394,7 +574,8 @@ def test_the_explorer_returns_to_the_nearest_untried_slot_and_envs_seek_differen
     assert both._targets[0] != both._targets[1]  # two envs at one state do not chase one pair
 
 
-def test_exploring_with_the_memory_covers_the_campus_in_about_one_try_per_slot(plain_env: CampusNavEnv) -> None:
+@pytest.mark.parametrize("sigma", [0.0, NOISE])
+def test_exploring_with_the_memory_covers_the_campus_in_about_one_try_per_slot(plain_env, sigma) -> None:
     _, goal = plain_env.resolve_goal("Dreese Lab")
     memory = RouteMemory.for_env(plain_env)
     explorer = UntriedExplorer(memory)
@@ -412,18 +593,90 @@ def test_exploring_with_the_memory_covers_the_campus_in_about_one_try_per_slot(p
         episodes=200,
         seed=0,
         until=lambda: memory.n_states > 0 and memory.frontier().size == 0,
+        sigma=sigma,
     )
     nodes = plain_env.graph.n_nodes
     assert memory.frontier().size == 0 and memory.n_states == nodes
-    # Depth-first exploration of an unknown graph drives each road at most twice and bumps each empty slot once
+    # Depth-first exploration of an unknown graph drives each road at most twice and bumps each empty slot once,
+    # after the random steps it takes before it knows what "the same place" looks like (16 distinct pictures)
     roads = plain_env.graph.map.n_roads
-    assert steps <= 2 * roads + (4 * nodes - 2 * roads)
+    assert steps <= 2 * roads + (4 * nodes - 2 * roads) + 120
+
+
+def test_pictures_that_never_separate_places_make_the_memory_step_aside_once() -> None:
+    space = spaces.Dict({"view": spaces.Box(-9, 9, (16,)), "goal": spaces.Box(-9, 9, (16,))})
+    memory = RouteMemory(2, space, place_frame=PlaceFrame(("view",), 2), calibration_window=64)
+    rng = np.random.default_rng(0)
+    noise = lambda n: {"view": rng.normal(0, 1, (n, 16)).astype(np.float32), "goal": np.zeros((n, 16), np.float32)}  # noqa: E731
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for _ in range(30):
+            memory.add_batch(noise(10), rng.integers(2, size=10), noise(10), np.zeros(10), np.zeros(10, bool))
+    assert memory.stepped_aside and "do not separate places" in memory.aside_reason
+    assert len([w for w in caught if "steps aside" in str(w.message)]) == 1  # said once
+    assert (memory.route_actions(noise(4)) == -1).all() and (memory.explore_actions(noise(4)) == -1).all()
+    assert memory.statistics()["stepped_aside"] == 1.0
+
+
+def test_a_transition_to_a_picture_the_memory_is_unsure_of_records_nothing(plain_env: CampusNavEnv) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    memory = RouteMemory.for_env(plain_env)
+    explore_fully(plain_env, memory, goal, sigma=NOISE)
+    recogniser = memory.recogniser
+    heading = plain_env.headings_at(0)[0]
+    here = plain_env.observation_at(0, heading, goal)
+    state = memory.state_of(here)
+    slot = int(np.flatnonzero(memory.outcome[state] == DRIVEN)[0])  # a road the memory knows leads elsewhere
+    views = here["views"].reshape(4, -1)
+    blurred = views + np.sqrt(recogniser.known * recogniser.new) / np.sqrt(views.shape[1])  # in the unsure band
+    unsure = {**here, "views": blurred.reshape(-1).astype(np.float32)}  # nearest this place, not clearly it
+    assert memory.state_of(unsure) == -1
+    clock, version, tried = memory.clock, memory.version, int(memory.last_tried[state, slot])
+    unsure_before = memory.statistics()["unsure_share"]
+    memory.add(here, (slot - heading) % 4, unsure, plain_env.step_penalty, False)  # a bump? the memory cannot say
+    assert memory.outcome[state, slot] == DRIVEN and memory.version == version and memory.clock == clock + 1
+    assert memory.last_tried[state, slot] == tried  # not even a try
+    assert memory.statistics()["unsure_share"] > unsure_before
+
+
+def test_a_picture_the_memory_is_unsure_of_is_the_place_a_remembered_move_leads_to(plain_env: CampusNavEnv) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    memory = RouteMemory.for_env(plain_env)
+    explore_fully(plain_env, memory, goal, sigma=NOISE)
+    recogniser = memory.recogniser
+    here = plain_env.observation_at(0, plain_env.headings_at(0)[0], goal)
+    state = memory.state_of(here)
+    slot = int(np.flatnonzero(memory.outcome[state] == DRIVEN)[0])
+    arrival = int(memory.arrival[state, slot])
+    there = int(memory.target[state, slot])
+    node = int(plain_env.graph.map.slots[0, slot])  # the intersection that slot's road leads to
+    seen = plain_env.observation_at(node, arrival, goal)
+    assert memory.state_of(seen) == there
+    views = seen["views"].reshape(4, -1)
+    blurred = views + np.sqrt(recogniser.known * recogniser.new) / np.sqrt(views.shape[1])  # in the unsure band
+    unsure = {**seen, "views": blurred.reshape(-1).astype(np.float32)}
+    assert memory.state_of(unsure) == -1  # alone, the picture could be several places...
+    unsure_before = memory.statistics()["unsure_share"]
+    memory.add(here, (slot - int(here["heading"].argmax())) % 4, unsure, plain_env.step_penalty, False)
+    assert memory.last_tried[state, slot] == memory.clock  # ...after the move that leads there, it is that place
+    assert memory.statistics()["unsure_share"] <= unsure_before
+
+
+def test_pose_states_of_a_world_that_never_repeats_make_the_memory_step_aside() -> None:
+    space = spaces.Box(-5.0, 5.0, (4,))
+    memory = RouteMemory(2, space)  # no frame: a state is the observation, bit for bit
+    rng = np.random.default_rng(0)
+    with pytest.warns(UserWarning, match="new states in the last"):
+        for _ in range(20):
+            observations = rng.normal(0, 1, (100, 4))
+            memory.add_batch(observations[:-1], rng.integers(2, size=99), observations[1:], np.zeros(99), np.zeros(99))
+    assert memory.stepped_aside and memory.n_states <= 1_100
 
 
 # --------------------------------------------------------------------------------------------- FrozenLake, saving
 def test_frozen_lake_holes_are_dead_ends_and_routes_are_shortest() -> None:
     env = gym.make("FrozenLake-v1", is_slippery=False, map_name="8x8")
-    memory = RouteMemory.for_env(env)
+    memory = RouteMemory.for_env(env, success_reward=0.0)  # FrozenLake says nothing of success: its reward does
     table = env.unwrapped.P
     for state, moves in table.items():
         for action, [(_, following, reward, done)] in moves.items():
@@ -440,11 +693,13 @@ def test_frozen_lake_holes_are_dead_ends_and_routes_are_shortest() -> None:
         assert int(memory.target[memory.state_of(np.int64(state)), routes[state]]) not in holes
 
 
-def test_the_memory_pickles_and_answers_the_same(goal_env: CampusNavGoalEnv) -> None:
+@pytest.mark.parametrize("sigma", [0.0, NOISE])
+def test_the_memory_pickles_and_answers_the_same(goal_env: CampusNavGoalEnv, sigma: float) -> None:
     memory = RouteMemory.for_env(goal_env)
-    explore_fully(goal_env, memory, goal=3, through_goal=True)
+    explore_fully(goal_env, memory, goal=3, through_goal=True, sigma=sigma)
     copy = pickle.loads(pickle.dumps(memory))
     batch = goal_env.observations_at(np.arange(20), np.array([goal_env.headings_at(n)[0] for n in range(20)]), 50)
+    batch = with_noise(batch, 3, sigma) if sigma else batch
     np.testing.assert_array_equal(copy.route_actions(batch), memory.route_actions(batch))
     assert copy.n_states == memory.n_states and copy.nbytes() == memory.nbytes()
     assert (memory.route_actions(batch) != NO_ROUTE).all()
@@ -456,7 +711,7 @@ def test_a_memory_saved_as_one_pose_table_before_places_loads_as_poses() -> None
     saved = {  # what RouteMemory.__getstate__ wrote before places (next_state: -1 untried, -2 dead end, s: collision)
         "n_actions": 2, "observation_space": None, "goal_keys": (), "success_reward": 0.0, "max_states": 100,
         "place_matcher": None, "next_state": np.array([[1, 0], [2, -1], [-2, -2]], dtype=np.int32),
-        "_state_of": {digest: i for i, digest in enumerate(RouteMemory(2)._digests(np.stack([a, b, c])))},
+        "_state_of": {digest(row.view(np.uint8).tobytes()): i for i, row in enumerate((a, b, c))},
         "_reached": {b"": {2}}, "_place_of": {}, "_place_vectors": [], "_place_states": [],
     }  # fmt: skip
     memory = RouteMemory.__new__(RouteMemory)
@@ -464,6 +719,27 @@ def test_a_memory_saved_as_one_pose_table_before_places_loads_as_poses() -> None
     assert memory.place_frame is None and memory.n_states == 3
     assert memory.outcome[:3].tolist() == [[DRIVEN, BLOCKED], [DRIVEN, UNTRIED], [DEAD_END, DEAD_END]]
     assert memory.route_from(a) == [0, 0]  # to the goal reached at c, over the remembered moves
+
+
+def test_a_memory_saved_over_places_by_the_last_release_loads_with_its_moves_and_goals(plain_env) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    reference = RouteMemory.for_env(plain_env, recognition="exact")
+    explore_fully(plain_env, reference, goal)
+    size = reference.n_states
+    saved = {  # the last release's layout: digests of the place keys' bytes, one array per (state, slot) fact
+        "n_actions": 4, "observation_space": plain_env.observation_space, "goal_keys": reference.goal_keys,
+        "success_reward": 0.0, "max_states": 1_000_000, "place_frame": reference.place_frame, "retry_after": 50,
+        "max_cache_bytes": 1 << 20, "goal_tolerance": 1e-4, "_state_of": dict(reference.recogniser._exact),
+        "_size": size, "outcome": reference.outcome[:size].copy(), "target": reference.target[:size].copy(),
+        "arrival": reference.arrival[:size].copy(), "last_tried": reference.last_tried[:size].copy(),
+        "clock": reference.clock, "aliased": set(), "_disputes": {}, "_reached": {}, "_goal_vectors": {},
+        "_pictures": [], "_picture_states": [],
+    }  # fmt: skip
+    memory = RouteMemory.__new__(RouteMemory)
+    memory.__setstate__(saved)
+    assert memory.n_states == size and memory.clock == reference.clock
+    lengths, hops = route_lengths(plain_env, memory, goal)
+    np.testing.assert_array_equal(lengths, hops)
 
 
 def test_bad_arguments_name_what_is_wrong() -> None:
@@ -476,7 +752,5 @@ def test_bad_arguments_name_what_is_wrong() -> None:
         RouteMemory(4, spaces.Box(0, 1, (2,)), goal_keys=["goal"])
     with pytest.raises(ValueError, match="out of range"):
         RouteMemory(2).add(np.array([0.0]), 5, np.array([1.0]), 0.0, False)
-
-
-def _batch(observation: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    return {key: np.asarray(value)[None] for key, value in observation.items()}
+    with pytest.raises(ValueError, match="recognition must be one of"):
+        RouteMemory(2, recognition="fuzzy")

@@ -115,8 +115,8 @@ class RouteMemoryLayer:
           memory has none; rollouts may also re-try a road blocked ``retry_after`` transitions ago where that route is
           shorter (a reopened road is found again);
         - exploration (epsilon's share and the warm-up) drives to the nearest untried (place, slot) and tries it
-          (Go-Explore's return-then-explore); the algorithm's greedy action at unseen places, a uniform action where
-          nothing untried can be reached. Setting ``explore=False``: epsilon explores as DQN's;
+          (Go-Explore's return-then-explore); a uniform action where the memory knows no way there (a place it does
+          not recognise, nothing untried within reach). Setting ``explore=False``: epsilon explores as DQN's;
         - evaluation never learns, so a move that just left an env where it was (a bump) is not given again at that
           place for the rest of its episode: the algorithm's best other action instead. It needs to know the envs
           and their episodes: SB3's convention for per-env state, ``episode_start`` (``evaluate_policy`` passes it);
@@ -292,14 +292,13 @@ class RouteMemoryLayer:
         return super()._sample_action(learning_starts, action_noise, n_envs)  # type: ignore[misc]
 
     def _explore(self, observation: Any, state: Any, episode_start: Any) -> np.ndarray:
-        """Exploration with the memory: towards the nearest untried move; the algorithm's greedy action at unseen
-        places; a uniform action where nothing untried can be reached."""
+        """Exploration with the memory: towards the nearest untried move; a uniform action where the memory knows
+        none (a place it does not recognise, or nothing untried within reach)."""
         assert self._explorer is not None and self.memory is not None
         batched, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
         states = self.memory.states_of(batch)
         actions = self._explorer.actions_at(states, batch)
-        actions, _ = self._greedy_where(states < 0, actions, batch, state, episode_start)
-        actions = self._uniform_where(actions)
+        actions = self._uniform_where(actions)  # epsilon's own draw where the memory knows no way to the untried
         return actions if batched else actions[0]
 
     def _routes(

@@ -1,0 +1,382 @@
+"""How much of the route memory's behaviour its tests pin down: single-behaviour mutations, each run against them.
+
+Each mutation changes one behaviour of ``sb3_dcqn/route_memory/`` (one exact text replacement: a retry removed, an
+LRU that evicts the newest, stale routes reused after a road is lost, ``achieved_goal`` read, an aliased state routed
+through, a wrong arrival frame, success ignored, ...). The memory's tests (``tests/test_route_memory*.py``) run
+against a copy of the tree with that one change; the mutation is *killed* when they fail. A surviving mutation is a
+behaviour no test specifies. Writes ``results/memory_mutations.md``.
+
+Usage::
+
+    python benchmarks/memory_mutations.py                 # every mutation (about 30 s each on one core)
+    python benchmarks/memory_mutations.py --only 3 17     # some of them
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish
+
+ROOT = Path(__file__).resolve().parents[1]
+MEMORY = "sb3_dcqn/route_memory"
+TESTS = sorted(str(path.relative_to(ROOT)) for path in (ROOT / "tests").glob("test_route_memory*.py"))
+LAYER_TESTS = "tests/test_route_memory_layer.py"  # trains agents: run apart, not for every mutation
+
+
+@dataclass(frozen=True)
+class Mutation:
+    """One behaviour changed: ``old`` (found exactly once in ``module``) becomes ``new``."""
+
+    module: str
+    what: str
+    old: str
+    new: str
+
+
+MUTATIONS = (
+    # The recogniser
+    Mutation(
+        "places",
+        "every view must match (a barrier makes a new place)",
+        "self.kth = views - 1 if views >= 4 else views",
+        "self.kth = views",
+    ),
+    Mutation(
+        "places",
+        "two shared views of four make one place",
+        "self.kth = views - 1 if views >= 4 else views",
+        "self.kth = max(1, views - 2)",
+    ),
+    Mutation(
+        "places",
+        "a second place as near is no reason for doubt",
+        "if first <= self.known and second >= self.new:",
+        "if first <= self.known:",
+    ),
+    Mutation(
+        "places",
+        "no unsure band: what is not known is new",
+        "if first >= self.new:\n            return self._new",
+        "if first > self.known:\n            return self._new",
+    ),
+    Mutation(
+        "places",
+        "the graph's prior never settles an unsure picture",
+        "if nearest == expected and second >= self.new:",
+        "if False:",
+    ),
+    Mutation(
+        "places",
+        "an expected place is taken anywhere short of new",
+        "if 0 <= expected < self.n_states and self._exact_distances(row, np.array([expected]))[0] <= self.known:",
+        "if 0 <= expected < self.n_states and self._exact_distances(row, np.array([expected]))[0] < self.new:",
+    ),
+    Mutation(
+        "places",
+        "any split of the distances separates places",
+        "self.separable = impostor >= SEPARATION * genuine",
+        "self.separable = impostor > genuine",
+    ),
+    Mutation(
+        "places",
+        "a prototype is its first picture (no averaging)",
+        "self._prototypes[agreeing, state] += difference[agreeing] / count",
+        "pass",
+    ),
+    Mutation(
+        "places",
+        "exact repeats do not count in the calibration",
+        "zeros = np.zeros(min(self._repeats, len(pairs)), dtype=np.float64)",
+        "zeros = np.zeros(0, dtype=np.float64)",
+    ),
+    Mutation("places", "thresholds never renewed", "return self._shown_since >= self.window", "return False"),
+    Mutation("places", "no cap on states", "if not add or self.n_states >= self.max_states:", "if not add:"),
+    Mutation(
+        "places",
+        "guesses before the first calibration",
+        "if not self.separable:\n            return -1, Answer.UNSURE",
+        "if self.separable is False:\n            return -1, Answer.UNSURE",
+    ),
+    # The moves
+    Mutation(
+        "edges",
+        "no way back inferred",
+        "elif far_outcome in (Outcome.UNTRIED, Outcome.INFERRED, Outcome.INFERRED_BLOCKED):",
+        "elif False:",
+    ),
+    Mutation(
+        "edges",
+        "a wrong arrival frame on the inferred way back",
+        "(slot - self.reverse_action) % self.n_slots)",
+        "(slot + 1 - self.reverse_action) % self.n_slots)",
+    ),
+    Mutation(
+        "edges",
+        "a bump closes one end only",
+        "if self.outcome[far, back] in ROUTES and self.target[far, back] == state:",
+        "if False:",
+    ),
+    Mutation(
+        "edges",
+        "a bump on an inferred way back closes the road forward",
+        "if not observed_road or back is None:",
+        "if back is None:",
+    ),
+    Mutation(
+        "edges",
+        "an inference revives an observed bump",
+        "elif far_outcome in (Outcome.UNTRIED, Outcome.INFERRED, Outcome.INFERRED_BLOCKED):",
+        "elif far_outcome in (Outcome.UNTRIED, Outcome.INFERRED, Outcome.INFERRED_BLOCKED, Outcome.BLOCKED):",
+    ),
+    Mutation(
+        "edges",
+        "no backoff between retries",
+        "wait = self.retry_after * 2 ** np.minimum(failures - 1, MAX_BACKOFF)",
+        "wait = self.retry_after",
+    ),
+    Mutation(
+        "edges",
+        "retries removed",
+        "return closed & (self.clock - self.last_tried[rows] >= wait)",
+        "return closed & False",
+    ),
+    Mutation(
+        "edges",
+        "a closure is retried at once",
+        "return closed & (self.clock - self.last_tried[rows] >= wait)",
+        "return closed",
+    ),
+    Mutation(
+        "edges",
+        "one odd outcome marks an alias",
+        "if sum(count >= 2 for count in counts.values()) >= 2",
+        "if sum(count >= 1 for count in counts.values()) >= 2",
+    ),
+    Mutation(
+        "edges",
+        "aliased states routed through",
+        "if self.aliased:\n            moves &=",
+        "if False:\n            moves &=",
+    ),
+    Mutation(
+        "edges",
+        "a dead end is a move",
+        "self._set(state, slot, Outcome.DEAD_END, following)",
+        "self._drive(state, slot, following, arrival)",
+    ),
+    Mutation(
+        "edges",
+        "pose states keep the other headings of a lost road",
+        "if self.forget_moves_into_on_bump and was_move:",
+        "if False:",
+    ),
+    Mutation(
+        "edges",
+        "a lost move is not marked",
+        "self.lost_move_version = self.version\n\n    def _bump",
+        "pass\n\n    def _bump",
+    ),
+    # The planner and its cache
+    Mutation(
+        "planner",
+        "the LRU evicts the newest",
+        "_, (_, evicted) = self._entries.popitem(last=False)",
+        "_, (_, evicted) = self._entries.popitem(last=True)",
+    ),
+    Mutation(
+        "planner",
+        "an entry larger than the bound is kept",
+        "if value.nbytes > self.max_bytes:\n            return",
+        "if False:\n            return",
+    ),
+    Mutation(
+        "planner",
+        "stale hops reused after a road is lost",
+        "if entry is not None and entry[0] >= self.edges.lost_move_version and",
+        "if entry is not None and",
+    ),
+    Mutation(
+        "planner",
+        "the highest slot wins a tie",
+        "best = cost.argmin(axis=1)",
+        "best = cost.shape[1] - 1 - cost[:, ::-1].argmin(axis=1)",
+    ),
+    Mutation(
+        "planner",
+        "hops count one short",
+        "        count = 1\n        hops[level] = count",
+        "        count = 0\n        hops[level] = count",
+    ),
+    # Goals
+    Mutation(
+        "memory",
+        "achieved_goal read where a frame is declared",
+        "legacy = place_frame is None and ACHIEVED_GOAL_KEY in keys",
+        "legacy = ACHIEVED_GOAL_KEY in keys",
+    ),
+    Mutation(
+        "goals",
+        "goal vectors must be equal (no tolerance)",
+        "np.abs(vector - row).max() <= self.goal_tolerance:\n                return known",
+        "np.abs(vector - row).max() < 0:\n                return known",
+    ),
+    Mutation(
+        "goals",
+        "a goal's place is not looked up again when states are added",
+        "version = (self.version << 32) + self.recogniser.version",
+        "version = self.version",
+    ),
+    Mutation(
+        "goals",
+        "the matcher asked for known pictures too",
+        "if answers[0] == Answer.KNOWN:\n            return {int(states[0])}",
+        "if False:\n            return {int(states[0])}",
+    ),
+    Mutation(
+        "goals",
+        "a goal picture the recogniser does not know goes to its nearest place",
+        "if self.place_matcher is None or self.recogniser.n_states == 0:\n            return set()",
+        "if self.place_matcher is None or self.recogniser.n_states == 0:\n"
+        "            return {int(np.argmin(self.recogniser.distances(rows[0])))} "
+        "if self.recogniser.n_states else set()",
+    ),
+    # The facade
+    Mutation(
+        "memory",
+        "is_success ignored",
+        "reached = np.asarray(successes).reshape(-1).astype(bool)",
+        "reached = rewards > 0",
+    ),
+    Mutation(
+        "memory",
+        "success guessed from the reward",
+        "reached = rewards > self.success_reward if self.success_reward is not None else np.zeros_like(terminated)",
+        "reached = rewards > 0",
+    ),
+    Mutation(
+        "memory",
+        "transitions held before calibration are dropped",
+        "for held in pending:\n                self._remember(*held)",
+        "for held in pending[-1:]:\n                self._remember(*held)",
+    ),
+    Mutation("memory", "an unsure picture is recorded as leading outside", "if skip or state < 0:", "if state < 0:"),
+    Mutation(
+        "memory",
+        "no guard on states growing like transitions",
+        "elif transitions >= GUARD_WINDOW and new > GROWTH_GUARD * transitions:",
+        "elif False:",
+    ),
+    Mutation(
+        "memory",
+        "slots ignore the frame",
+        "return (frames + actions) % self.n_actions if self._relative() else actions",
+        "return actions",
+    ),
+    Mutation(
+        "memory",
+        "no retry when passing by an aged closure",
+        "slots = np.where((aged := self._retry_due_roads(states)) >= 0, aged, slots)",
+        "pass",
+    ),
+    Mutation(
+        "memory",
+        "no expected place: no localisation on the graph",
+        "expected=self._expected(states, slots))",
+        "expected=None)",
+    ),
+    Mutation(
+        "memory",
+        "exploration never returns to a closed slot that is due",
+        "return path_to(self.edges, state, due, exclude)",
+        "return None",
+    ),
+    Mutation(
+        "explorer",
+        "envs chase the same untried pair",
+        "slots = self.memory.path_to_untried(state, self._claimed(env))",
+        "slots = self.memory.path_to_untried(state)",
+    ),
+)
+
+
+def run_tests(tree: Path, tests: list[str]) -> bool:
+    """Whether the tests pass in ``tree`` (one process, one thread)."""
+    env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MPLBACKEND": "Agg"}
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests],
+        cwd=tree, env=env, capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    return done.returncode == 0
+
+
+def copy_tree(into: Path) -> None:
+    """The packages, tests and settings copied into ``into``."""
+    for part in ("sb3_dcqn", "campusnav_env", "tests", "benchmarks", "pyproject.toml"):
+        source = ROOT / part
+        if source.is_dir():
+            shutil.copytree(source, into / part, ignore=shutil.ignore_patterns("__pycache__", "results"))
+        else:
+            shutil.copy2(source, into / part)
+
+
+def mutated_copy(mutation: Mutation, into: Path) -> None:
+    """The tree copied into ``into`` with the mutation applied (which must match exactly once)."""
+    copy_tree(into)
+    path = into / MEMORY / f"{mutation.module}.py"
+    text = path.read_text()
+    count = text.count(mutation.old)
+    if count != 1:
+        raise ValueError(f"mutation {mutation.what!r}: its text is found {count} times in {path.name}, not once")
+    path.write_text(text.replace(mutation.old, mutation.new))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", type=int, nargs="*", help="numbers of the mutations to run (default: all)")
+    parser.add_argument("--with-layer", action="store_true", help=f"also run {LAYER_TESTS} (agents train: slower)")
+    parser.add_argument("--out", type=Path, default=None, help="results file (default: results/memory_mutations.md)")
+    args = parser.parse_args()
+    tests = TESTS if args.with_layer else [test for test in TESTS if test != LAYER_TESTS]
+    chosen = args.only if args.only else list(range(1, len(MUTATIONS) + 1))
+    rows, killed = [], 0
+    with tempfile.TemporaryDirectory() as scratch:
+        baseline = Path(scratch) / "baseline"
+        baseline.mkdir()
+        copy_tree(baseline)
+        if not run_tests(baseline, tests):
+            raise SystemExit("the memory's tests fail on the unmutated tree: nothing to measure")
+        for number in chosen:
+            mutation = MUTATIONS[number - 1]
+            tree = Path(scratch) / f"mutant-{number}"
+            tree.mkdir()
+            mutated_copy(mutation, tree)
+            start = time.perf_counter()
+            dead = not run_tests(tree, tests)
+            shutil.rmtree(tree)
+            killed += dead
+            rows.append([str(number), mutation.module, mutation.what, "killed" if dead else "**survived**"])
+            print(f"{number:3d} {mutation.module:9s} {'killed  ' if dead else 'SURVIVED'} {mutation.what}"
+                  f" ({time.perf_counter() - start:.0f} s)", flush=True)  # fmt: skip
+    lines = [
+        "# Route memory: single-behaviour mutations against its tests",
+        "",
+        f"{killed} of {len(rows)} mutations killed by `{' '.join(tests)}`.",
+        "",
+        machine_line("one pytest process per mutation"),
+        "",
+        *markdown_table(["#", "module", "behaviour changed", "tests"], rows),
+    ]
+    publish(args.out or RESULTS_DIR / "memory_mutations.md", lines, "memory_mutations.py", None)
+
+
+if __name__ == "__main__":
+    main()

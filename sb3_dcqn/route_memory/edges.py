@@ -1,0 +1,233 @@
+"""What the memory knows of each move: per ``(state, slot)``, its latest outcome, where it led and when it was tried.
+
+Outcomes (:class:`Outcome`) are either **observed** (the agent made that move: ``DRIVEN``, ``BLOCKED``, ``DEAD_END``,
+``OUTSIDE``) or **inferred** from a move at the road's other end, where the env declares two-way roads (``INFERRED``:
+the way back of a driven road; ``INFERRED_BLOCKED``: the other end of a road seen closed). An observed outcome
+outranks an inferred one: an inference never overwrites an observation, except that a road seen closed from one end
+is believed closed from the other (closures close both ways) until it is driven again. Bumping into an inferred way
+back (a one-way road) says the inference was wrong and closes nothing else.
+
+A slot that led to two different states, each at least twice, marks its state *aliased* (two places that picture
+the same): routes never go through it. One odd outcome (a glitch) leaves it alone and the latest outcome wins.
+
+A closed slot is a fact with an age: ``last_tried`` (the memory's clock, in transitions) and ``failures`` (bumps in a
+row) say when it may be tried again (:meth:`EdgeStore.retry_due`): ``retry_after`` transitions after the first bump,
+twice that after the second, and so on (a slot that never had a road is tried ever more rarely).
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+import numpy as np
+
+__all__ = ["CLOSED", "ROUTES", "EdgeStore", "Outcome"]
+
+MAX_BACKOFF = 16  # a closed slot is retried after at most retry_after * 2**16 transitions
+
+
+class Outcome(IntEnum):
+    """The latest outcome of a ``(state, slot)``."""
+
+    UNTRIED = 0  # never tried
+    DRIVEN = 1  # driven: leads to its target
+    INFERRED = 2  # the way back of a driven road (two-way roads): routes use it, exploration does not seek it
+    BLOCKED = 3  # bumped into: no road, or a closed one (its target kept where it was driven before)
+    DEAD_END = 4  # its episode ended without success
+    OUTSIDE = 5  # led to a state past the memory's size
+    INFERRED_BLOCKED = 6  # the other end of a road seen closed: believed closed until driven or retried
+
+
+ROUTES = (Outcome.DRIVEN, Outcome.INFERRED)
+CLOSED = (Outcome.BLOCKED, Outcome.INFERRED_BLOCKED)
+_FILL = {"outcome": Outcome.UNTRIED, "target": -1, "arrival": -1, "last_tried": 0, "failures": 0}
+_DTYPES = {"outcome": np.int8, "target": np.int32, "arrival": np.int8, "last_tried": np.int64, "failures": np.int8}
+
+
+class EdgeStore:
+    """
+    The moves of a memory's states (see the module docstring).
+
+    :param n_slots: Slots per state (the actions' number)
+    :param reverse_action: Right after a move, the action that leads back (two-way roads; the slot at the far end is
+        the arrival frame plus it); ``None``: nothing is inferred about ways back
+    :param retry_after: Transitions after a bump before a closed slot may be tried again (doubling with each bump)
+    :param forget_moves_into_on_bump: Pose states (see :meth:`forget_moves_into`): a bump where a move into a state
+        used to be makes every other move into that state untried again
+    """
+
+    def __init__(
+        self,
+        n_slots: int,
+        reverse_action: int | None = None,
+        retry_after: int = 50,
+        forget_moves_into_on_bump: bool = False,
+    ) -> None:
+        if n_slots < 1 or retry_after < 1:
+            raise ValueError(f"n_slots and retry_after must be at least 1, got {n_slots}, {retry_after}")
+        self.n_slots = int(n_slots)
+        self.reverse_action = reverse_action
+        self.retry_after = int(retry_after)
+        self.forget_moves_into_on_bump = forget_moves_into_on_bump
+        self.forgotten = 0  # moves made untried again by forget_moves_into
+        self.clock = 0  # transitions recorded
+        self.version = 0  # counts changes of moves
+        self.lost_move_version = 0  # the last change that removed a move: routes computed before it are stale
+        self.aliased: set[int] = set()
+        self._disputes: dict[tuple[int, int], dict[int, int]] = {}
+        self.n_rows = 0
+        self.outcome = np.zeros((0, n_slots), dtype=np.int8)
+        self.target = np.zeros((0, n_slots), dtype=np.int32)
+        self.arrival = np.zeros((0, n_slots), dtype=np.int8)  # the frame on arrival (-1 unknown)
+        self.last_tried = np.zeros((0, n_slots), dtype=np.int64)
+        self.failures = np.zeros((0, n_slots), dtype=np.int8)
+        self._grow(1024)
+
+    def ensure(self, states: int) -> None:
+        """Rows for ``states`` states (the arrays double as they fill)."""
+        self.n_rows = max(self.n_rows, states)
+        if states > len(self.outcome):
+            self._grow(max(states, 2 * len(self.outcome)))
+
+    def _grow(self, capacity: int) -> None:
+        kept = len(self.outcome)
+        for name, fill in _FILL.items():
+            grown = np.full((capacity, self.n_slots), fill, dtype=_DTYPES[name])
+            grown[:kept] = getattr(self, name)
+            setattr(self, name, grown)
+
+    def nbytes(self) -> int:
+        """Bytes per used row: int32 target, int64 last try, three int8 codes."""
+        return self.n_rows * self.n_slots * (4 + 8 + 3)
+
+    # ------------------------------------------------------------------ recording
+    def record(self, state: int, slot: int, following: int, arrival: int, dead: bool) -> None:
+        """One tried ``(state, slot)``: where it led (``following``, -1: outside the memory) and the frame there."""
+        self.clock += 1
+        self.last_tried[state, slot] = self.clock
+        if following < 0:
+            if self.outcome[state, slot] == Outcome.UNTRIED:
+                self._set(state, slot, Outcome.OUTSIDE)
+        elif dead:
+            self._set(state, slot, Outcome.DEAD_END, following)
+        elif following == state:
+            self._bump(state, slot)
+        else:
+            self._drive(state, slot, following, arrival)
+
+    def _set(
+        self, state: int, slot: int, outcome: Outcome, target: int | None = None, arrival: int | None = None
+    ) -> None:
+        """Change one ``(state, slot)``, counting a change and a lost move."""
+        was = int(self.outcome[state, slot])
+        was_move = was in ROUTES and self.target[state, slot] >= 0
+        changed = was != outcome or (target is not None and self.target[state, slot] != target)
+        self.outcome[state, slot] = outcome
+        if target is not None:
+            self.target[state, slot] = target
+        if arrival is not None:
+            self.arrival[state, slot] = arrival
+        if changed:
+            self.version += 1
+            if was_move and outcome not in ROUTES:
+                self.lost_move_version = self.version
+
+    def _bump(self, state: int, slot: int) -> None:
+        """A collision: the slot is closed; where it was a driven road, its way back is believed closed too."""
+        observed_road = self.outcome[state, slot] == Outcome.DRIVEN and self.target[state, slot] >= 0
+        was_move = self.outcome[state, slot] in ROUTES and self.target[state, slot] >= 0
+        self._set(state, slot, Outcome.BLOCKED)
+        if self.forget_moves_into_on_bump and was_move:
+            self.forgotten += self.forget_moves_into(int(self.target[state, slot]))
+        self.failures[state, slot] = min(int(self.failures[state, slot]) + 1, MAX_BACKOFF + 1)
+        back = self.back_slot(state, slot)
+        if not observed_road or back is None:
+            return  # an inferred way back that bumps is a one-way road: nothing else follows
+        far = int(self.target[state, slot])
+        self.last_tried[far, back] = self.clock
+        if self.outcome[far, back] in ROUTES and self.target[far, back] == state:
+            self._set(far, back, Outcome.INFERRED_BLOCKED)
+
+    def _drive(self, state: int, slot: int, following: int, arrival: int) -> None:
+        """A move; its way back is inferred where nothing was observed there."""
+        known = int(self.target[state, slot])
+        contradicts = known >= 0 and known != following and self.outcome[state, slot] in (*ROUTES, *CLOSED)
+        if contradicts or (state, slot) in self._disputes:
+            self._dispute(state, slot, known, following)
+        self._set(state, slot, Outcome.DRIVEN, following, arrival)
+        self.failures[state, slot] = 0
+        back = self.back_slot(state, slot)
+        if back is None:
+            return
+        far_outcome, far_target = int(self.outcome[following, back]), int(self.target[following, back])
+        if far_outcome == Outcome.DRIVEN and far_target >= 0 and far_target != state:
+            self._dispute(following, back, far_target, state)  # the way back was driven and led elsewhere
+        elif far_outcome in (Outcome.UNTRIED, Outcome.INFERRED, Outcome.INFERRED_BLOCKED):
+            # Arriving back here the agent would face away from the road, so that "back" again leads along it
+            self._set(following, back, Outcome.INFERRED, state, (slot - self.reverse_action) % self.n_slots)
+
+    def back_slot(self, state: int, slot: int) -> int | None:
+        """The slot at the far end of a known move that leads back (two-way roads), else ``None``."""
+        if self.reverse_action is None or self.target[state, slot] < 0 or self.arrival[state, slot] < 0:
+            return None
+        return (int(self.arrival[state, slot]) + self.reverse_action) % self.n_slots
+
+    def _dispute(self, state: int, slot: int, known: int, following: int) -> None:
+        """A slot that led to ``known`` now leads to ``following``: twice each, and the state is aliased."""
+        counts = self._disputes.setdefault((state, slot), {known: 1} if known >= 0 else {})
+        counts[following] = counts.get(following, 0) + 1
+        if sum(count >= 2 for count in counts.values()) >= 2 and state not in self.aliased:
+            self.aliased.add(state)
+            self.version += 1
+
+    def forget_moves_into(self, lost: int) -> int:
+        """
+        Every remembered move into ``lost`` becomes untried again; returns how many. With pose states, where the state
+        after a move tells which road was taken (the place and the heading away from it), they are the same road seen
+        from the other headings, so one bump closes it for all of them.
+        """
+        rows = slice(0, self.n_rows)
+        into = (self.target[rows] == lost) & np.isin(self.outcome[rows], ROUTES)
+        if into.any():
+            self.outcome[rows][into] = Outcome.UNTRIED
+            self.version += 1
+            self.lost_move_version = self.version
+        return int(into.sum())
+
+    # ------------------------------------------------------------------ reading
+    def retry_due(self, rows: np.ndarray) -> np.ndarray:
+        """Which closed ``(state, slot)`` pairs of the rows may be tried again (their backoff has passed)."""
+        failures = np.maximum(self.failures[rows].astype(np.int64), 1)
+        wait = self.retry_after * 2 ** np.minimum(failures - 1, MAX_BACKOFF)
+        closed = np.isin(self.outcome[rows], CLOSED)
+        return closed & (self.clock - self.last_tried[rows] >= wait)
+
+    def moves(self, rows: np.ndarray, retry: bool = False) -> np.ndarray:
+        """Which ``(state, slot)`` pairs of the rows lead to another state (routes go along them); with ``retry`` also
+        closed roads whose retry is due. Never out of an aliased state."""
+        successors = self.target[rows]
+        routable = np.isin(self.outcome[rows], ROUTES)
+        if retry:
+            routable |= self.retry_due(rows)
+        moves = routable & (successors >= 0) & (successors != rows[:, None])
+        if self.aliased:
+            moves &= ~np.isin(rows, list(self.aliased))[:, None]
+        return moves
+
+    def untried(self, rows: np.ndarray) -> np.ndarray:
+        return self.outcome[rows] == Outcome.UNTRIED
+
+    def n_tried(self) -> int:
+        """Pairs tried (inferred outcomes are not tries)."""
+        outcomes = self.outcome[: self.n_rows]
+        return int(np.isin(outcomes, (Outcome.DRIVEN, Outcome.BLOCKED, Outcome.DEAD_END, Outcome.OUTSIDE)).sum())
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        for name in _FILL:
+            state[name] = getattr(self, name)[: self.n_rows].copy()
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._grow(max(1024, 2 * self.n_rows))

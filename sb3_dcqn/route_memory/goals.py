@@ -1,0 +1,192 @@
+"""Where each goal is, among the memory's states.
+
+A goal is asked for by the observation's goal keys (CampusNav's ``goal_views``, a goal env's ``desired_goal``; none:
+one goal for every observation). It is *at* a set of states:
+
+- the states a success reached under that goal (the env's ``info["is_success"]``): every env, pictures or not; goal
+  vectors within ``goal_tolerance`` in every entry are one goal (as the env accepts them);
+- where the env declares that a goal key pictures a place (:mod:`sb3_dcqn.place_frame`), the state the recogniser
+  names for the goal's picture (``KNOWN`` only: a goal picture that is new or unsure has no place, and the critics
+  act). A picture the recogniser does not know may be handed to a :class:`PlaceMatcher` (the prototypes as
+  references), where one is given;
+- for pose states of an SB3 goal env without a declared frame, the states whose ``achieved_goal`` equals the goal's
+  ``desired_goal`` (SB3's goal-env convention).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+from sb3_dcqn.route_memory.places import Answer, PlaceRecogniser, digest
+from sb3_dcqn.route_memory.planner import BoundedCache
+
+__all__ = ["ACHIEVED_GOAL_KEY", "GoalIndex", "PlaceMatcher"]
+
+ACHIEVED_GOAL_KEY = "achieved_goal"
+MAX_GOALS_ASKED = 20_000  # distinct goal pictures kept for a place matcher (a sample of their conditions)
+
+
+class PlaceMatcher(Protocol):
+    """Finds the remembered place of goal pictures the recogniser does not know (e.g. pictured at night)."""
+
+    def match(
+        self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, goal_pictures: np.ndarray | None = None
+    ) -> np.ndarray:
+        """
+        :param queries: ``(m, d)`` goal pictures
+        :param references: ``(n, d)`` the memory's place pictures (prototypes)
+        :param labels: ``(n,)`` each reference's state
+        :param goal_pictures: ``(k, d)`` the goal pictures the memory was asked about (no place named)
+        :return: ``(m,)`` the matched reference row of each query, -1: not in memory
+        """
+        ...
+
+
+class GoalIndex:
+    """
+    The states each goal is at (see the module docstring).
+
+    :param asked_keys: The keys that name the asked goal (sorted; none: one goal)
+    :param picture_key: The goal key whose pictures show a place (``None``: goals by successes only)
+    :param recogniser: The memory's recogniser (states of places)
+    :param cache: Where answers are kept (shared with the planner)
+    :param achieved_key: SB3's ``achieved_goal`` key, for pose states without a frame (``None``: never read)
+    :param goal_tolerance: Goal vectors within this in every entry are one goal
+    :param place_matcher: For goal pictures the recogniser does not know
+    :param picture_rows: Goal pictures (a batch) as the recogniser's rows (default: flattened float32)
+    """
+
+    def __init__(
+        self,
+        asked_keys: Sequence[str],
+        picture_key: str | None,
+        recogniser: PlaceRecogniser,
+        cache: BoundedCache,
+        achieved_key: str | None = None,
+        goal_tolerance: float = 1e-4,
+        place_matcher: PlaceMatcher | None = None,
+        picture_rows: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> None:
+        self.asked_keys = tuple(sorted(asked_keys))
+        self.picture_key = picture_key
+        self.recogniser = recogniser
+        self.cache = cache
+        self.achieved_key = achieved_key
+        self.goal_tolerance = float(goal_tolerance)
+        self.place_matcher = place_matcher
+        self.picture_rows = picture_rows
+        self.version = 0  # counts changes of what goals attach to
+        self._reached: dict[bytes, set[int]] = {}
+        self._vectors: dict[bytes, np.ndarray] = {}  # goal vectors reached (within the tolerance: one goal)
+        self._achieved: dict[bytes, tuple[np.ndarray, set[int]]] = {}  # achieved_goal picture -> states at it
+        self._asked: dict[bytes, np.ndarray] = {}  # goal pictures asked about (a matcher's sample of their conditions)
+
+    @property
+    def conditioned(self) -> bool:
+        """Whether episodes end at their own goal (a goal env): an end without success is then no dead end."""
+        return self.picture_key is not None or self.achieved_key is not None
+
+    def nbytes(self) -> int:
+        vectors = sum(v.nbytes for v in self._vectors.values()) + sum(v.nbytes for v in self._asked.values())
+        achieved = sum(vector.nbytes + 8 * len(states) for vector, states in self._achieved.values())
+        links = sum(len(states) for states in self._reached.values())
+        return vectors + achieved + 8 * links + 16 * (len(self._reached) + len(self._achieved) + len(self._asked))
+
+    # ------------------------------------------------------------------ asked goals
+    def digests(self, observations: Any, batch: int) -> list[bytes]:
+        """The goal each observation asks for (one shared goal where it names none)."""
+        rows = self.rows(observations, batch)
+        if rows is None:
+            return [b""] * batch
+        return [digest(row.tobytes()) for row in rows]
+
+    def rows(self, observations: Any, batch: int) -> np.ndarray | None:
+        """The asked goal keys of a batch as float64 rows (``None`` where no key names the goal)."""
+        if not self.asked_keys or not isinstance(observations, Mapping):
+            return None
+        return np.concatenate(
+            [np.asarray(observations[key], dtype=np.float64).reshape(batch, -1) for key in self.asked_keys], axis=1
+        )
+
+    # ------------------------------------------------------------------ learning where goals are
+    def add_reached(self, observations: Any, states: np.ndarray) -> None:
+        """Goals reached by success transitions (their vectors kept: a goal given within the tolerance)."""
+        rows = self.rows(observations, len(states))
+        for index, state in enumerate(states.tolist()):
+            if state < 0:
+                continue
+            row = None if rows is None else rows[index]
+            goal = self._canonical(b"" if row is None else digest(row.tobytes()), row, add=True)
+            if state not in self._reached.setdefault(goal, set()):
+                self._reached[goal].add(int(state))
+                self.version += 1
+
+    def _canonical(self, goal: bytes, row: np.ndarray | None, add: bool = False) -> bytes:
+        """The goal a vector within the tolerance of a reached one stands for (itself if new)."""
+        if goal in self._vectors or row is None:
+            return goal
+        for known, vector in self._vectors.items():
+            if vector.shape == row.shape and np.abs(vector - row).max() <= self.goal_tolerance:
+                return known
+        if add:
+            self._vectors[goal] = np.array(row, dtype=np.float64)
+        return goal
+
+    def add_achieved(self, observations: Mapping[str, Any], states: np.ndarray) -> None:
+        """Pose states of a goal env: attach each state to the picture its ``achieved_goal`` shows."""
+        pictures = np.asarray(observations[self.achieved_key], dtype=np.float64).reshape(len(states), -1)
+        for picture, state in zip(pictures, states.tolist(), strict=True):
+            if state < 0:
+                continue
+            entry = self._achieved.setdefault(digest(picture.tobytes()), (picture.copy(), set()))
+            if state not in entry[1]:
+                entry[1].add(int(state))
+                self.version += 1
+
+    # ------------------------------------------------------------------ where a goal is
+    def states(self, goal: bytes, observations: Any, index: int, batch: int) -> np.ndarray:
+        """The states where the goal of observation ``index`` of a batch is reached (empty: not in memory)."""
+        key = ("goal", goal)
+        version = (self.version << 32) + self.recogniser.version
+        cached = self.cache.get(key)
+        if cached is not None and cached[0] == version:
+            return cached[1]
+        rows = self.rows(observations, batch)
+        row = None if rows is None else rows[index]
+        found = set(self._reached.get(self._canonical(goal, row), ()))
+        if self.picture_key is not None and isinstance(observations, Mapping):
+            found |= self._pictured(np.asarray(observations[self.picture_key])[index])
+        if self.achieved_key is not None and row is not None:
+            found |= self._achieved_states(row)
+        states = np.array(sorted(found), dtype=np.int64)
+        self.cache.put(key, version, states)
+        return states
+
+    def _pictured(self, picture: np.ndarray) -> set[int]:
+        """The state a goal picture shows: the recogniser's known place, else the matcher's answer."""
+        row = np.asarray(picture, dtype=np.float32).reshape(1, -1)
+        rows = row if self.picture_rows is None else self.picture_rows(np.asarray(picture)[None])
+        states, answers = self.recogniser.recognise(rows)
+        if answers[0] == Answer.KNOWN:
+            return {int(states[0])}
+        if self.place_matcher is None or self.recogniser.n_states == 0:
+            return set()
+        if len(self._asked) < MAX_GOALS_ASKED:
+            self._asked.setdefault(digest(row.tobytes()), row[0].copy())
+        references = np.stack([self.recogniser.prototype(s) for s in range(self.recogniser.n_states)])
+        labels = np.arange(len(references), dtype=np.int64)
+        asked = np.stack(list(self._asked.values()))
+        matched = int(self.place_matcher.match(row, references, labels, asked)[0])
+        return set() if matched < 0 else {matched}
+
+    def _achieved_states(self, row: np.ndarray) -> set[int]:
+        entry = self._achieved.get(digest(row.tobytes()))
+        if entry is not None:
+            return set(entry[1])
+        for vector, states in self._achieved.values():
+            if vector.shape == row.shape and np.abs(vector - row).max() <= self.goal_tolerance:
+                return set(states)
+        return set()

@@ -1,0 +1,433 @@
+"""Which remembered place a picture shows: the one recogniser behind every "same place?" the route memory asks.
+
+A place is pictured by ``views`` equal blocks (CampusNav: four views in compass order). Two pictures of one place taken
+on two visits differ (light, passing cars, a camera a little off, sensor noise); two places differ more. The
+recogniser answers each picture with one of three :class:`Answer`\\ s:
+
+- ``KNOWN``: a remembered place (its state);
+- ``NEW``: no remembered place (a new state where the caller adds one);
+- ``UNSURE``: neither clearly; the caller does not act on it (the critics act, nothing is recorded).
+
+**The fast path** is bit identity: a picture seen before (its 16-byte digest) is its place at once. **Otherwise** the
+picture is compared with every place's *prototype* (the running mean of its pictures) view by view, and the
+*distance* to a place is the k-th smallest of the per-view L2 distances, ``k = views - 1`` from four views on: one
+view may differ wholly (a construction barrier in it, a bus in front of the camera) and the place is still the place,
+while two places that share two of four views are never one. A picture is ``KNOWN`` at distance ``<= known`` from one
+place and ``>= new`` from every other, ``NEW`` at ``>= new`` from all; between the two thresholds it is ``UNSURE``.
+The caller may name the place it expects (where a remembered place and slot led before: localisation on the graph,
+as PlaceNav's filter); an expected place within ``known`` is taken without searching, and one that is the nearest
+place turns an ``UNSURE`` into ``KNOWN``.
+
+**Calibration on the agent's own pictures.** The thresholds come from the pictures the memory is shown, not from a
+setting: the latest distinct pictures (a window) and the count of exact repeats among them. The distance between two
+pictures of the window is either that of two visits of one place (small: noise, light) or of two places (large), so
+the distances of all pairs (of a sample of up to ``CALIBRATION_SAMPLE`` pictures) fall into two groups, split where
+their sorted logarithms jump the most (exact repeats count as distance 0). With ``g`` the 90th percentile of the
+repeat group and ``i`` the 10th of the other, ``known`` and ``new`` split ``[g, i]`` into thirds on a log scale.
+Where ``i < 2 g`` the pictures do not separate places: :attr:`PlaceRecogniser.separable` is ``False`` and every
+picture that is not an exact repeat of a remembered one is ``UNSURE``. Until the first calibration
+(``min_calibration`` distinct pictures) the same holds, so no state is made before it. The thresholds are
+renewed each time ``window`` new pictures have been shown, so they follow a world whose pictures drift.
+
+Cost: a search screens every place by a sketch of its prototype (a seeded random projection to ``SKETCH_DIM``
+numbers; a batch of pictures is one matrix product) and compares the ``SCREEN_CANDIDATES`` nearest exactly, view by
+view; an expected place that matches costs one comparison. Bytes: per state a float32 prototype, an int32
+count and a 16-byte digest for each of at most ``MAX_DIGESTS_PER_STATE`` pictures; the window's pictures.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from enum import IntEnum
+
+import numpy as np
+
+__all__ = ["MAX_DIGESTS_PER_STATE", "Answer", "PlaceRecogniser", "digest", "widest_gap"]
+
+MAX_DIGESTS_PER_STATE = 8  # exact pictures remembered per place: repeats are found at once, varied ones by search
+SEARCH = -1  # _quick's word for "a search is needed"
+SKETCH_DIM = 32  # numbers per picture in the screen
+SCREEN_CANDIDATES = 32  # states the screen hands to the exact comparison (all of them where there are fewer)
+SCREEN_CHUNK = 256  # pictures screened against every state at once
+RECENT_PICTURES = 256  # beyond those, the latest pictures recognised (a transition's end is the next one's start)
+PROTOTYPE_HORIZON = 32  # a prototype is the mean of a place's last pictures, about this many
+KNOWN_SHARE = 1 / 3  # of the log gap between repeat visits and other places: KNOWN below, UNSURE up to NEW_SHARE
+NEW_SHARE = 2 / 3
+SEPARATION = 2.0  # the other places' low quantile over the repeat visits' high one: below this, no two groups
+GENUINE_QUANTILE = 90.0
+IMPOSTOR_QUANTILE = 10.0
+CALIBRATION_SAMPLE = 256  # pictures of the window whose every pair is measured (32,640 pairs)
+MIN_GROUP = 3  # pairs on each side of the split, at least
+_EXACT_FLOOR = 1e-4  # an exact repeat's distance, relative to the median distance between places (for logarithms)
+
+
+class Answer(IntEnum):
+    """The recogniser's answer for one picture."""
+
+    KNOWN = 0
+    NEW = 1
+    UNSURE = 2
+
+
+def digest(data: bytes) -> bytes:
+    """The memory's one digest: 16 bytes of BLAKE2b."""
+    return hashlib.blake2b(data, digest_size=16).digest()
+
+
+def widest_gap(values: np.ndarray, min_group: int) -> int | None:
+    """
+    The index ``j`` where sorted ``values`` jump the most from ``values[j - 1]`` to ``values[j]``, with at least
+    ``min_group`` values on either side (``None``: too few values).
+    """
+    if len(values) < 2 * min_group:
+        return None
+    gaps = np.diff(values)[min_group - 1 : len(values) - min_group]
+    return int(np.argmax(gaps)) + min_group
+
+
+class PlaceRecogniser:
+    """
+    The states of a route memory and the pictures that show them (see the module docstring).
+
+    :param dim: Length of a picture (all views; 0 with ``similar=False``: set by the caller before the first picture)
+    :param views: Equal blocks of a picture, one per view
+    :param similar: Recognise pictures by similarity; ``False``: by bit identity only (poses, integer observations)
+    :param max_states: The most states remembered (then a new picture gets no state)
+    :param window: Distinct pictures kept to calibrate on
+    :param min_calibration: Distinct pictures needed before the first calibration
+    """
+
+    def __init__(
+        self,
+        dim: int,
+        views: int = 1,
+        similar: bool = True,
+        max_states: int = 1_000_000,
+        window: int = 512,
+        min_calibration: int = 32,
+    ) -> None:
+        if views < 1 or (similar and (dim < 1 or dim % views)):
+            raise ValueError(f"a picture of {dim} numbers does not split into {views} equal views")
+        if window < min_calibration or min_calibration < 4:
+            raise ValueError(f"window ({window}) must be >= min_calibration ({min_calibration}) >= 4")
+        self.dim = int(dim)
+        self.views = int(views)
+        self.similar = bool(similar)
+        self.max_states = int(max_states)
+        self.window = int(window)
+        self.min_calibration = int(min_calibration)
+        # The k-th smallest per-view distance is a place's distance: one view may differ wholly from four views on
+        self.kth = views - 1 if views >= 4 else views
+        self.known: float | None = None  # thresholds, set by calibration
+        self.new: float | None = None
+        self.separable: bool | None = None  # None: not calibrated yet
+        self.n_states = 0
+        self.version = 0  # counts new states and calibrations: what a picture is recognised as may have changed
+        self._exact: dict[bytes, int] = {}
+        self._recent: OrderedDict[bytes, int] = OrderedDict()  # pictures recognised lately (past the digest cap)
+        self._digests_of = np.zeros(0, dtype=np.int8)  # per state: exact pictures remembered
+        self._prototypes = np.zeros((views, 0, max(dim, 1) // views), dtype=np.float32)  # (view, state, features)
+        # The screen: each prototype projected to SKETCH_DIM numbers by one seeded Gaussian matrix
+        self._projection = (
+            np.random.default_rng(0)
+            .normal(0.0, 1.0 / np.sqrt(SKETCH_DIM), (max(dim, 1), SKETCH_DIM))
+            .astype(np.float32)
+            if similar
+            else np.zeros((0, SKETCH_DIM), dtype=np.float32)
+        )
+        self._sketches = np.zeros((0, SKETCH_DIM), dtype=np.float32)
+        self._sketch_squares = np.zeros(0, dtype=np.float32)
+        self._counts = np.zeros(0, dtype=np.int32)
+        # Calibration: the latest distinct pictures (a ring), exact repeats among what was shown, and shown since
+        self._window_rows = np.zeros((0, dim), dtype=np.float32)
+        self._window_digests: dict[bytes, int] = {}
+        self._next_slot = 0
+        self._repeats = 0
+        self._shown_since = 0
+        self.calibrations = 0
+        self.genuine: float | None = None  # the calibration's two quantiles
+        self.impostor: float | None = None
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def calibrated(self) -> bool:
+        return self.separable is not None
+
+    @property
+    def window_full(self) -> bool:
+        """Whether the window holds ``window`` distinct pictures (a failed calibration is then final)."""
+        return len(self._window_rows) >= self.window
+
+    def nbytes(self) -> int:
+        """Bytes of the prototypes, counts, digests and the calibration window."""
+        picture = (self.dim + SKETCH_DIM + 1) * 4 if self.similar else 0
+        states = self.n_states * (picture + 4 + 1) + 16 * (len(self._exact) + len(self._recent))
+        return states + self._window_rows.nbytes + 16 * len(self._window_digests)
+
+    # ------------------------------------------------------------------ calibration
+    def show(self, rows: np.ndarray) -> None:
+        """Pictures the agent saw (every one it is fed, once): the sample thresholds are calibrated on."""
+        if not self.similar:
+            return
+        rows = self._as_rows(rows)
+        for row in rows:
+            key = digest(row.tobytes())
+            if key in self._window_digests:
+                self._repeats += 1
+                continue
+            if len(self._window_rows) < self.window:
+                self._window_rows = np.concatenate([self._window_rows, row[None]])
+                slot = len(self._window_rows) - 1
+            else:  # the oldest distinct picture makes room
+                slot = self._next_slot
+                self._next_slot = (slot + 1) % self.window
+                old = digest(self._window_rows[slot].tobytes())
+                self._window_digests.pop(old, None)
+                self._window_rows[slot] = row
+            self._window_digests[key] = slot
+            self._shown_since += 1
+            if self._due():
+                self.calibrate()
+
+    def _due(self) -> bool:
+        distinct = len(self._window_rows)
+        if self.separable:
+            return self._shown_since >= self.window
+        # Until the pictures separate: at min_calibration distinct pictures, then each time their number doubles
+        return distinct >= self.min_calibration and (distinct & (distinct - 1) == 0 or distinct == self.window)
+
+    def calibrate(self) -> bool:
+        """Set the thresholds from the window (see the module docstring); returns whether the pictures separate."""
+        rows = self._window_rows
+        self.calibrations += 1
+        self.version += 1
+        self._shown_since = 0
+        if len(rows) < 2:
+            return False
+        if len(rows) > CALIBRATION_SAMPLE:  # every pair of a seeded sample of the window
+            rows = rows[np.random.default_rng(self.calibrations).choice(len(rows), CALIBRATION_SAMPLE, replace=False)]
+        pairs = self._pair_distances(rows)
+        zeros = np.zeros(min(self._repeats, len(pairs)), dtype=np.float64)
+        self._repeats = 0
+        scale = float(np.median(pairs)) if np.median(pairs) > 0 else 1.0
+        logs = np.sort(np.log(np.maximum(np.concatenate([zeros, pairs]), _EXACT_FLOOR * scale)))
+        split = widest_gap(logs, max(MIN_GROUP, len(logs) // 1000))
+        if split is None:
+            self.separable = False
+            return False
+        genuine = float(np.exp(np.percentile(logs[:split], GENUINE_QUANTILE)))
+        impostor = float(np.exp(np.percentile(logs[split:], IMPOSTOR_QUANTILE)))
+        self.genuine, self.impostor = genuine, impostor
+        self.separable = impostor >= SEPARATION * genuine
+        if self.separable:
+            gap = np.log(impostor) - np.log(genuine)
+            self.known = float(np.exp(np.log(genuine) + KNOWN_SHARE * gap))
+            self.new = float(np.exp(np.log(genuine) + NEW_SHARE * gap))
+        return self.separable
+
+    def _pair_distances(self, rows: np.ndarray) -> np.ndarray:
+        """The place distance of every pair of rows (upper triangle)."""
+        blocks = rows.reshape(len(rows), self.views, -1).transpose(1, 0, 2).astype(np.float64)
+        squares = (blocks**2).sum(axis=2)  # (view, row)
+        per_view = squares[:, :, None] + squares[:, None, :] - 2.0 * blocks @ blocks.transpose(0, 2, 1)
+        per_view = np.sqrt(np.maximum(per_view, 0.0))
+        distance = np.partition(per_view, self.kth - 1, axis=0)[self.kth - 1]
+        return distance[np.triu_indices(len(rows), k=1)]
+
+    # ------------------------------------------------------------------ recognition
+    def recognise(
+        self, rows: np.ndarray, *, add: bool = False, expected: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """
+        The state and :class:`Answer` of each picture.
+
+        :param rows: ``(batch, dim)`` pictures
+        :param add: A ``NEW`` picture becomes a new state (while fewer than ``max_states``), a ``KNOWN`` one updates its
+            place's prototype
+        :param expected: Per picture, the state the caller expects it to show (-1: none)
+        :return: int64 states (-1: none) and int8 answers
+        """
+        rows = self._as_rows(rows)
+        states = np.full(len(rows), -1, dtype=np.int64)
+        answers = np.full(len(rows), Answer.UNSURE, dtype=np.int8)
+        hints = np.full(len(rows), -1, dtype=np.int64) if expected is None else np.asarray(expected, dtype=np.int64)
+        keys = [digest(row.tobytes()) for row in rows]
+        if add:  # in order: each picture may make the state a later one is
+            for index, (row, key) in enumerate(zip(rows, keys, strict=True)):
+                states[index], answers[index] = self._recognise_one(row, key, add, int(hints[index]))
+            return states, answers
+        # Queries only (evaluation: many pictures at once): what needs a search is screened in one matrix product
+        searched = []
+        for index, (row, key) in enumerate(zip(rows, keys, strict=True)):
+            states[index], answers[index] = self._quick(row, key, int(hints[index]), add)
+            if answers[index] == SEARCH:
+                searched.append(index)
+        if searched:
+            pools = self._candidates(rows[searched])
+            for position, index in enumerate(searched):
+                pool = None if pools is None else pools[position]
+                states[index], answers[index] = self._search(rows[index], keys[index], add, int(hints[index]), pool)
+        return states, answers
+
+    def _recognise_one(self, row: np.ndarray, key: bytes, add: bool, expected: int) -> tuple[int, int]:
+        state, answer = self._quick(row, key, expected, add)
+        if answer != SEARCH:
+            return state, answer
+        pool = self._candidates(row[None])
+        return self._search(row, key, add, expected, None if pool is None else pool[0])
+
+    def _quick(self, row: np.ndarray, key: bytes, expected: int, add: bool) -> tuple[int, int]:
+        """What needs no search: a picture seen before, the expected place, no calibration yet (else ``SEARCH``)."""
+        state = self._exact.get(key, self._recent.get(key))
+        if state is not None:
+            return state, Answer.KNOWN
+        if not self.similar:
+            return self._new(row, key, add), Answer.NEW
+        if not self.separable:
+            return -1, Answer.UNSURE
+        if self.n_states == 0:
+            return self._new(row, key, add), Answer.NEW
+        assert self.known is not None
+        if 0 <= expected < self.n_states and self._exact_distances(row, np.array([expected]))[0] <= self.known:
+            return self._known(row, key, expected, add), Answer.KNOWN
+        return -1, SEARCH
+
+    def _search(
+        self, row: np.ndarray, key: bytes, add: bool, expected: int, pool: np.ndarray | None
+    ) -> tuple[int, int]:
+        """The answer from the nearest two states of the pool (every state where ``None``)."""
+        assert self.known is not None and self.new is not None
+        nearest, first, second = self._two_nearest(row, np.arange(self.n_states) if pool is None else pool)
+        if first <= self.known and second >= self.new:
+            return self._known(row, key, nearest, add), Answer.KNOWN
+        if first >= self.new:
+            return self._new(row, key, add), Answer.NEW
+        if nearest == expected and second >= self.new:  # the graph's prior settles what the picture leaves unsure
+            return self._known(row, key, nearest, add), Answer.KNOWN
+        return -1, Answer.UNSURE
+
+    def distances(self, row: np.ndarray) -> np.ndarray:
+        """The place distance of one picture to every state."""
+        return self._exact_distances(self._as_rows(np.asarray(row)[None])[0], np.arange(self.n_states))
+
+    def _exact_distances(self, row: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """The place distance of one picture to some states: the k-th smallest per-view L2 distance (float64)."""
+        blocks = row.reshape(self.views, 1, -1).astype(np.float64)
+        difference = self._prototypes[:, states].astype(np.float64) - blocks  # (view, state, features)
+        per_view = np.sqrt((difference**2).sum(axis=2))
+        return np.partition(per_view, self.kth - 1, axis=0)[self.kth - 1]
+
+    def _candidates(self, rows: np.ndarray) -> np.ndarray | None:
+        """
+        Per picture of a batch, the ``SCREEN_CANDIDATES`` states nearest in the sketch (a random projection of the whole
+        picture to ``SKETCH_DIM`` numbers: distances kept to within a few tens of percent, at a tenth of the reading);
+        ``None`` where there are few enough states to compare with all.
+        """
+        n = self.n_states
+        if n <= SCREEN_CANDIDATES:
+            return None
+        sketches = rows @ self._projection
+        chosen = np.empty((len(rows), SCREEN_CANDIDATES), dtype=np.int64)
+        for start in range(0, len(rows), SCREEN_CHUNK):  # a chunk of queries against every state at once
+            block = sketches[start : start + SCREEN_CHUNK]
+            squared = self._sketch_squares[:n] - 2.0 * block @ self._sketches[:n].T
+            chosen[start : start + SCREEN_CHUNK] = np.argpartition(squared, SCREEN_CANDIDATES - 1, axis=1)[
+                :, :SCREEN_CANDIDATES
+            ]
+        return chosen
+
+    def _two_nearest(self, row: np.ndarray, pool: np.ndarray) -> tuple[int, float, float]:
+        """The nearest state of a pool and the exact distances of the nearest two (``inf``: no second)."""
+        distances = self._exact_distances(row, pool)
+        if len(pool) == 1:
+            return int(pool[0]), float(distances[0]), np.inf
+        order = np.argpartition(distances, 1)[:2]
+        order = order[np.argsort(distances[order])]
+        return int(pool[order[0]]), float(distances[order[0]]), float(distances[order[1]])
+
+    # ------------------------------------------------------------------ states
+    def _new(self, row: np.ndarray, key: bytes, add: bool) -> int:
+        if not add or self.n_states >= self.max_states:
+            return -1
+        state = self.n_states
+        if state == len(self._counts):
+            self._grow(max(64, 2 * state))
+        if self.similar:  # bit identity needs no picture kept
+            self._prototypes[:, state] = row.reshape(self.views, -1)
+            self._sketch(state)
+        self._counts[state] = 1
+        self.n_states += 1
+        self.version += 1
+        self._remember_digest(key, state)
+        return state
+
+    def _known(self, row: np.ndarray, key: bytes, state: int, add: bool) -> int:
+        """A picture of ``state``: with ``add`` its views move the prototype (all but a view that differs wholly)."""
+        if not add:
+            self._remember_recent(key, state)
+            return state
+        self._remember_digest(key, state)
+        blocks = row.reshape(self.views, -1)
+        difference = blocks - self._prototypes[:, state]
+        per_view = np.sqrt((difference.astype(np.float64) ** 2).sum(axis=1))
+        agreeing = per_view <= np.partition(per_view, self.kth - 1)[self.kth - 1]
+        count = min(int(self._counts[state]) + 1, PROTOTYPE_HORIZON)
+        self._prototypes[agreeing, state] += difference[agreeing] / count
+        self._sketch(state)
+        self._counts[state] = count
+        return state
+
+    def _sketch(self, state: int) -> None:
+        sketch = self._prototypes[:, state].reshape(-1) @ self._projection
+        self._sketches[state] = sketch
+        self._sketch_squares[state] = sketch @ sketch
+
+    def _remember_digest(self, key: bytes, state: int) -> None:
+        if self._digests_of[state] < MAX_DIGESTS_PER_STATE:
+            self._exact[key] = state
+            self._digests_of[state] += 1
+        else:
+            self._remember_recent(key, state)
+
+    def _remember_recent(self, key: bytes, state: int) -> None:
+        """A picture met again within a few steps (an observation is the next one's start) is found at once."""
+        self._recent[key] = state
+        if len(self._recent) > RECENT_PICTURES:
+            self._recent.popitem(last=False)
+
+    def _grow(self, capacity: int) -> None:
+        old = len(self._counts)
+        if self.similar:
+            views, _, features = self._prototypes.shape
+            prototypes = np.zeros((views, capacity, features), dtype=np.float32)
+            prototypes[:, :old] = self._prototypes[:, :old]
+            sketches = np.zeros((capacity, SKETCH_DIM), dtype=np.float32)
+            sketches[:old] = self._sketches[:old]
+            sketch_squares = np.zeros(capacity, dtype=np.float32)
+            sketch_squares[:old] = self._sketch_squares[:old]
+            self._prototypes, self._sketches, self._sketch_squares = prototypes, sketches, sketch_squares
+        self._counts = np.concatenate([self._counts, np.zeros(capacity - old, dtype=np.int32)])
+        self._digests_of = np.concatenate([self._digests_of, np.zeros(capacity - old, dtype=np.int8)])
+
+    def prototype(self, state: int) -> np.ndarray:
+        """The mean picture of a state, ``(dim,)`` float32."""
+        if not 0 <= state < self.n_states:
+            raise ValueError(f"state {state} is not one of the {self.n_states} states")
+        return self._prototypes[:, state].reshape(-1).copy()
+
+    def _as_rows(self, rows: np.ndarray) -> np.ndarray:
+        array = np.ascontiguousarray(rows, dtype=np.float32) if self.similar else np.ascontiguousarray(rows)
+        if array.ndim != 2 or array.shape[1] != self.dim:
+            raise ValueError(f"pictures must be (batch, {self.dim}), got shape {array.shape}")
+        return array
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        n = self.n_states  # the used rows only
+        state["_prototypes"] = self._prototypes[:, :n].copy()
+        state["_sketches"] = self._sketches[:n].copy()
+        state["_sketch_squares"] = self._sketch_squares[:n].copy()
+        state["_counts"] = self._counts[:n].copy()
+        state["_digests_of"] = self._digests_of[:n].copy()
+        return state

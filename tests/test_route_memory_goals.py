@@ -1,0 +1,93 @@
+"""Where each goal is among the memory's states (GoalIndex's public API)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sb3_dcqn.route_memory.goals import GoalIndex
+from sb3_dcqn.route_memory.places import PlaceRecogniser
+from sb3_dcqn.route_memory.planner import BoundedCache
+
+VIEWS, WIDTH = 4, 8
+
+
+def places(n: int) -> np.ndarray:
+    return np.random.default_rng(0).normal(0.0, 3.0, (n, VIEWS * WIDTH)).astype(np.float32)
+
+
+def calibrated_recogniser(pictures: np.ndarray) -> PlaceRecogniser:
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=256, min_calibration=16)
+    rng = np.random.default_rng(1)
+    visits = np.concatenate([pictures + rng.normal(0, 0.05, pictures.shape) for _ in range(3)]).astype(np.float32)
+    recogniser.show(visits)
+    recogniser.recognise(pictures, add=True)
+    return recogniser
+
+
+class CountingMatcher:
+    """A place matcher that answers one row and counts the questions."""
+
+    def __init__(self, answer: int) -> None:
+        self.answer, self.asked = answer, 0
+
+    def match(self, queries, references, labels, goal_pictures=None) -> np.ndarray:
+        self.asked += 1
+        assert references.shape == (len(labels), VIEWS * WIDTH) and goal_pictures is not None
+        return np.full(len(queries), self.answer, dtype=np.int64)
+
+
+def index(recogniser: PlaceRecogniser, matcher=None, achieved: str | None = None) -> GoalIndex:
+    return GoalIndex(
+        asked_keys=["goal"], picture_key="goal" if achieved is None else None, recogniser=recogniser,
+        cache=BoundedCache(1 << 20), achieved_key=achieved, place_matcher=matcher,
+    )  # fmt: skip
+
+
+def test_a_goal_picture_is_at_the_place_the_recogniser_knows_and_nowhere_for_a_new_place() -> None:
+    pictures = places(30)
+    goals = index(calibrated_recogniser(pictures[:20]))
+    asked = {"goal": pictures[[4, 25]]}
+    keys = goals.digests(asked, 2)
+    assert goals.states(keys[0], asked, 0, 2).tolist() == [4]
+    assert goals.states(keys[1], asked, 1, 2).tolist() == []  # a place never seen: no state, the critics act
+
+
+def test_a_goal_whose_place_is_seen_later_is_found_then() -> None:
+    pictures = places(30)
+    recogniser = calibrated_recogniser(pictures[:20])
+    goals = index(recogniser)
+    asked = {"goal": pictures[[25]]}
+    key = goals.digests(asked, 1)[0]
+    assert goals.states(key, asked, 0, 1).size == 0
+    recogniser.recognise(pictures[25:26], add=True)  # the place is driven through: a new state
+    assert goals.states(key, asked, 0, 1).tolist() == [20]  # the cached "nowhere" is not reused
+
+
+def test_the_matcher_is_asked_only_for_pictures_the_recogniser_does_not_know() -> None:
+    pictures = places(30)
+    matcher = CountingMatcher(answer=7)
+    goals = index(calibrated_recogniser(pictures[:20]), matcher)
+    known = {"goal": pictures[[3]]}
+    assert goals.states(goals.digests(known, 1)[0], known, 0, 1).tolist() == [3] and matcher.asked == 0
+    night = {"goal": -pictures[[3]]}  # another light altogether
+    assert goals.states(goals.digests(night, 1)[0], night, 0, 1).tolist() == [7] and matcher.asked == 1
+
+
+def test_a_success_attaches_its_goal_and_vectors_within_the_tolerance_are_that_goal() -> None:
+    goals = index(PlaceRecogniser(4, 1, similar=False))
+    goals.picture_key = None  # goals by successes only
+    reached = {"goal": np.array([[1.0, 2.0]])}
+    goals.add_reached(reached, np.array([5]))
+    nudged = {"goal": np.array([[1.0 + 5e-5, 2.0]])}
+    far = {"goal": np.array([[1.001, 2.0]])}
+    assert goals.states(goals.digests(nudged, 1)[0], nudged, 0, 1).tolist() == [5]
+    assert goals.states(goals.digests(far, 1)[0], far, 0, 1).tolist() == []
+
+
+def test_pose_states_of_a_goal_env_attach_goals_by_the_achieved_goal() -> None:
+    goals = index(PlaceRecogniser(4, 1, similar=False), achieved="achieved_goal")
+    seen = {"achieved_goal": np.array([[0.0, 1.0], [1.0, 1.0]]), "goal": np.zeros((2, 2))}
+    goals.add_achieved(seen, np.array([3, 4]))
+    asked = {"goal": np.array([[1.0, 1.0]])}
+    assert goals.states(goals.digests(asked, 1)[0], asked, 0, 1).tolist() == [4]
+    assert goals.conditioned

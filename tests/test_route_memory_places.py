@@ -1,0 +1,184 @@
+"""The recogniser: which place a picture shows, calibrated on the agent's own pictures; known, new or unsure."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+from sb3_dcqn.route_memory.places import Answer, PlaceRecogniser, widest_gap
+
+VIEWS, WIDTH = 4, 16  # four views of 16 features each
+SPREAD = 3.0  # features of a place: N(0, SPREAD): two places are about SPREAD * sqrt(2 * WIDTH) = 17 apart per view
+NOISE = 0.05  # per feature on each visit: about 0.3 per view
+
+
+def world(n_places: int, seed: int = 0) -> np.ndarray:
+    """The true pictures of ``n_places`` places, ``(n, VIEWS * WIDTH)``."""
+    return np.random.default_rng(seed).normal(0.0, SPREAD, (n_places, VIEWS * WIDTH)).astype(np.float32)
+
+
+def visits(places: np.ndarray, order: np.ndarray, seed: int, noise: float = NOISE) -> np.ndarray:
+    """A picture of each place in ``order``, with fresh noise."""
+    rng = np.random.default_rng(seed)
+    return (places[order] + rng.normal(0.0, noise, (len(order), places.shape[1]))).astype(np.float32)
+
+
+def calibrated(places: np.ndarray, seed: int = 1, repeats: int = 3, noise: float = NOISE) -> PlaceRecogniser:
+    """A recogniser shown ``repeats`` noisy visits of every place (the window holds them all), states added."""
+    recogniser = PlaceRecogniser(places.shape[1], VIEWS, window=4 * repeats * len(places), min_calibration=16)
+    order = np.tile(np.arange(len(places)), repeats)
+    pictures = visits(places, order, seed, noise)
+    recogniser.show(pictures)
+    recogniser.calibrate()
+    recogniser.recognise(pictures, add=True)
+    return recogniser
+
+
+def test_before_its_first_calibration_every_picture_is_unsure_and_after_it_exact_repeats_are_found() -> None:
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=256, min_calibration=16)
+    places = world(3)
+    states, answers = recogniser.recognise(places, add=True)
+    assert (states == -1).all() and (answers == Answer.UNSURE).all() and recogniser.n_states == 0  # no guess
+    calibrated_one = calibrated(world(40))
+    pictures = visits(world(40), np.arange(40), seed=11)
+    states, answers = calibrated_one.recognise(pictures, add=True)
+    again, answers_again = calibrated_one.recognise(pictures[::-1])
+    np.testing.assert_array_equal(again, states[::-1])
+    assert (answers_again == Answer.KNOWN).all()
+
+
+def test_bit_identity_alone_makes_every_other_picture_a_new_state() -> None:
+    recogniser = PlaceRecogniser(8, 1, similar=False)
+    rows = np.arange(16, dtype=np.uint8).reshape(2, 8)
+    assert recogniser.recognise(rows, add=True)[0].tolist() == [0, 1]
+    nudged = rows.copy()
+    nudged[0, 0] += 1
+    states, answers = recogniser.recognise(nudged, add=True)
+    assert states.tolist() == [2, 1] and answers.tolist() == [Answer.NEW, Answer.KNOWN]
+
+
+def test_thresholds_fall_between_repeat_visits_and_other_places() -> None:
+    places = world(40)
+    recogniser = calibrated(places)
+    per_view_noise = NOISE * np.sqrt(WIDTH)
+    assert recogniser.separable
+    assert per_view_noise < recogniser.known < recogniser.new < 5.0  # places are about 17 apart per view
+    assert recogniser.genuine < recogniser.known and recogniser.new < recogniser.impostor
+
+
+def test_a_noisy_revisit_is_its_place_and_an_unseen_place_is_new() -> None:
+    places = world(41)
+    recogniser = calibrated(places[:40])
+    revisit = visits(places, np.arange(40), seed=7)
+    states, answers = recogniser.recognise(revisit)
+    assert states.tolist() == list(range(40)) and (answers == Answer.KNOWN).all()
+    states, answers = recogniser.recognise(visits(places, np.array([40]), seed=7), add=True)
+    assert answers.tolist() == [Answer.NEW] and states.tolist() == [40]
+
+
+def mixture(recogniser: PlaceRecogniser, places: np.ndarray, a: int, b: int, distance: float) -> np.ndarray:
+    """A picture on the line from place ``a`` to place ``b``, at ``distance`` from ``a``'s prototype."""
+    span = recogniser.distances(places[b])[a]
+    weight = distance / span
+    return ((1 - weight) * places[a] + weight * places[b])[None].astype(np.float32)
+
+
+def test_a_picture_between_the_thresholds_is_unsure() -> None:
+    places = world(40)
+    recogniser = calibrated(places)
+    between = mixture(recogniser, places, 0, 1, np.sqrt(recogniser.known * recogniser.new))
+    states, answers = recogniser.recognise(between, add=True)
+    assert answers.tolist() == [Answer.UNSURE] and states.tolist() == [-1] and recogniser.n_states == 40
+    far = mixture(recogniser, places, 0, 1, 1.5 * recogniser.new)  # farther than "new" from both: a new place
+    assert recogniser.recognise(far)[1].tolist() == [Answer.NEW]
+
+
+def test_one_view_that_differs_wholly_leaves_a_place_the_place_and_two_shared_views_never_merge_two() -> None:
+    places = world(40)
+    recogniser = calibrated(places)
+    barrier = places[3].copy()
+    barrier[:WIDTH] = np.random.default_rng(5).normal(0.0, SPREAD, WIDTH)  # the north view: a construction barrier
+    assert recogniser.recognise(barrier[None])[0].tolist() == [3]
+    twin = places[3].copy()
+    twin[: 2 * WIDTH] = places[4][: 2 * WIDTH]  # shares two of its four views with place 4, two with place 3
+    states, answers = recogniser.recognise(twin[None], add=True)
+    assert answers[0] != Answer.KNOWN and states[0] not in (3, 4)
+
+
+def test_the_expected_place_settles_what_the_picture_leaves_unsure_and_a_wrong_one_is_not_taken() -> None:
+    places = world(40)
+    recogniser = calibrated(places)
+    between = mixture(recogniser, places, 0, 1, np.sqrt(recogniser.known * recogniser.new))
+    assert recogniser.recognise(between)[1].tolist() == [Answer.UNSURE]
+    assert recogniser.recognise(between, expected=np.array([1]))[1].tolist() == [Answer.UNSURE]  # not the nearest
+    assert recogniser.recognise(between, expected=np.array([0]))[0].tolist() == [0]  # the graph expects place 0
+    # A clear picture of place 5 is place 5 whatever the caller expected
+    assert recogniser.recognise(visits(places, np.array([5]), seed=3), expected=np.array([9]))[0].tolist() == [5]
+
+
+def test_an_expected_place_is_no_reason_to_take_a_picture_that_another_place_claims_as_much() -> None:
+    places = world(40)
+    recogniser = calibrated(places)
+    direction = np.random.default_rng(8).normal(0.0, 1.0, (VIEWS, WIDTH))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    shift = (1.05 * recogniser.new * direction).reshape(-1).astype(np.float32)
+    neighbour = places[5] + shift  # a new place just far enough from place 5
+    assert recogniser.recognise(neighbour[None], add=True)[1].tolist() == [Answer.NEW]
+    between = (places[5] + shift / 2)[None]  # as near to place 5 as to its neighbour, in both unsure bands
+    states, answers = recogniser.recognise(between, expected=np.array([5]))
+    assert answers.tolist() == [Answer.UNSURE] and states.tolist() == [-1]
+
+
+def test_pictures_that_do_not_separate_places_say_so() -> None:
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=64, min_calibration=16)
+    recogniser.show(np.random.default_rng(0).normal(0.0, 1.0, (64, VIEWS * WIDTH)))  # no place ever seen twice
+    assert recogniser.calibrated and not recogniser.separable and recogniser.window_full
+    _, answers = recogniser.recognise(np.zeros((1, VIEWS * WIDTH)), add=True)
+    assert answers.tolist() == [Answer.UNSURE] and recogniser.n_states == 0
+
+
+def test_a_prototype_averages_the_noise_of_the_visits() -> None:
+    places = world(40)
+    recogniser = calibrated(places, repeats=8)
+    errors = [np.linalg.norm(recogniser.prototype(s) - places[s]) for s in range(40)]
+    one_visit = NOISE * np.sqrt(VIEWS * WIDTH)
+    assert np.median(errors) < 0.6 * one_visit
+
+
+def test_thresholds_follow_a_world_whose_pictures_drift() -> None:
+    places = world(32)
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=128, min_calibration=16)
+    recogniser.show(visits(places, np.tile(np.arange(32), 4), seed=0, noise=0.01))
+    quiet = recogniser.known
+    recogniser.show(visits(places, np.tile(np.arange(32), 8), seed=1, noise=0.2))  # two windows of new pictures
+    assert recogniser.calibrations >= 2 and recogniser.known > 5 * quiet
+
+
+def test_no_state_past_max_states_and_the_memory_pickles() -> None:
+    places = world(40)
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, max_states=39, window=512, min_calibration=16)
+    recogniser.show(visits(places, np.tile(np.arange(40), 3), seed=1))
+    states, answers = recogniser.recognise(places, add=True)
+    assert recogniser.n_states == 39 and states[-1] == -1 and answers[-1] == Answer.NEW
+    copy = pickle.loads(pickle.dumps(recogniser))
+    picture = visits(places, np.arange(39), seed=9)
+    np.testing.assert_array_equal(copy.recognise(picture)[0], recogniser.recognise(picture)[0])
+    assert copy.nbytes() == recogniser.nbytes() > 39 * VIEWS * WIDTH * 4
+
+
+def test_the_split_is_the_widest_gap_with_enough_values_on_either_side() -> None:
+    values = np.log(np.sort(np.array([0.1, 0.2, 0.15, 0.12, 5.0, 6.0, 5.5, 7.0, 40.0])))
+    assert widest_gap(values, min_group=2) == 4  # 0.2 -> 5.0, not 7 -> 40 (one value alone above it)
+    assert widest_gap(values, min_group=1) == 4
+    assert widest_gap(values[:3], min_group=2) is None
+
+
+def test_bad_pictures_are_named() -> None:
+    with pytest.raises(ValueError, match="does not split into 3 equal views"):
+        PlaceRecogniser(64, 3)
+    with pytest.raises(ValueError, match=r"pictures must be \(batch, 64\)"):
+        PlaceRecogniser(64, 4).recognise(np.zeros((2, 63)))
+    with pytest.raises(ValueError, match="window"):
+        PlaceRecogniser(64, 4, window=8, min_calibration=16)
