@@ -160,7 +160,6 @@ def make_env(job: Job, env_kwargs: dict[str, Any]) -> Any:
 def run_one(job: Job) -> dict[str, Any]:
     """Train one row until solved (or the budget is spent) and record what it took."""
     from campusnav_env.callbacks import RouteEvaluationCallback
-    from sb3_dcqn import DCQN
     from sb3_dcqn.campusnav.experiments import train_until_solved
     from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
@@ -168,7 +167,7 @@ def run_one(job: Job) -> dict[str, Any]:
     begin = time.perf_counter()
     env = make_env(job, entry.env_kwargs)
     env_seconds = time.perf_counter() - begin
-    model = DCQN(env=env, seed=job.seed, device="cpu", **entry.hyperparams)
+    model = entry.make_model(env, seed=job.seed, device="cpu")
     evaluation = RouteEvaluationCallback(
         eval_freq=job.eval_freq,
         goals=[GOAL],

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from sb3_dcqn.dcqn import DCQN
+from sb3_dcqn.route_memory.layer import algorithm_class_for
 from sb3_dcqn.zoo_entry import EntryError, ZooEntry, load_zoo_entry
 from sb3_dcqn.zoo_files import default_hyperparams_path, hyperparams_namespace
 
@@ -269,11 +270,14 @@ def _checked_entry(options: argparse.Namespace) -> ZooEntry | None:
     if algo not in ALGOS or env_id not in gym.registry or not conf.endswith((".yml", ".yaml")):
         return None
     fallbacks = ("atari", "default") if ExperimentManager.is_atari(env_id) else ("default",)
+    algorithm = getattr(ALGOS[algo], "bare_class", ALGOS[algo])  # as registered, whatever an earlier run set
     try:
-        entry = load_zoo_entry(conf, env_id, options.hyperparams, fallbacks, ALGOS[algo])
+        entry = load_zoo_entry(conf, env_id, options.hyperparams, fallbacks, algorithm)
         entry.budget(None if options.n_timesteps is None else int(options.n_timesteps))
     except EntryError as error:
         _refuse("train", str(error))
+    # An entry that asks for the route memory gets the algorithm wearing it (the zoo builds ALGOS[algo])
+    ALGOS[algo] = algorithm_class_for(algorithm, entry.hyperparams)
     return entry
 
 

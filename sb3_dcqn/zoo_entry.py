@@ -31,6 +31,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.buffers import ReplayBuffer
 
 from sb3_dcqn.dcqn import DCQN
+from sb3_dcqn.route_memory.layer import algorithm_class_for
 from sb3_dcqn.zoo_files import (
     EVALUATED_KEYS,
     SCHEDULE_KEYS,
@@ -106,7 +107,7 @@ class ZooEntry:
 
     :param n_timesteps: Training steps (``n_timesteps``; :meth:`budget` refuses one below 1 when it is used)
     :param hyperparams: The algorithm's keyword arguments (``policy`` included; schedules built, ``policy_kwargs``
-        and the replay buffer strings evaluated; ``route_memory`` too, where the algorithm takes it today)
+        and the replay buffer strings evaluated; ``route_memory`` too: the memory-wearing class takes it)
     :param env_kwargs: Keyword arguments for ``gym.make`` (``env_kwargs``)
     :param n_envs: Number of training envs (``n_envs``, default 1)
     :param callbacks: The ``callback`` key, as the zoo reads it: ``(class path, keyword arguments)`` pairs (e.g.
@@ -152,14 +153,14 @@ class ZooEntry:
         return EntryError(problem, self.file, self.name, key, value, from_params=key in self.params)
 
     def algorithm_class(self) -> type[BaseAlgorithm]:
-        """The algorithm the entry's hyperparameters are for, the one place that chooses it: DCQN (which takes
-        ``route_memory`` as an argument today)."""
-        return DCQN
+        """The algorithm the entry's hyperparameters are for, the one place that chooses it: DCQN, wearing the route
+        memory where the entry sets ``route_memory`` (:func:`~sb3_dcqn.route_memory.layer.algorithm_class_for`)."""
+        return algorithm_class_for(DCQN, self.hyperparams)
 
     @property
     def algorithm_kwargs(self) -> dict[str, Any]:
-        """The keyword arguments of :meth:`algorithm_class`: ``hyperparams``, ``route_memory`` only where it is on."""
-        return {key: value for key, value in self.hyperparams.items() if key != "route_memory" or value}
+        """The keyword arguments of :meth:`algorithm_class` (``hyperparams``)."""
+        return dict(self.hyperparams)
 
     def make_model(self, env: Any, **kwargs: Any) -> BaseAlgorithm:
         """A new model of the entry's algorithm on ``env``; ``kwargs`` replace the entry's arguments."""
@@ -303,7 +304,7 @@ _ErrorFactory = Callable[..., EntryError]
 def _algorithm_settings(settings: dict[str, Any], algorithm: type, error: _ErrorFactory) -> dict[str, Any]:
     """The algorithm's keys: each taken by ``algorithm``, its value checked, its string made an object; then the
     policy, ``policy_kwargs`` and the replay buffer checked together."""
-    unknown = _unknown_keyword(settings, algorithm, skip=("env",))
+    unknown = _unknown_keyword(settings, algorithm_class_for(algorithm, settings), skip=("env",))
     if unknown is not None:
         raise error(unknown[0], f"unknown {algorithm.__name__} hyperparameter{unknown[1]}", settings[unknown[0]])
     booleans = {

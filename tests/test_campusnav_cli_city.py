@@ -16,6 +16,8 @@ from campusnav_env.figures import CURRICULUM_NOTE, training_curves
 from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.cli import build_parser, run
 from sb3_dcqn.replay import LeanNStepDictReplayBuffer
+from sb3_dcqn.route_memory import RouteMemoryDCQN
+from sb3_dcqn.route_memory.layer import saved_algorithm_class
 
 CITY = "CampusNavCity-v0"
 FAST = ("--encoder", "pixels", "--render-size", "64", "48")
@@ -73,14 +75,15 @@ def test_the_city_entry_trains_with_its_curriculum_and_lean_n_step_replay_and_ev
     )  # fmt: skip
     assert summary["settings"]["env"] == CITY and summary["num_timesteps"] >= 600
     assert summary["trained"]["n_routes"] > 0
-    events = EventAccumulator(str(out / "tb" / "DCQN_1"))
+    events = EventAccumulator(str(out / "tb" / "DCQN-memory_1"))  # the entry wears the route memory
     events.Reload()
     assert "curriculum/start_distance_limit" in events.Tags()["scalars"]  # the entry's callback ran
     # ... so the curves say why episode reward (curriculum starts, near the goal) runs ahead of route success
     assert notes == [CURRICULUM_NOTE]
-    model = DCQN.load(out / "dcqn_campusnav.zip")
+    model = saved_algorithm_class(out / "dcqn_campusnav.zip", DCQN).load(out / "dcqn_campusnav.zip")
     assert (
-        model.route_memory
+        type(model) is RouteMemoryDCQN
+        and model.route_memory
         and model.explores_untried
         and model.replay_buffer_class is LeanNStepDictReplayBuffer
         and model.n_steps == 4

@@ -180,12 +180,12 @@ def test_the_lever_rule_is_the_one_dcqn_applies() -> None:
             with pytest.raises(ValueError, match="stands for every goal"):  # the class DCQN would be given
                 replay_buffer_class(*replay_variants((name,)), base="Her")
             continue
-        hyperparams = with_levers(entry, (name,)).hyperparams
-        assert isinstance(DCQN(env=env, **hyperparams).replay_buffer, DCQNHerReplayBuffer)
+        levered = with_levers(entry, (name,))
+        assert isinstance(levered.make_model(env).replay_buffer, DCQNHerReplayBuffer)
     model = DCQN(env=env, **her)
     with pytest.raises(ValueError, match="needs a replay buffer with experience revision"):
         model.learn(8, callback=lever_callbacks(("boost_on_revision",)))  # a boost on revisions needs them on
-    revising = DCQN(env=env, **with_levers(ZooEntry(100, her), ("boost_on_revision",)).hyperparams)
+    revising = with_levers(ZooEntry(100, her), ("boost_on_revision",)).make_model(env)
     revising.learn(8, callback=lever_callbacks(("boost_on_revision",)))
     model.learn(8, callback=lever_callbacks(("boost",)))  # the episode-length trigger needs no buffer of its own
 

@@ -30,6 +30,7 @@ from sb3_dcqn.replay import (
     RevisionDictReplayBuffer,
 )
 from sb3_dcqn.zoo_entry import EntryError, ZooEntry, check_params, load_zoo_entry, read_entry
+from sb3_dcqn.route_memory import algorithm_name, with_route_memory
 from sb3_dcqn.zoo_files import class_by_path, default_hyperparams_path
 
 GOAL_ENV = "CampusNavGoal-v0"
@@ -247,10 +248,13 @@ def test_the_route_memory_is_a_typed_field_and_the_algorithm_is_chosen_in_one_pl
     multi = load_zoo_entry(default_hyperparams_path(), "CampusNavMulti-v0")
     single = load_zoo_entry(default_hyperparams_path(), "CampusNav-v0")
     assert multi.route_memory is True and single.route_memory is False
-    assert multi.algorithm_class() is single.algorithm_class() is DCQN
-    # Off, it is not passed at all (a class without the memory takes no route_memory); on, it is passed through
-    assert "route_memory" not in entry_of(route_memory=False).algorithm_kwargs
+    # An entry that names the memory gets DCQN wearing it (off where it says False); one that does not, DCQN itself
+    assert multi.algorithm_class() is with_route_memory(DCQN) and single.algorithm_class() is DCQN
+    assert entry_of(route_memory=False).algorithm_class() is with_route_memory(DCQN)
     assert entry_of(route_memory={"explore": False}).algorithm_kwargs["route_memory"] == {"explore": False}
+    wearing = entry_of(policy="MlpPolicy", route_memory=True).make_model("CartPole-v1")
+    off = entry_of(policy="MlpPolicy", route_memory=False).make_model("CartPole-v1")
+    assert algorithm_name(wearing) == "DCQN + memory" and algorithm_name(off) == "DCQN" and off.memory is None
     with pytest.raises(EntryError, match=r"route_memory: expected true, false or a mapping of the memory's settings"):
         entry_of(route_memory="yes")
 

@@ -99,7 +99,8 @@ draw      the map with its closures, the goal and a route: the greedy route of -
 roads     the roads of an intersection: each as 'U V' with its compass direction, open or closed (with --close).
 
 Files written by demo, train and readapt (to --out, each atomically; demo's default runs/campusnav-demo, train's
-runs/campusnav-train, readapt's readapt/ next to the model): TensorBoard logs in tb/DCQN_<n>, routes.png (a row per
+runs/campusnav-train, readapt's readapt/ next to the model): TensorBoard logs in tb/DCQN_<n> (DCQN-memory_<n> where the
+entry wears the route memory), routes.png (a row per
 pictured goal, one panel per closure: the route learned before and after recovery), curves.png (episode reward and
 length with the closures and route scores), the model dcqn_campusnav.zip with dcqn_campusnav.env.json (the env it was
 trained on: evaluate, readapt and draw take it as their default), dcqn_campusnav_replay_buffer.pkl (train and

@@ -27,6 +27,7 @@ from campusnav_env.closures import ClosureEvent, ClosureSchedule
 from campusnav_env.recovery import DEFAULT_SPL_THRESHOLD, DEFAULT_SUCCESS_THRESHOLD, Recovery, RouteEvaluation
 from sb3_dcqn.campusnav.progress import TqdmProgress
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS, is_solved
+from sb3_dcqn.route_memory.layer import algorithm_name
 
 __all__ = [
     "ClosurePlan",
@@ -308,7 +309,7 @@ def train_with_closures(
     """
     start, start_steps = time.perf_counter(), model.num_timesteps
     if not _has_logger(model):
-        model.set_logger(configure_logger(model.verbose, model.tensorboard_log, type(model).__name__))
+        model.set_logger(configure_logger(model.verbose, model.tensorboard_log, algorithm_name(model, for_files=True)))
     evaluation = RouteEvaluationCallback(
         eval_freq=eval_freq,
         unit="step",

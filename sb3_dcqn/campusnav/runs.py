@@ -46,10 +46,10 @@ from sb3_dcqn.campusnav.output_paths import DEFAULT_OUT, free_folder, moved_note
 from sb3_dcqn.campusnav.requests import Request
 from sb3_dcqn.campusnav.settings import DEFAULT_ENV, EnvSettings
 from sb3_dcqn.dcqn import DCQN
+from sb3_dcqn.route_memory.layer import algorithm_name, saved_algorithm_class
 
 __all__ = ["Checkpoints", "Run", "load_model", "make_env", "restore_closures"]
 
-TB_NAME = "DCQN"
 _IMAGE_ONLY_TO_TENSORBOARD = ("stdout", "log", "json", "csv")
 # Hyperparameters a loaded model keeps whatever -params says: they shape the networks or the buffer it was built with
 _BUILT_WITH = ("policy", "policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs", "buffer_size", "n_envs")
@@ -138,7 +138,7 @@ def load_model(
         model = None
         if saved_space == nav.observation_space:
             env = venv if venv is not None else DummyVecEnv([lambda: nav])
-            model = DCQN.load(path, env=env, device=device or "auto", **changes)
+            model = saved_algorithm_class(path, DCQN).load(path, env=env, device=device or "auto", **changes)
     except (*unreadable, ValueError) as error:
         raise CommandError(f"{path}: not a readable model file ({error!r}); {MODEL_FILES}") from None
     if model is None:
@@ -150,11 +150,13 @@ def load_model(
 
 
 def _new_logger(model: DCQN, out: Path, verbose: int) -> Path:
-    """Log this run to ``out/tb/DCQN_<n>`` (a new folder), one logger for every ``learn`` call."""
+    """Log this run to ``out/tb/DCQN_<n>`` (``DCQN-memory_<n>`` wearing the memory; a new folder), one logger for
+    every ``learn`` call."""
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.utils import get_latest_run_id
 
-    folder = out / "tb" / f"{TB_NAME}_{get_latest_run_id(str(out / 'tb'), TB_NAME) + 1}"
+    name = algorithm_name(model, for_files=True)  # DCQN, or DCQN-memory where it wears the route memory
+    folder = out / "tb" / f"{name}_{get_latest_run_id(str(out / 'tb'), name) + 1}"
     model.set_logger(configure(str(folder), ["tensorboard", *(["stdout"] if verbose >= 2 else [])]))
     return folder
 
@@ -494,6 +496,7 @@ class Run:
             summary: dict[str, Any] = {
                 "command": self.request.command,
                 "interrupted": True,
+                "algorithm": algorithm_name(self.model),
                 "num_timesteps": self.model.num_timesteps,
                 "settings": self.settings.to_json(),
                 "final": None,
@@ -554,7 +557,7 @@ class Run:
             outcome.progress.episode_lengths,
             recoveries or outcome.closures.records,
             evaluations,
-            title=f"DCQN on {self.settings.describe()}",
+            title=f"{algorithm_name(model)} on {self.settings.describe()}",
             note=_curves_note(self.callbacks),
         )
         for name, image in figures.items():
@@ -571,12 +574,14 @@ class Run:
         files["summary"] = str(out / "summary.md")
         files["summary_json"] = str(out / "summary.json")
 
-        text = run_report(self.title, self.settings.describe(), outcome, files, from_model=self.from_model)
+        ran = f"{algorithm_name(model)} on {self.settings.describe()}"  # DCQN, or DCQN + memory
+        text = run_report(self.title, ran, outcome, files, from_model=self.from_model)
         if not self.replay_buffer:
             text += "\nReplay buffer not saved (" + _buffer_switch(self.request.command) + ").\n"
         summary = {
             "command": self.request.command,
             "title": self.title,
+            "algorithm": algorithm_name(model),
             "settings": self.settings.to_json(),
             "seed": self.request.seed,
             "levers": list(self.levers),

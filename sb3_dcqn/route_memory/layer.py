@@ -24,7 +24,10 @@ from __future__ import annotations
 import functools
 import importlib
 import inspect
+import json
+import zipfile
 from collections.abc import Hashable, Mapping
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -553,6 +556,23 @@ def algorithm_class_for(algorithm_class: type[OffPolicyAlgorithm], hyperparams: 
     :param hyperparams: Its keyword arguments
     """
     return with_route_memory(algorithm_class) if "route_memory" in hyperparams else algorithm_class
+
+
+def saved_algorithm_class(path: str | Path, algorithm_class: type[OffPolicyAlgorithm]) -> type:
+    """
+    The class that loads a model file saved by ``algorithm_class`` or by it wearing the route memory: the memory-
+    wearing class where the file holds the ``route_memory`` setting (``algorithm_class.load`` would drop the memory
+    and act without it).
+
+    :param path: The model's zip (SB3's ``save``; the ``.zip`` may be left out, as ``load`` allows)
+    :param algorithm_class: The algorithm (``DCQN``, ``DQN``, ``QRDQN``)
+    """
+    path = Path(path)
+    if not path.is_file() and path.with_suffix(".zip").is_file():
+        path = path.with_suffix(".zip")
+    with zipfile.ZipFile(path) as archive:
+        data = json.loads(archive.read("data").decode())
+    return with_route_memory(algorithm_class) if "route_memory" in data else algorithm_class
 
 
 def algorithm_name(model_or_class: Any, *, for_files: bool = False) -> str:
