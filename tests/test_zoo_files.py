@@ -29,8 +29,8 @@ from sb3_dcqn.replay import (
     LeanRevisionHerReplayBuffer,
     RevisionDictReplayBuffer,
 )
-from sb3_dcqn.zoo_entry import EntryError, ZooEntry, check_params, load_zoo_entry, read_entry
 from sb3_dcqn.route_memory import algorithm_name, with_route_memory
+from sb3_dcqn.zoo_entry import EntryError, ZooEntry, check_params, load_zoo_entry, read_entry
 from sb3_dcqn.zoo_files import class_by_path, default_hyperparams_path
 
 GOAL_ENV = "CampusNavGoal-v0"
