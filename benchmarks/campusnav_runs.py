@@ -27,6 +27,7 @@ from campusnav_env.env import CampusNavEnv
 from campusnav_env.features.view_build import ViewBuild, with_view_build
 from campusnav_env.maps.campus import generate_campus
 from campusnav_env.rendering.street_view import RenderSettings
+from campusnav_env.wrappers import GaussianObservationNoise
 from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav.levers import LEVERS, LeverSet, with_levers
 from sb3_dcqn.route_memory.layer import algorithm_class_for
@@ -90,6 +91,44 @@ TASKS = {
              env_kwargs={"encoder": "pixels", "view_build": ViewBuild(render_settings=RenderSettings(64, 48))}),
     )
 }  # fmt: skip
+
+
+@dataclass(frozen=True)
+class World:
+    """
+    How the pictures of a task's map behave between visits: fixed (the paper's reproduction: every visit sees the
+    same views), fresh Gaussian noise on the current views at every observation (:class:`GaussianObservationNoise`,
+    sigma in units of a standardised feature), or ``K`` renders per view drawn per visit (``view_variation``: hours,
+    passing cars, a few degrees of camera yaw). The route evaluation sees the same world (it goes through the
+    wrappers and draws the renders as training does).
+
+    :param name: Short name (command line, results)
+    :param noise: Sigma of the noise on the current views (0: none)
+    :param renders: Renders per view (``None``: fixed views)
+    """
+
+    name: str
+    noise: float = 0.0
+    renders: int | None = None
+
+    def make_env(self, task: Task, entry: ZooEntry) -> gym.Env:
+        """The task's env in this world."""
+        env = task.make_env(entry, **({} if self.renders is None else {"view_variation": self.renders}))
+        if not self.noise:
+            return env
+        current = "views" if "views" in env.observation_space.spaces else "observation"  # the goal env's views
+        return GaussianObservationNoise(env, self.noise, keys=[current])
+
+
+WORLDS = {
+    world.name: world
+    for world in (
+        World("fixed"),
+        World("noise 0.01", noise=0.01),
+        World("noise 0.05", noise=0.05),
+        World("variation 8", renders=8),
+    )
+}
 
 
 @dataclass(frozen=True)

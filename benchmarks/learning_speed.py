@@ -41,7 +41,7 @@ import numpy as np
 import torch as th
 from matplotlib.figure import Figure
 
-from benchmarks.campusnav_runs import TASKS, VARIANTS
+from benchmarks.campusnav_runs import TASKS, VARIANTS, WORLDS
 from benchmarks.report import RESULTS_DIR, machine_line, publish, run_missing, write_results
 from campusnav_env.figures import figure_image, write_figure
 from sb3_dcqn.campusnav.experiments import train_until_solved
@@ -57,9 +57,10 @@ def run_one(
     budget_seconds: float | None = None,
     max_steps: int | None = None,
     eval_freq: int | None = None,
+    world_name: str = "fixed",
 ) -> dict[str, Any]:
-    """Train one agent on one task to the threshold (or its caps) and return the run's record."""
-    task, variant = TASKS[task_name], VARIANTS[variant_name]
+    """Train one agent on one task, in one world, to the threshold (or its caps) and return the run's record."""
+    task, variant, world = TASKS[task_name], VARIANTS[variant_name], WORLDS[world_name]
     task = replace(
         task,
         budget_seconds=budget_seconds or task.budget_seconds,
@@ -67,17 +68,21 @@ def run_one(
         eval_freq=eval_freq or task.eval_freq,
     )
     entry = variant.entry(task)
-    env = task.make_env(entry)
+    env = world.make_env(task, entry)
     model = variant.make_model(env, entry, seed)
     result = train_until_solved(
         model, task.max_steps, task.budget_seconds, task.eval_freq, callbacks=entry.make_callbacks()
     )
     last = result.evaluations[-1]
     solved = result.solved_at
+    memory = getattr(model, "memory", None)
     return {
         "task": task_name,
         "variant": variant_name,
+        "world": world_name,
         "seed": seed,
+        "memory_states": None if memory is None else memory.n_states,
+        "memory_stepped_aside": None if memory is None else memory.stepped_aside,
         "solved": solved is not None,
         "seconds": solved.train_seconds if solved else last.train_seconds,
         "steps": solved.step if solved else last.step,
@@ -155,28 +160,45 @@ def _median_of(group: list[dict[str, Any]], key: str) -> float:
     return float(np.median([r[key] if r["solved"] else np.inf for r in group]))
 
 
+def _world(run: dict[str, Any]) -> str:
+    return run.get("world", "fixed")  # runs recorded before worlds were fixed views
+
+
 def summary_table(runs: list[dict[str, Any]], tasks: list[str], variants: list[str]) -> list[str]:
-    """One row per (task, variant): seeds solved, median and per-seed time, steps and episodes to the threshold."""
+    """
+    One row per (task, world, variant): seeds solved, median and per-seed time, steps and episodes to the threshold;
+    against DQN (median time) and against the same agent in fixed views (median env steps).
+    """
     lines = [
-        "| task | agent | solved | median time to solved (s) | per seed: time (s) | median env steps | "
-        "median episodes | goal | vs DQN (median time) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| task | world | agent | solved | median time to solved (s) | per seed: time (s) | median env steps | "
+        "per seed: env steps | median episodes | goal | vs DQN (median time) | vs fixed views (median steps) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    worlds = [world for world in WORLDS if any(_world(r) == world for r in runs)]
     for task_name in tasks:
         task = TASKS[task_name]
-        mine = sorted((r for r in runs if r["task"] == task_name), key=lambda r: r["seed"])
-        groups = {v: [r for r in mine if r["variant"] == v] for v in variants if any(r["variant"] == v for r in mine)}
-        dqn = _median_of(groups["DQN"], "seconds") if "DQN" in groups else None
-        for variant, group in groups.items():
-            median = _median_of(group, "seconds")
-            ratio = "" if dqn is None or not np.isfinite([dqn, median]).all() else f"{median / dqn:.2f}x"
-            per_seed = ", ".join(f"{r['seed']}: {_seconds(r)}" for r in group)
-            hit = "hit" if median <= task.goal_seconds else "miss"
-            lines.append(
-                f"| {task.description} | {variant} | {sum(r['solved'] for r in group)}/{len(group)} | "
-                f"{_median(median)} | {per_seed} | {_median(_median_of(group, 'steps'))} | "
-                f"{_median(_median_of(group, 'episodes'))} | <= {task.goal_seconds:.0f} s: {hit} | {ratio} |"
-            )
+        for world in worlds:
+            mine = sorted((r for r in runs if r["task"] == task_name and _world(r) == world), key=lambda r: r["seed"])
+            groups = {
+                v: [r for r in mine if r["variant"] == v] for v in variants if any(r["variant"] == v for r in mine)
+            }
+            dqn = _median_of(groups["DQN"], "seconds") if "DQN" in groups else None
+            for variant, group in groups.items():
+                median = _median_of(group, "seconds")
+                steps = _median_of(group, "steps")
+                ratio = "" if dqn is None or not np.isfinite([dqn, median]).all() else f"{median / dqn:.2f}x"
+                fixed = [r for r in runs if r["task"] == task_name and _world(r) == "fixed" and r["variant"] == variant]
+                base = _median_of(fixed, "steps") if fixed and world != "fixed" else None
+                versus = "" if base is None or not np.isfinite([base, steps]).all() else f"{steps / base:.2f}x"
+                per_seed = ", ".join(f"{r['seed']}: {_seconds(r)}" for r in group)
+                per_seed_steps = ", ".join(f"{r['steps']:,}" + ("" if r["solved"] else " (miss)") for r in group)
+                hit = "hit" if median <= task.goal_seconds else "miss"
+                lines.append(
+                    f"| {task.description} | {world} | {variant} | {sum(r['solved'] for r in group)}/{len(group)} | "
+                    f"{_median(median)} | {per_seed} | {_median(steps)} | {per_seed_steps} | "
+                    f"{_median(_median_of(group, 'episodes'))} | <= {task.goal_seconds:.0f} s: {hit} | {ratio} | "
+                    f"{versus} |"
+                )
     return lines
 
 
@@ -231,6 +253,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tasks", nargs="+", default=["campus", "multi"], choices=sorted(TASKS))
     parser.add_argument("--variants", nargs="+", default=list(DEFAULT_VARIANTS), choices=sorted(VARIANTS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument(
+        "--worlds", nargs="+", default=["fixed"], choices=list(WORLDS), help="fixed views, noise on them, or K renders"
+    )
     parser.add_argument("--budget-seconds", type=float, help="training-time cap per run (default: the task's)")
     parser.add_argument("--max-steps", type=int, help="env-step cap per run (default: the task's)")
     parser.add_argument("--eval-freq", type=int, help="env steps between route evaluations (default: the task's)")
@@ -248,18 +273,26 @@ def main(argv: list[str] | None = None) -> None:
         profiles = {variant: profile_costs("campus", variant) for variant in args.variants}
         write_results(profile_file, json.dumps(profiles, indent=2))
         print("\n".join(profile_table(profiles)), flush=True)
-    jobs = [(task, variant, seed) for task in args.tasks for seed in args.seeds for variant in args.variants]
+    jobs = [
+        (task, variant, seed, world)
+        for task in args.tasks
+        for world in args.worlds
+        for seed in args.seeds
+        for variant in args.variants
+    ]
 
-    def run_job(job: tuple[str, str, int]) -> dict[str, Any]:
-        return run_one(*job, budget_seconds=args.budget_seconds, max_steps=args.max_steps, eval_freq=args.eval_freq)
+    def run_job(job: tuple[str, str, int, str]) -> dict[str, Any]:
+        task, variant, seed, world = job
+        return run_one(task, variant, seed, args.budget_seconds, args.max_steps, args.eval_freq, world_name=world)
 
     runs = run_missing(
         args.runs_file,
         jobs,
         run_job,
-        key=lambda r: (r["task"], r["variant"], r["seed"]),
+        key=lambda r: (r["task"], r["variant"], r["seed"], _world(r)),
         describe=lambda run: (
-            f"{run['task']:<10} {run['variant']:<22} seed {run['seed']}: {_seconds(run)} s, {run['steps']} steps, "
+            f"{run['task']:<10} {_world(run):<12} {run['variant']:<22} seed {run['seed']}: {_seconds(run)} s, "
+            f"{run['steps']} steps, "
             f"{run['episodes']} episodes (wall {run['wall_seconds']:.0f} s)"
         ),
     ).records
