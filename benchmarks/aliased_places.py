@@ -1,13 +1,20 @@
-"""Aliased places: intersections whose four views picture the same as another intersection's.
+"""Aliased places: intersections that look alike, and what the route memory's recogniser makes of them.
 
-A route memory keys its states by the pictures of a place (``sb3_dcqn.route_memory``); two intersections that look
-the same would be one state. The memory detects them as it drives (a slot that leads to two different places,
-``RouteMemory.aliased``) and never routes through them; this benchmark counts them on the maps themselves, from the
-env's own view table: pairs of intersections whose feature vectors are equal, and within ``1e-4`` in every entry (the
-env's goal tolerance), per map and encoder. Usage::
+Two counts per map, encoder and world:
 
-    python benchmarks/aliased_places.py                       # the campus (EfficientNet-Lite0 and pixels), 1k cities
-    python benchmarks/aliased_places.py --cities 1000 --map-seeds 31 47 59 --encoders pixels
+- **on the map itself**, from the env's own view table: pairs of intersections whose feature vectors are equal, and
+  within ``1e-4`` in every entry (the env's goal tolerance);
+- **in the memory**, after the memory explored the map (its explorer, every transition remembered) in that world:
+  states that hold pictures of two intersections or more (**merged wrongly**), intersections spread over two states
+  or more (**split**), and pictures of explored intersections it answers unsure of (**unsure**), over every
+  (intersection, heading) pair, pictured ``--draws`` times in a world whose pictures vary; and the states the memory
+  found aliased itself (a slot that led to two places).
+
+Worlds (``--worlds``, :data:`benchmarks.campusnav_runs.WORLDS`): fixed views, fresh noise on the views, K renders per
+view. Usage::
+
+    python benchmarks/aliased_places.py                       # campus (EfficientNet-Lite0, pixels), 1k cities, a town
+    python benchmarks/aliased_places.py --cities 1000 --map-seeds 31 --encoders pixels --worlds fixed "noise 0.05"
 """
 
 from __future__ import annotations
@@ -18,14 +25,19 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.campusnav_runs import WORLDS
 from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.maps.campus import generate_city
+from campusnav_env.maps.examples import example_path
 from campusnav_env.rendering.street_view import RenderSettings
+from campusnav_env.wrappers import GaussianObservationNoise
+from sb3_dcqn.route_memory import RouteMemory, UntriedExplorer, batch_of_one
 
 TOLERANCE = 1e-4
 PIXELS = "pixels"
+EXPLORE_STEPS_PER_NODE = 40  # the memory explores at most this many steps per intersection
 
 
 def aliased_pairs(views: np.ndarray, tolerance: float) -> tuple[int, int]:
@@ -45,17 +57,80 @@ def aliased_pairs(views: np.ndarray, tolerance: float) -> tuple[int, int]:
     return equal, close
 
 
-def count(world: str, map_seed: int, size: int, encoder: str) -> dict[str, Any]:
+def make_env(world: str, map_seed: int, size: int, encoder: str, renders: int | None) -> CampusNavEnv:
     build = ViewBuild(
         render_settings=RenderSettings(64, 48) if encoder == PIXELS else None,
         progress=False,
         fit_views_to_encoder=world != "campus",
     )
-    graph = "campus" if world == "campus" else generate_city(size, seed=map_seed)
-    env = CampusNavEnv(world=graph, view_dim=64, encoder=encoder, view_build=build)
-    equal, close = aliased_pairs(env._open_views, TOLERANCE)
-    return {"map": world, "map_seed": map_seed, "size": env.graph.n_nodes, "encoder": encoder, "equal": equal,
-            "close": close}  # fmt: skip
+    graph: Any = {"campus": "campus", "town": example_path("small_town.graphml")}.get(world)
+    graph = generate_city(size, seed=map_seed) if graph is None else graph
+    goals = 0 if world == "town" else "Dreese Lab"  # the town names no landmark of the campus's
+    return CampusNavEnv(
+        world=graph, goals=goals, view_dim=64, encoder=encoder, view_build=build, view_variation=renders
+    )
+
+
+def explore(env: Any, memory: RouteMemory, seed: int, max_steps: int) -> int:
+    """Drive the memory's explorer (a uniform action where it has none) until nothing is untried; the steps."""
+    explorer = UntriedExplorer(memory)
+    rng = np.random.default_rng(seed)
+    observation, _ = env.reset(seed=seed)
+    for step in range(1, max_steps + 1):
+        action = int(explorer.actions(batch_of_one(observation))[0])
+        action = action if action >= 0 else int(rng.integers(4))
+        following, reward, terminated, truncated, info = env.step(action)
+        memory.add(observation, action, following, reward, terminated, info.get("is_success"))
+        observation = following
+        if terminated or truncated:
+            observation, _ = env.reset()
+        if memory.recogniser.calibrated and memory.n_states and memory.frontier().size == 0:
+            return step
+    return max_steps
+
+
+def memory_counts(env: Any, nav: CampusNavEnv, seed: int, draws: int) -> dict[str, Any]:
+    """Explore, then recognise every (intersection, heading) pair ``draws`` times: merged, split, unsure."""
+    memory = RouteMemory.for_env(env)
+    steps = explore(env, memory, seed, EXPLORE_STEPS_PER_NODE * nav.graph.n_nodes)
+    states_of_node: dict[int, set[int]] = {}
+    nodes_of_state: dict[int, set[int]] = {}
+    unsure = asked = 0
+    nodes, headings = nav.graph.map.state_nodes, nav.graph.map.state_headings
+    goal = nav.goal_nodes[0]
+    for _ in range(draws):
+        observations = nav.observations_at(nodes, headings, goal)
+        if isinstance(env, GaussianObservationNoise):
+            observations = env.observations(observations)
+        states = memory.states_of(observations)
+        for node, state in zip(nodes.tolist(), states.tolist(), strict=True):
+            if state < 0:
+                unsure += 1
+            else:
+                states_of_node.setdefault(node, set()).add(state)
+                nodes_of_state.setdefault(state, set()).add(node)
+            asked += 1
+    return {
+        "explore_steps": steps,
+        "states": memory.n_states,
+        "merged": sum(len(members) > 1 for members in nodes_of_state.values()),
+        "split": sum(len(members) > 1 for members in states_of_node.values()),
+        "unsure": unsure / asked,
+        "aliased": len(memory.aliased),
+        "stepped_aside": memory.stepped_aside,
+    }
+
+
+def count(world: str, map_seed: int, size: int, encoder: str, world_name: str, draws: int) -> dict[str, Any]:
+    settings = WORLDS[world_name]
+    nav = make_env(world, map_seed, size, encoder, settings.renders)
+    env = GaussianObservationNoise(nav, settings.noise, keys=["views"]) if settings.noise else nav
+    equal, close = aliased_pairs(nav._open_views, TOLERANCE)
+    return {
+        "map": world, "map_seed": map_seed, "size": nav.graph.n_nodes, "encoder": encoder, "world": world_name,
+        "equal": equal, "close": close, **memory_counts(env, nav, seed=map_seed, draws=draws if nav.observations_vary
+        or settings.noise else 1),
+    }  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -63,19 +138,39 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--encoders", nargs="+", default=["efficientnet-lite0", PIXELS])
     parser.add_argument("--cities", nargs="*", type=int, default=[1000], help="sizes of generated cities (pixels)")
     parser.add_argument("--map-seeds", nargs="+", type=int, default=[31, 47, 59])
+    parser.add_argument("--worlds", nargs="+", default=["fixed", "noise 0.05", "variation 8"], choices=list(WORLDS))
+    parser.add_argument("--city-worlds", nargs="+", default=["fixed", "noise 0.05"], choices=list(WORLDS))
+    parser.add_argument("--draws", type=int, default=3, help="pictures of each (intersection, heading) asked")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "aliased_places.md")
     args = parser.parse_args(argv)
-    records = [count("campus", 0, 101, encoder) for encoder in args.encoders]
-    records += [count("city", seed, size, PIXELS) for size in args.cities for seed in args.map_seeds]
-    rows = [
-        [r["map"], str(r["map_seed"]), f"{r['size']:,}", r["encoder"], str(r["equal"]), str(r["close"])]
-        for r in records
+    records = [
+        count("campus", 0, 101, encoder, world, args.draws) for encoder in args.encoders for world in args.worlds
     ]
-    header = ["map", "map seed", "intersections", "features", "pairs equal", f"pairs within {TOLERANCE:g}"]
+    records += [count("town", 0, 15, PIXELS, world, args.draws) for world in args.worlds]
+    records += [
+        count("city", seed, size, PIXELS, world, args.draws)
+        for size in args.cities
+        for seed in args.map_seeds
+        for world in args.city_worlds
+    ]
+    rows = [
+        [
+            r["map"], str(r["map_seed"]), f"{r['size']:,}", r["encoder"], r["world"], str(r["equal"]), str(r["close"]),
+            f"{r['states']:,}", str(r["merged"]), str(r["split"]), f"{r['unsure']:.3f}", str(r["aliased"]),
+            f"{r['explore_steps']:,}" + (" (stepped aside)" if r["stepped_aside"] else ""),
+        ]
+        for r in records
+    ]  # fmt: skip
+    header = [
+        "map", "map seed", "intersections", "features", "world", "pairs equal", f"pairs within {TOLERANCE:g}",
+        "memory states", "merged wrongly", "split", "unsure share", "aliased (found)", "exploration steps",
+    ]  # fmt: skip
     lines = [
         "# Aliased places",
         "",
         (__doc__ or "").split("Usage::")[0].split("\n\n")[1].replace("\n", " ").strip(),
+        "",
+        "The town is the shipped `small_town.graphml` (15 intersections, metres). No real OSM map is on this machine.",
         "",
         machine_line("one process"),
         "",
