@@ -35,7 +35,7 @@ from sb3_dcqn.route_memory import (
     UntriedExplorer,
 )
 
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 SMALL = {"encoder": "pixels", "render_settings": RenderSettings(64, 48), "progress": False}
 
