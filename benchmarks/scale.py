@@ -321,7 +321,7 @@ def make_plan(args: argparse.Namespace) -> Plan:
     from campusnav_env.features.feature_cache import default_cache_dir
 
     quick = args.quick
-    sizes = tuple(args.sizes or ((101, 300) if quick else (101, 1_000, 10_000)))
+    sizes = tuple(args.sizes or ((30, 60) if quick else (101, 1_000, 10_000)))
     if quick:
         budgets = size_values(args.budget, sizes, lambda _: 4.0)
         eval_freq = {size: int(v) for size, v in size_values(args.eval_freq, sizes, lambda _: 500).items()}
@@ -359,7 +359,7 @@ def run_stage(stage: tuple[str, int, Callable[..., Any], tuple]) -> dict[str, An
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--sizes", nargs="+", type=int, help="intersections (default 101 1000 10000; quick: 101 300)")
+    parser.add_argument("--sizes", nargs="+", type=int, help="intersections (default 101 1000 10000; quick: 30 60)")
     parser.add_argument("--stages", nargs="+", choices=STAGES, default=list(STAGES), help="stages to run (all)")
     parser.add_argument("--budget", nargs="+", help="training seconds: SIZE=SECONDS per size, or one number for all")
     parser.add_argument("--eval-freq", nargs="+", help="env steps between route evaluations: SIZE=STEPS, or one number")
@@ -367,7 +367,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--effnet-max-nodes", type=int, default=1_000, help="largest map encoded with EfficientNet")
     parser.add_argument("--effnet-sample", type=int, default=32, help="nodes encoded to extrapolate larger maps")
     parser.add_argument("--cache-dir", type=Path, help="feature cache (default: $CAMPUSNAV_CACHE/scale)")
-    parser.add_argument("--quick", action="store_true", help="smoke run: 101 and 300 nodes, pixel features, ~1 min")
+    parser.add_argument("--quick", action="store_true", help="smoke run: 30 and 60 nodes, pixel features, ~1 min")
     parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "scale_runs.jsonl")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "scale.md")
     args = parser.parse_args(argv)

@@ -36,17 +36,22 @@ def _library_caches_in_pytest_temp(tmp_path_factory: pytest.TempPathFactory) -> 
         yield
 
 
+@pytest.fixture(scope="session")
+def shared_cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One feature cache for the whole test session, in pytest's temp folder (never the user's ``~/.cache/campusnav``,
+    whose state no test may depend on): the views of a world, render settings and encoder are rendered and encoded by
+    the first test that asks and read by every other (the cache is file-locked, so subprocesses share it too). Tests
+    of the cache itself, and benchmarks that time a cold build, keep a folder of their own."""
+    return tmp_path_factory.mktemp("campusnav-cache")
+
+
 @pytest.fixture(scope="module")
-def _module_cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("cache")
-
-
-@pytest.fixture
-def module_feature_cache(_module_cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """``$CAMPUSNAV_CACHE`` set to one feature cache per test module (``pytest.mark.usefixtures``): a module's tests
-    render and encode the views once, not once per test."""
-    monkeypatch.setenv("CAMPUSNAV_CACHE", str(_module_cache_dir))
-    return _module_cache_dir
+def shared_feature_cache(shared_cache_dir: Path) -> Iterator[Path]:
+    """``$CAMPUSNAV_CACHE`` set to the session's shared feature cache for a module (``pytest.mark.usefixtures``, or
+    an argument of the module fixtures that build envs or start processes that do); the caller's value after it."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("CAMPUSNAV_CACHE", str(shared_cache_dir))
+        yield shared_cache_dir
 
 
 @pytest.fixture

@@ -25,25 +25,25 @@ BUDGET = 1.0
 
 
 @pytest.fixture(scope="module")
-def env(tmp_path_factory: pytest.TempPathFactory) -> CampusNavEnv:
+def env(shared_cache_dir: Path) -> CampusNavEnv:
     return CampusNavEnv(
         encoder="pixels",
         view_build=ViewBuild(
             render_settings=RenderSettings(width=32, height=24),
-            cache_dir=tmp_path_factory.mktemp("cache"),
+            cache_dir=shared_cache_dir,  # the session's (conftest.py)
             progress=False,
         ),
     )
 
 
 @pytest.fixture(scope="module")
-def quick_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, list[dict]]:
+def quick_run(tmp_path_factory: pytest.TempPathFactory, shared_cache_dir: Path) -> tuple[str, list[dict]]:
     """One smoke run of every agent on one goal, with a budget of one second each."""
     tmp_path = tmp_path_factory.mktemp("compare")
     out, runs_file = tmp_path / "compare.md", tmp_path / "runs.jsonl"
     command = [sys.executable, str(BENCHMARKS / "compare.py"), "--quick", "--goals", "1", "--budget", str(BUDGET)]
     command += ["--eval-every", "200", "--out", str(out), "--runs-file", str(runs_file)]
-    env = {**os.environ, "CAMPUSNAV_CACHE": str(tmp_path / "campusnav-cache")}
+    env = {**os.environ, "CAMPUSNAV_CACHE": str(shared_cache_dir)}
     subprocess.run(command, check=True, timeout=600, env=env)
     return out.read_text(), [json.loads(line) for line in runs_file.read_text().splitlines()]
 

@@ -11,11 +11,11 @@ from pathlib import Path
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
-def test_quick_run_records_each_run_and_writes_the_table_and_picture(tmp_path: Path) -> None:
+def test_quick_run_records_each_run_and_writes_the_table_and_picture(tmp_path: Path, shared_cache_dir: Path) -> None:
     runs, out = tmp_path / "runs.jsonl", tmp_path / "learning_speed.md"
     command = [sys.executable, str(BENCHMARKS / "learning_speed.py"), "--tasks", "quick", "--variants", "DCQN", "DQN"]
     command += ["--seeds", "0", "--runs-file", str(runs), "--out", str(out)]
-    env = {**os.environ, "CAMPUSNAV_CACHE": str(tmp_path / "cache")}
+    env = {**os.environ, "CAMPUSNAV_CACHE": str(shared_cache_dir)}  # the session's (conftest.py)
     subprocess.run(command, check=True, timeout=300, env=env, cwd=tmp_path)
     records = [json.loads(line) for line in runs.read_text().splitlines()]
     assert sorted(r["variant"] for r in records) == ["DCQN", "DQN"]

@@ -58,9 +58,9 @@ def test_the_table_shows_the_phase_quarters_and_the_first_steps_after_the_closur
     assert milestones(list(range(0, 10_001, 1_000)), 10_000, "after") == [0, 1_000, 2_000, 5_000, 10_000]
 
 
-def test_quick_run_writes_its_tables_picture_and_runs(tmp_path: Path) -> None:
+def test_quick_run_writes_its_tables_picture_and_runs(tmp_path: Path, shared_cache_dir: Path) -> None:
     out, runs = tmp_path / "overestimation.md", tmp_path / "runs.jsonl"
-    env = {**os.environ, "CAMPUSNAV_CACHE": str(tmp_path / "campusnav-cache")}
+    env = {**os.environ, "CAMPUSNAV_CACHE": str(shared_cache_dir)}  # the session's (conftest.py)
     command = [sys.executable, str(BENCHMARKS / "overestimation.py"), "--quick", "--out", str(out)]
     command += ["--runs-file", str(runs)]
     subprocess.run(command, check=True, timeout=600, env=env)

@@ -27,7 +27,7 @@ def test_scale_quick_run_writes_its_tables_and_picture(tmp_path: Path) -> None:
     # Every stage of the smoke run was recorded, once
     stages = sorted((r["stage"], r["size"]) for r in records)
     assert stages == sorted(
-        [("buffer", 0), ("vecenv", 101)] + [(stage, n) for stage in ("build", "fit", "train") for n in (101, 300)]
+        [("buffer", 0), ("vecenv", 30)] + [(stage, n) for stage in ("build", "fit", "train") for n in (30, 60)]
     )
     assert "| intersections | states | encoder, views | map (s) | 3D world (s) | render (ms/node) |" in text
     assert "| intersections | features | budget (s) | solved | training time to threshold (s) | env steps |" in text

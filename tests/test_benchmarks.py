@@ -1,4 +1,7 @@
-"""The benchmark scripts run and write their results file (smoke runs; the figures themselves are not asserted)."""
+"""The benchmark scripts run and write their results file (smoke runs; the figures themselves are not asserted).
+
+The smoke runs read and write the session's feature cache (conftest.py): the views of the quick settings are rendered
+and encoded once for all of them and for the other tests of the session."""
 
 from __future__ import annotations
 
@@ -7,6 +10,8 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
@@ -21,18 +26,19 @@ def test_throughput_quick_run_writes_a_markdown_table(tmp_path: Path) -> None:
     assert "Command: `python benchmarks/throughput.py --quick --out" in text
 
 
-def _quick_run(script: str, tmp_path: Path, *options: str) -> str:
-    """Run a benchmark script's smoke run (views encoded into a fresh cache in tmp_path) and return its results file."""
+def _quick_run(script: str, tmp_path: Path, cache: Path, *options: str) -> str:
+    """Run a benchmark script's smoke run (its results and runs files in tmp_path, its views in the feature cache
+    ``cache``) and return its results file."""
     out = tmp_path / script.replace(".py", ".md")
-    env = {**os.environ, "CAMPUSNAV_CACHE": str(tmp_path / "campusnav-cache")}
+    env = {**os.environ, "CAMPUSNAV_CACHE": str(cache)}
     command = [sys.executable, str(BENCHMARKS / script), "--quick", "--out", str(out)]
     command += ["--runs-file", str(tmp_path / "runs.jsonl"), *options]
     subprocess.run(command, check=True, timeout=600, env=env)
     return out.read_text()
 
 
-def test_closures_one_at_a_time_quick_run_writes_its_tables(tmp_path: Path) -> None:
-    text = _quick_run("closures_one_at_a_time.py", tmp_path)
+def test_closures_one_at_a_time_quick_run_writes_its_tables(tmp_path: Path, shared_cache_dir: Path) -> None:
+    text = _quick_run("closures_one_at_a_time.py", tmp_path, shared_cache_dir)
     assert "| lever | seeds | solved before the closures at (per seed) | closures recovered |" in text
     # The recovery is seen at evaluations every 2 episodes (the default): the tables say so
     assert "| closures recovered | median episodes (evaluated every 2) |" in text
@@ -41,8 +47,10 @@ def test_closures_one_at_a_time_quick_run_writes_its_tables(tmp_path: Path) -> N
     assert "Command: `python benchmarks/closures_one_at_a_time.py --quick --out" in text
 
 
-def test_closures_eleven_quick_run_evaluates_after_every_episode_when_asked(tmp_path: Path) -> None:
-    text = _quick_run("closures_eleven.py", tmp_path, "--eval-every", "1")
+def test_closures_eleven_quick_run_evaluates_after_every_episode_when_asked(
+    tmp_path: Path, shared_cache_dir: Path
+) -> None:
+    text = _quick_run("closures_eleven.py", tmp_path, shared_cache_dir, "--eval-every", "1")
     assert "| lever | seeds | solved before the closure at (per seed) | recovered |" in text
     assert "| lever | seed | routes affected | success / SPL right after |" in text
     assert "| success / SPL right after | recovery episodes (evaluated every 1) |" in text
@@ -51,23 +59,25 @@ def test_closures_eleven_quick_run_evaluates_after_every_episode_when_asked(tmp_
     assert runs and {run["recovery_eval_freq"] for run in runs} == {1}
 
 
-def test_paper_goals_quick_run_writes_its_tables(tmp_path: Path) -> None:
-    text = _quick_run("paper_goals.py", tmp_path)
+def test_paper_goals_quick_run_writes_its_tables(tmp_path: Path, shared_cache_dir: Path) -> None:
+    text = _quick_run("paper_goals.py", tmp_path, shared_cache_dir)
     assert "| goal | agent | seed | test success | mean steps | mean shortest | SPL |" in text
     assert "| goal | agent | seed | routes | success | SPL | coverage (every heading) |" in text
 
 
-def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: Path) -> None:
-    _quick_run("unseen_goals.py", tmp_path, "--after", "--levers", "shipped")  # --after: both
+# The unseen-goals smoke runs train 2 s per run (the figures are not asserted; the tables' every row is)
+UNSEEN_GOALS_BUDGET = ("--budget", "2")
+
+
+def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: Path, shared_cache_dir: Path) -> None:
+    # Every protocol as shipped, then the re-adaptation for every goal (the appearance change: the slow test below)
+    _quick_run("unseen_goals.py", tmp_path, shared_cache_dir, "--after", "readapt", *UNSEEN_GOALS_BUDGET)
     # Into the same results: two ablation levers on one protocol (each protocol's run is not needed here)
-    text = _quick_run("unseen_goals.py", tmp_path, "--protocols", "strict", "--levers", "relabel8", "critics_alone")
+    levers = ("--protocols", "strict", "--levers", "relabel8", "critics_alone", *UNSEEN_GOALS_BUDGET)
+    text = _quick_run("unseen_goals.py", tmp_path, shared_cache_dir, *levers)
     assert "| measure | median (worst) | goal | seeds | route memory |" in text
     rows = ("held-out goals (20%, strict)", "held-out goals, lenient", "every intersection as goal")
-    rows += (
-        "the paper's four goals",
-        "goals pictured otherwise, night (19:30) (as shipped)",
-        "one closure, every goal",
-    )
+    rows += ("the paper's four goals", "one closure, every goal")
     for row in rows:
         assert f"| {row}" in text
     assert "| strict | 8 relabelled goals per transition | 0 |" in text
@@ -77,8 +87,16 @@ def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: P
     assert shipped.endswith("| on |") and critics.endswith("| off |")
 
 
-def test_long_routes_quick_run_writes_the_ablation_table(tmp_path: Path) -> None:
-    text = _quick_run("long_routes.py", tmp_path, "--rows", "curriculum", "memory")
+@pytest.mark.slow  # five evaluations of every goal, each after its goal pictures are rendered: about a minute
+def test_unseen_goals_quick_run_measures_goals_pictured_otherwise(tmp_path: Path, shared_cache_dir: Path) -> None:
+    options = ("--protocols", "all", "--after", "appearance", *UNSEEN_GOALS_BUDGET)
+    text = _quick_run("unseen_goals.py", tmp_path, shared_cache_dir, *options)
+    for appearance in ("morning (8:30)", "evening (17:30)", "night (19:30)", "passing cars", "night + cars"):
+        assert f"| goals pictured otherwise, {appearance} (as shipped): success |" in text
+
+
+def test_long_routes_quick_run_writes_the_ablation_table(tmp_path: Path, shared_cache_dir: Path) -> None:
+    text = _quick_run("long_routes.py", tmp_path, shared_cache_dir, "--rows", "curriculum", "memory")
     assert "| intersections | map seed | features | row | step cap | seeds | solved |" in text
     assert "| 101 | 0 | pixels | + start curriculum (near to far) | 3,000 | 0 |" in text
     assert "| 101 | 0 | pixels | + route memory (plans greedy actions) | 3,000 | 0 |" in text

@@ -1,7 +1,7 @@
 """The ``dcqn-campusnav`` command line, in process, on small fast configurations.
 
-Every subcommand runs end to end on the built-in campus with the cheap ``pixels`` encoder on 64 x 48 views (the feature
-cache is built once for the module) and a few hundred steps: ``demo`` (also as the command without a subcommand),
+Every subcommand runs end to end on the built-in campus with the cheap ``pixels`` encoder on 64 x 48 views (from the
+session's feature cache) and a few hundred steps: ``demo`` (also as the command without a subcommand),
 ``train`` with a schedule file and with closure flags, ``readapt``, ``evaluate``, ``draw`` and ``roads``; bad input
 gives errors that name the flag, file or road (the rough edges a new user met: tests/test_campusnav_cli_errors.py).
 The shipped hyperparameter file's entry is checked here too.
@@ -46,8 +46,8 @@ features_dim=16), share_features_extractor=True, net_arch=[16], heading_key='hea
 ROAD = ("14", "15")  # a road of the built-in campus whose closure keeps every goal reachable
 
 
-# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+# The session's feature cache: the views are rendered and encoded once, not once per test or module (conftest.py)
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 
 @pytest.fixture

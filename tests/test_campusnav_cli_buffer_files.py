@@ -63,7 +63,7 @@ def test_a_compact_buffer_file_loads_back_as_the_live_buffer(tmp_path: Any, vari
     assert fresh.replay_buffer is not None and fresh.replay_buffer.size() == live.size() + 100
 
 
-@pytest.mark.usefixtures("module_feature_cache")
+@pytest.mark.usefixtures("shared_feature_cache")
 # The lean buffer stores each observation once already: its file is no larger than SB3 writes it
 @pytest.mark.parametrize(("variants", "share"), [((), 1 / 20), (("lean",), 1.0), (("revision", "prioritized"), 1 / 20)])
 def test_a_campusnav_dict_buffer_loads_back_as_the_live_buffer(variants: tuple[str, ...], share: float) -> None:

@@ -36,8 +36,8 @@ DEAD_END = ("0", "11")  # node 0 of the built-in campus has this road only: clos
 REST_MARKUP = ("``", ":mod:", ":func:", ":class:", ":meth:", ":data:")
 
 
-# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+# The session's feature cache: the views are rendered and encoded once, not once per test or module (conftest.py)
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ HER buffer), its routes to all 101 goals are evaluated, a road on the learned ro
 measured; models load with their env for ``evaluate``, ``readapt`` (with the HER buffer saved next to them) and
 ``draw``. Closures keep every intersection reachable. Prioritised replay, which cannot run with hindsight
 relabelling, is refused by name; ``demo``'s default levers (revision, blocked) run as they are. Cheap ``pixels``
-views, 64 x 48, one feature cache per module.
+views, 64 x 48, from the session's feature cache.
 """
 
 from __future__ import annotations
@@ -50,8 +50,8 @@ ROAD = ("14", "15")  # a road of the built-in campus with a way around it
 BRIDGE = ("0", "11")  # node 0's only road: closing it cuts an intersection (a goal of the goal env) off
 
 
-# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+# The session's feature cache: the views are rendered and encoded once, not once per test or module (conftest.py)
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 
 @pytest.fixture

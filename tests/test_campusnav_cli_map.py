@@ -40,8 +40,8 @@ features_dim=16), share_features_extractor=True, net_arch=[16], heading_key='hea
 """
 
 
-# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+# The session's feature cache: the views are rendered and encoded once, not once per test or module (conftest.py)
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 
 @pytest.fixture(scope="module")

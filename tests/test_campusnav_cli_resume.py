@@ -24,8 +24,8 @@ from sb3_dcqn import DCQN
 from sb3_dcqn.campusnav import experiments
 from sb3_dcqn.campusnav.cli import main
 
-# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+# The session's feature cache: the views are rendered and encoded once, not once per test or module (conftest.py)
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 
 def fails(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:

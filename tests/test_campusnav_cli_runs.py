@@ -3,8 +3,8 @@ holds them is kept, and the next numbered one written, as the RL Zoo numbers its
 readapt and evaluate go on from the model as it was saved (its closures, levers and callbacks), and Ctrl-C saves the
 run's work.
 
-Each test trains the built-in campus for a few hundred steps with the cheap ``pixels`` encoder on 64 x 48 views (the
-feature cache is built once for the module).
+Each test trains the built-in campus for a few hundred steps with the cheap ``pixels`` encoder on 64 x 48 views (read
+from the session's feature cache).
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from sb3_dcqn.adaptation_boost import AdaptationBoost
 from sb3_dcqn.campusnav import experiments
 from sb3_dcqn.campusnav.cli import CommandError, main
 
-# One feature cache for the module: the views are rendered and encoded once, not once per test (conftest.py)
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+# The session's feature cache: the views are rendered and encoded once, not once per test or module (conftest.py)
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 
 def files_under(folder: Path) -> dict[str, bytes]:

@@ -9,7 +9,6 @@ bar, the levers' options or the loop.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -54,10 +53,8 @@ GLUE_USERS = (
 )
 
 
-@pytest.fixture(autouse=True)
-def _feature_cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    monkeypatch.setenv("CAMPUSNAV_CACHE", str(tmp_path_factory.getbasetemp() / "experiments-cache"))
-    yield
+# The session's feature cache: the campus's views are rendered and encoded once, not once per module (conftest.py)
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 
 def tiny_model(seed: int = 0) -> DCQN:

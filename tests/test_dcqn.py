@@ -204,7 +204,7 @@ def test_dcqn_takes_dqns_parameters_plus_the_targets_two_options_and_predicts_as
     assert DCQN.predict is DQN.predict  # epsilon-greedy over the greedy action: the mean of the critics
 
 
-@pytest.mark.usefixtures("module_feature_cache")
+@pytest.mark.usefixtures("shared_feature_cache")
 @pytest.mark.parametrize("wrapping", ["flatten", "filter", "frame_stack"])
 def test_dcqn_builds_and_learns_on_campusnav_behind_wrappers_that_change_its_spaces(wrapping: str) -> None:
     # DCQN reads nothing from the env's metadata: a frame declaration that no longer fits the wrapped spaces is none

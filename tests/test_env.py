@@ -23,8 +23,9 @@ SMALL_VIEWS = RenderSettings(width=64, height=48)
 
 
 @pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("campusnav-cache")
+def cache_dir(shared_cache_dir: Path) -> Path:
+    """The session's feature cache (conftest.py): the campus's views are built once, not once per module."""
+    return shared_cache_dir
 
 
 def small_views(cache_dir: Path) -> ViewBuild:

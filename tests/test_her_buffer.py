@@ -190,7 +190,7 @@ def test_terminal_relabels_can_be_turned_off_through_replay_buffer_kwargs() -> N
 
 
 @pytest.fixture(scope="module")
-def strict_model(tmp_path_factory: pytest.TempPathFactory) -> tuple[DCQN, CampusNavGoalEnv, list[int]]:
+def strict_model(shared_cache_dir: Path) -> tuple[DCQN, CampusNavGoalEnv, list[int]]:
     """Random driving on the campus, 20% of the goals held out, 3,000 steps stored (no training)."""
     training, held_out = held_out_split(101, 0.2, seed=3)
     env = CampusNavGoalEnv(
@@ -200,7 +200,7 @@ def strict_model(tmp_path_factory: pytest.TempPathFactory) -> tuple[DCQN, Campus
         view_dim=16,
         view_build=ViewBuild(
             render_settings=RenderSettings(width=64, height=48),
-            cache_dir=tmp_path_factory.mktemp("cache"),
+            cache_dir=shared_cache_dir,  # the session's (conftest.py): the campus's views are built once
             progress=False,
         ),
     )
@@ -252,10 +252,12 @@ def test_the_buffer_survives_a_save_and_load(
     assert not np.isin(goals, held_out).any()
 
 
-def test_revision_rewrites_a_closed_road_for_every_goal_its_transitions_carry(tmp_path: Path) -> None:
+def test_revision_rewrites_a_closed_road_for_every_goal_its_transitions_carry(shared_cache_dir: Path) -> None:
     env = CampusNavGoalEnv(
         encoder="pixels", view_dim=16,
-        view_build=ViewBuild(render_settings=RenderSettings(width=64, height=48), cache_dir=tmp_path, progress=False),
+        view_build=ViewBuild(
+            render_settings=RenderSettings(width=64, height=48), cache_dir=shared_cache_dir, progress=False
+        ),
     )  # fmt: skip
     model = DCQN(
         "MultiInputPolicy", env, replay_buffer_class=RevisionHerReplayBuffer, learning_starts=10**6, seed=0,

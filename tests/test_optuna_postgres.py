@@ -1,23 +1,28 @@
 """The Optuna sweep on several machines: two ``dcqn-zoo -optimize`` workers share one study in a PostgreSQL server.
 
 The test starts a real PostgreSQL server of its own (``initdb`` and ``pg_ctl`` in a temp folder, listening on a free
-localhost port, trust authentication, a database ``optuna``), then runs two worker processes of README's sweep
-command against ``--storage postgresql+psycopg://optuna@127.0.0.1:PORT/optuna`` at the same time, each in a folder of
-its own as on two machines: CampusNav-v0 from the shipped entry as README's command runs it (no ``--env-kwargs``, so
-the entry's own ``env_kwargs``, ``view_dim: 64`` with EfficientNet-Lite0 views, make the training and the evaluation
-envs; each worker encodes the campus's views once into its own feature cache), two trials each, a few hundred steps
-per trial. Neither creates the study beforehand: the first to arrive does, the other
-joins. The study must hold the four completed trials, numbered 0-3 with no number twice, two from each worker (each
-worker's log names the trials it finished). The server is stopped and its folder removed at the end, also when the
-test fails.
+localhost port, trust authentication) with a fresh database ``optuna_<random>``, then runs two worker processes of
+README's sweep command against ``--storage postgresql+psycopg://optuna@127.0.0.1:PORT/optuna_...`` at once, each in
+a folder of its own as on two machines: CampusNav-v0 from the shipped entry as README's command runs it (no
+``--env-kwargs``, so the entry's own ``env_kwargs``, ``view_dim: 64`` with EfficientNet-Lite0 views, make the
+training and the evaluation envs; each worker encodes the campus's views once into its own feature cache), two
+trials each, a few hundred steps per trial. Optuna's tables are created once before they start, as README says;
+neither creates the study beforehand: the first to arrive does, the other joins. The study must hold the four
+completed trials, numbered 0-3 with no number twice, two from each worker (each worker's log names the trials it
+finished). The server is stopped and its folder removed at the end, also when the test fails.
 
 PostgreSQL refuses to run as root. Run as root, the test runs ``initdb`` and ``pg_ctl`` as an existing unprivileged
 account (``postgres``, as the Debian package creates it, else ``nobody``) through ``subprocess``'s ``user``/``group``
 arguments, in a temp folder handed to that account; it creates no account. The workers run as the test's own user
 and connect over TCP.
 
-Needs the PostgreSQL binaries (on ``PATH`` or in ``/usr/lib/postgresql/<version>/bin``; skipped without them) and
-the driver psycopg 3 (``pip install "sb3-dcqn[sweep]"``; skipped without it). Marked slow.
+Given a server instead (``SWEEP_TEST_POSTGRES_URL``: the SQLAlchemy URL of a database the test may create databases
+from, e.g. ``postgresql+psycopg://optuna@127.0.0.1:5433/postgres``, as CI's ``.ci/integration`` starts one), the test
+starts none: it creates a database of its own in that server and drops it at the end.
+
+Needs the PostgreSQL binaries (on ``PATH`` or in ``/usr/lib/postgresql/<version>/bin``; skipped without them) unless
+given a server, and the driver psycopg 3 (``pip install "sb3-dcqn[sweep]"``; skipped without it). Marked slow;
+``.ci/integration`` runs it with everything installed and fails where it would be skipped.
 """
 
 from __future__ import annotations
@@ -25,12 +30,14 @@ from __future__ import annotations
 import os
 import pwd
 import re
+import secrets
 import shutil
 import socket
 import subprocess
 import sys
 import tempfile
 from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import pytest
@@ -41,8 +48,9 @@ psycopg = pytest.importorskip("psycopg", reason='the PostgreSQL driver: pip inst
 
 pytestmark = pytest.mark.slow
 
-DATABASE = "optuna"
 DATABASE_USER = "optuna"
+# A server given by the caller (CI starts one): the SQLAlchemy URL of a database to connect to for CREATE DATABASE
+SERVER_URL_VARIABLE = "SWEEP_TEST_POSTGRES_URL"
 STUDY = "campusnav-postgres"
 WORKERS = 2
 TRIALS_PER_WORKER = 2
@@ -98,13 +106,35 @@ def run_as(account: pwd.struct_passwd | None, command: list[str], cwd: Path) -> 
         raise RuntimeError(f"{' '.join(command)} failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
 
 
-@pytest.fixture
-def postgres_url() -> Iterator[str]:
-    """A fresh PostgreSQL server with an empty database; its SQLAlchemy URL. Stopped and removed afterwards."""
+@contextmanager
+def fresh_database(server_url: str) -> Iterator[str]:
+    """A new, empty database in the server at ``server_url`` (a SQLAlchemy URL); its URL. Dropped afterwards."""
+    from sqlalchemy.engine import make_url
+
+    server = make_url(server_url)
+    name = f"optuna_{secrets.token_hex(4)}"  # never one that a rerun or another test run already made
+    connect = {"host": server.host, "port": server.port, "user": server.username, "password": server.password}
+    # autocommit: CREATE and DROP DATABASE cannot run in a transaction
+    with psycopg.connect(**connect, dbname=server.database, autocommit=True) as db:
+        db.execute(f"CREATE DATABASE {name}")
+    try:
+        yield server.set(drivername="postgresql+psycopg", database=name).render_as_string(hide_password=False)
+    finally:
+        with psycopg.connect(**connect, dbname=server.database, autocommit=True) as db:
+            db.execute(f"DROP DATABASE {name} WITH (FORCE)")  # FORCE: a worker killed on a timeout may hold it
+
+
+@contextmanager
+def own_server() -> Iterator[str]:
+    """A fresh PostgreSQL server of the test's own; the SQLAlchemy URL of its database ``postgres``. Stopped and
+    removed afterwards."""
     binaries = {name: postgres_binary(name) for name in ("initdb", "pg_ctl", "postgres")}
     missing = [name for name, path in binaries.items() if path is None]
     if missing:
-        pytest.skip(f"PostgreSQL binaries not found: {', '.join(missing)} (not on PATH nor in /usr/lib/postgresql)")
+        pytest.skip(
+            f"PostgreSQL binaries not found: {', '.join(missing)} (not on PATH nor in /usr/lib/postgresql), "
+            f"and no server given in ${SERVER_URL_VARIABLE}"
+        )
     account = server_account()
     # In the system temp dir, not pytest's: the server's account must reach it (pytest's base folder is root's, 0700)
     root = Path(tempfile.mkdtemp(prefix="optuna-postgres-"))
@@ -120,14 +150,20 @@ def postgres_url() -> Iterator[str]:
         start = [binaries["pg_ctl"], "-D", str(data), "-l", str(root / "server.log"), "-o", options]
         run_as(account, [*start, "-w", "-t", str(SERVER_TIMEOUT_S), "start"], root)
         started = True
-        # autocommit: CREATE DATABASE cannot run in a transaction
-        with psycopg.connect(host="127.0.0.1", port=port, user=DATABASE_USER, dbname="postgres", autocommit=True) as db:
-            db.execute(f"CREATE DATABASE {DATABASE}")
-        yield f"postgresql+psycopg://{DATABASE_USER}@127.0.0.1:{port}/{DATABASE}"
+        yield f"postgresql+psycopg://{DATABASE_USER}@127.0.0.1:{port}/postgres"
     finally:
         if started:
             run_as(account, [binaries["pg_ctl"], "-D", str(data), "-m", "fast", "-w", "stop"], root)
         shutil.rmtree(root, ignore_errors=True)
+
+
+@pytest.fixture
+def postgres_url() -> Iterator[str]:
+    """The SQLAlchemy URL of an empty database for the study: in the server of ``$SWEEP_TEST_POSTGRES_URL`` where
+    given, else in a server of the test's own."""
+    given = os.environ.get(SERVER_URL_VARIABLE)
+    with nullcontext(given) if given else own_server() as server_url, fresh_database(server_url) as database_url:
+        yield database_url
 
 
 def start_worker(storage: str, folder: Path) -> subprocess.Popen:
@@ -146,6 +182,9 @@ def start_worker(storage: str, folder: Path) -> subprocess.Popen:
 
 
 def test_two_sweep_workers_share_one_study_in_postgresql(postgres_url: str, tmp_path: Path) -> None:
+    # README's step before the workers start: Optuna's tables, created once (workers that start at once on an empty
+    # database each create them, and all but one fail: optuna/optuna#1092; 7 rounds of 8 here without this line)
+    optuna.storages.RDBStorage(postgres_url).engine.dispose()
     workers = [start_worker(postgres_url, tmp_path / f"machine-{i}") for i in range(WORKERS)]
     outputs = []
     try:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,12 +14,12 @@ from campusnav_env.route_evaluation import Route, RouteReport, evaluate_routes
 
 
 @pytest.fixture(scope="module")
-def env(tmp_path_factory: pytest.TempPathFactory) -> CampusNavEnv:
+def env(shared_cache_dir: Path) -> CampusNavEnv:
     return CampusNavEnv(
         encoder="pixels",
         view_build=ViewBuild(
             render_settings=RenderSettings(width=64, height=48),
-            cache_dir=tmp_path_factory.mktemp("cache"),
+            cache_dir=shared_cache_dir,  # the session's (conftest.py): the campus's views are built once
             progress=False,
         ),
     )

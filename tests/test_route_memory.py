@@ -36,7 +36,7 @@ from sb3_dcqn.route_memory import (
 )
 from sb3_dcqn.route_memory.places import digest
 
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 SMALL = {"encoder": "pixels", "view_build": ViewBuild(render_settings=RenderSettings(64, 48), progress=False)}
 NOISE = 0.05  # of a standardised feature's spread, fresh at every visit

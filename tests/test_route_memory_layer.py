@@ -28,7 +28,7 @@ from sb3_dcqn.replay import DCQNHerReplayBuffer, RevisionDictReplayBuffer, Revis
 from sb3_dcqn.replay.revision import RevisionReplay
 from sb3_dcqn.route_memory import batch_of_one
 
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 SMALL = {"encoder": "pixels", "view_build": ViewBuild(render_settings=RenderSettings(64, 48), progress=False)}
 NET = {"policy_kwargs": {"net_arch": [32]}}

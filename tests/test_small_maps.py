@@ -52,7 +52,7 @@ TOWN = {
 }
 TOWN_ROADS = [(0, 1), (1, 2), (3, 4), (4, 5), (0, 3), (2, 5), (1, 4), (0, 6), (2, 7), (3, 8), (5, 9)]
 
-pytestmark = pytest.mark.usefixtures("module_feature_cache")
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
 
 def write_town(path: Path, crs: str | None = None) -> Path:

@@ -80,10 +80,15 @@ def run_zoo(args: list[str], cwd: Path, env: dict[str, str] | None = None) -> su
     )
 
 
+# Every run's views in the session's feature cache (conftest.py): the campus's views are built once for the module's
+# runs (CampusNav-v0 and CampusNavGoal-v0 with pixels share them) and for the other modules'
+pytestmark = pytest.mark.usefixtures("shared_feature_cache")
+
+
 def module_env(root: Path) -> dict[str, str]:
-    # Module fixtures run before the autouse function fixtures of conftest: keep SB3's logger and CampusNav's feature
-    # cache in the module's folder; the headless Agg backend for the plot commands
-    return {"SB3_LOGDIR": str(root / "sb3-logs"), "CAMPUSNAV_CACHE": str(root / "cache"), "MPLBACKEND": "Agg"}
+    # Module fixtures run before the autouse function fixtures of conftest: keep SB3's logger in the module's folder;
+    # the headless Agg backend for the plot commands
+    return {"SB3_LOGDIR": str(root / "sb3-logs"), "MPLBACKEND": "Agg"}
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +103,7 @@ def cartpole_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def campusnav_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def campusnav_run(tmp_path_factory: pytest.TempPathFactory, shared_feature_cache: Path) -> Path:
     """A folder whose ``logs/`` holds one tiny DCQN run on CampusNav-v0 trained by ``dcqn-zoo`` (no command word)."""
     root = tmp_path_factory.mktemp("zoo-campusnav")
     (root / "tiny.yml").write_text(yaml.safe_dump(TINY_CAMPUSNAV))
@@ -115,17 +120,12 @@ SHIPPED_EVAL = ["-n", "300", "--eval-freq", "100", "--eval-episodes", "2", "--se
 
 
 @pytest.fixture(scope="module")
-def shipped_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One feature cache for the module's runs of the shipped CampusNav entry (EfficientNet views, encoded once)."""
-    return tmp_path_factory.mktemp("zoo-shipped-cache")
-
-
-@pytest.fixture(scope="module")
-def shipped_campusnav_run(tmp_path_factory: pytest.TempPathFactory, shipped_cache: Path) -> tuple[Path, str]:
-    """A folder whose ``logs/`` holds a short run of the shipped CampusNav-v0 entry with evaluation; its stdout."""
+def shipped_campusnav_run(tmp_path_factory: pytest.TempPathFactory, shared_feature_cache: Path) -> tuple[Path, str]:
+    """A folder whose ``logs/`` holds a short run of the shipped CampusNav-v0 entry with evaluation; its stdout (its
+    EfficientNet views encoded once into the session's feature cache, which the sweep below reads)."""
     root = tmp_path_factory.mktemp("zoo-shipped")
     args = ["train", "--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs", *SHIPPED_EVAL, "--verbose", "2"]
-    result = run_zoo(args, root, {**module_env(root), "CAMPUSNAV_CACHE": str(shipped_cache)})
+    result = run_zoo(args, root, module_env(root))
     assert result.returncode == 0, result.stderr[-3000:]
     return root, result.stdout
 
@@ -153,12 +153,12 @@ def test_all_plots_tabulates_the_evaluations_of_the_shipped_campusnav_run(
     assert "|CampusNav-v0|" in result.stdout and (root / "results.pkl").is_file()
 
 
-def test_a_sweep_of_the_shipped_campusnav_entry_completes_its_trials(tmp_path: Path, shipped_cache: Path) -> None:
+def test_a_sweep_of_the_shipped_campusnav_entry_completes_its_trials(tmp_path: Path) -> None:
     storage = tmp_path / "study.log"
     args = ["--algo", "dcqn", "--env", "CampusNav-v0", "-f", "logs", "-optimize", "--storage", str(storage)]
     args += ["--study-name", "shipped", "--n-trials", "2", "--n-jobs", "1", "--sampler", "random", "--pruner", "none"]
     args += ["-n", "300", "--n-evaluations", "1", "--eval-episodes", "2", "--seed", "0"]
-    result = run_zoo(args, tmp_path, {"CAMPUSNAV_CACHE": str(shipped_cache)})
+    result = run_zoo(args, tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     import optuna
     from optuna.storages import JournalStorage
@@ -323,7 +323,7 @@ def test_help_lists_the_commands_and_the_train_options(capsys: pytest.CaptureFix
 
 # ------------------------------------------------------------------------------------------------ goal env (HER)
 @pytest.fixture(scope="module")
-def goal_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def goal_run(tmp_path_factory: pytest.TempPathFactory, shared_feature_cache: Path) -> Path:
     """A folder whose ``logs/`` holds a DCQN run on CampusNavGoal-v0 from the shipped entry, 1500 steps."""
     root = tmp_path_factory.mktemp("zoo-goal")
     args = ["--algo", "dcqn", "--env", GOAL_ENV, "-conf", str(default_hyperparams_path()), "-n", "1500"]
@@ -333,12 +333,14 @@ def goal_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def test_dcqn_zoo_trains_the_goal_env_from_the_shipped_entry_with_hindsight_relabelling(goal_run: Path) -> None:
+def test_dcqn_zoo_trains_the_goal_env_from_the_shipped_entry_with_hindsight_relabelling(
+    goal_run: Path, shared_feature_cache: Path
+) -> None:
     run = goal_run / "logs" / "dcqn" / f"{GOAL_ENV}_1"
     config = dict(yaml.load((run / GOAL_ENV / "config.yml").read_text(), Loader=yaml.UnsafeLoader))
     assert config["replay_buffer_class"] == "HerReplayBuffer" and config["env_kwargs"]["encoder"] == "pixels"
     env_kwargs = config["env_kwargs"]
-    run_cache = ViewBuild.of(env_kwargs["view_build"], cache_dir=goal_run / "cache")  # the run's feature cache
+    run_cache = ViewBuild.of(env_kwargs["view_build"], cache_dir=shared_feature_cache)  # the session's feature cache
     env = CampusNavGoalEnv(**{**env_kwargs, "view_build": run_cache})
     model = DCQN.load(run / f"{GOAL_ENV}.zip", env=env)  # SB3's HER buffer is built with the env
     assert isinstance(model.replay_buffer, DCQNHerReplayBuffer) and model.replay_buffer.n_sampled_goal == 4

@@ -32,6 +32,8 @@ from benchmarks.scale_common import (
 STAGE = "buffer"
 BATCHES = (64, 256)
 SAMPLED_TRANSITIONS = 5_000
+SAMPLE_REPEATS = 300  # batches sampled per timing
+QUICK_TRANSITIONS, QUICK_REPEATS = 500, 30  # the smoke run's (--quick): every table, in a second
 TABLE_NODES = 1_000  # the map of the random walk the sampling buffers hold
 SHIPPED, READAPTATION, LEAN = (
     "DictReplayBuffer (shipped)",
@@ -61,30 +63,31 @@ def make_buffer(label: str, size: int, dim: int) -> Any:
     return cls(size, observation_space(dim), spaces.Discrete(4), device="cpu", n_envs=1)
 
 
-def fill_with_a_walk(buffers: list[Any], dim: int, rng: np.random.Generator) -> list[float]:
+def fill_with_a_walk(buffers: list[Any], dim: int, rng: np.random.Generator, transitions: int) -> list[float]:
     """
     Add the same random walk on TABLE_NODES intersections (random views, one goal) to every buffer.
 
+    :param transitions: Length of the walk
     :return: seconds per added transition of each buffer, in order
     """
     views = rng.standard_normal((TABLE_NODES, 4 * dim), dtype=np.float32)
     goal = views[:1].copy()
     eye = np.eye(4, dtype=np.float32)
-    nodes = rng.integers(0, TABLE_NODES, SAMPLED_TRANSITIONS + 1)
-    headings = rng.integers(0, 4, SAMPLED_TRANSITIONS + 1)
-    actions = rng.integers(0, 4, SAMPLED_TRANSITIONS)
+    nodes = rng.integers(0, TABLE_NODES, transitions + 1)
+    headings = rng.integers(0, 4, transitions + 1)
+    actions = rng.integers(0, 4, transitions)
     seconds = []
     for buffer in buffers:
         start = time.perf_counter()
-        for t in range(SAMPLED_TRANSITIONS):
+        for t in range(transitions):
             obs = {"views": views[nodes[t]][None], "goal_views": goal, "heading": eye[headings[t]][None]}
             nxt = {"views": views[nodes[t + 1]][None], "goal_views": goal, "heading": eye[headings[t + 1]][None]}
             buffer.add(obs, nxt, actions[t : t + 1].reshape(1, 1), np.array([-0.005]), np.array([False]), [{}])
-        seconds.append((time.perf_counter() - start) / SAMPLED_TRANSITIONS)
+        seconds.append((time.perf_counter() - start) / transitions)
     return seconds
 
 
-def sample_seconds(buffers: list[Any], batch: int, repeats: int = 300) -> list[float]:
+def sample_seconds(buffers: list[Any], batch: int, repeats: int = SAMPLE_REPEATS) -> list[float]:
     """Seconds to sample a batch (as tensors) from each buffer: interleaved twice, the faster of the two."""
     best = [float("inf")] * len(buffers)
     for _ in range(2):
@@ -119,9 +122,10 @@ def measure_replay_buffer(plan: Plan) -> dict[str, Any]:
                     "table_bytes_per_node": 4 * dim * 4 if label == LEAN else 0,
                 }
             )
+    transitions, repeats = (QUICK_TRANSITIONS, QUICK_REPEATS) if plan.quick else (SAMPLED_TRANSITIONS, SAMPLE_REPEATS)
     for dim in (VIEW_DIM, EFFNET_DIM):
-        shipped, lean = (make_buffer(label, SAMPLED_TRANSITIONS, dim) for label in (SHIPPED, LEAN))
-        add_shipped, add_lean = fill_with_a_walk([shipped, lean], dim, rng)
+        shipped, lean = (make_buffer(label, transitions, dim) for label in (SHIPPED, LEAN))
+        add_shipped, add_lean = fill_with_a_walk([shipped, lean], dim, rng, transitions)
         tables = {key: table.rows for key, table in lean.observations.items()}
         record = {
             "view_dim": dim,
@@ -130,10 +134,11 @@ def measure_replay_buffer(plan: Plan) -> dict[str, Any]:
             "table_mb": sum(rows_.nbytes for rows_ in tables.values()) / MB,
         }
         for batch in BATCHES:
-            t_shipped, t_lean = sample_seconds([shipped, lean], batch)
+            t_shipped, t_lean = sample_seconds([shipped, lean], batch, repeats)
             record[f"sample_us_{batch}"] = {SHIPPED: 1e6 * t_shipped, LEAN: 1e6 * t_lean}
         sampling.append(record)
-    return {"stage": STAGE, "size": 0, "buffer_size": BUFFER_SIZE, "rows": rows, "sampling": sampling}
+    record = {"stage": STAGE, "size": 0, "buffer_size": BUFFER_SIZE, "rows": rows, "sampling": sampling}
+    return record | {"sampled_transitions": transitions}
 
 
 def bytes_table(record: dict[str, Any]) -> list[str]:
@@ -223,7 +228,8 @@ def replay_section(record: dict[str, Any], sizes: list[int]) -> list[str]:
         "",
         *index_table(record, sizes),
         "",
-        f"The same random walk of {SAMPLED_TRANSITIONS:,} transitions on {TABLE_NODES:,} intersections (random "
+        f"The same random walk of {record.get('sampled_transitions', SAMPLED_TRANSITIONS):,} transitions on "
+        f"{TABLE_NODES:,} intersections (random "
         "views, one goal) added to SB3's buffer and to the lean one, then batches sampled from each in the same "
         "process (tensors out; the faster of two interleaved rounds). Adding costs the lean buffer a digest per "
         "vector; sampling gathers from a small table instead of the buffer-sized arrays.",

@@ -53,8 +53,8 @@ NODES_PER_BATCH = 8
 # The EfficientNet builds to measure (stage processes read it: set by this script's --paths)
 PATHS_ENV = "CAMPUSNAV_BUILD_PATHS"
 PATHS = ("workers", "workers-bf16", "serial")
-# Nodes rendered and encoded in the stage's process to time a worker build's render and encode per core
-PER_CORE_NODES = 16
+# Nodes rendered and encoded in the stage's process to time a worker build's render and encode per core (--quick: 2)
+PER_CORE_NODES, QUICK_PER_CORE_NODES = 16, 2
 
 
 def build_paths() -> tuple[str, ...]:
@@ -237,7 +237,8 @@ def measure_worker_build(
     record["encoder_load_seconds"] = load_seconds
     # Per core: this process runs one torch thread
     timed = TimedEncoder(source.encoder)
-    per_core = np.unique(np.linspace(0, n_nodes - 1, min(PER_CORE_NODES, n_nodes)).astype(int))
+    per_core_nodes = QUICK_PER_CORE_NODES if plan.quick else PER_CORE_NODES
+    per_core = np.unique(np.linspace(0, n_nodes - 1, min(per_core_nodes, n_nodes)).astype(int))
     source.encoder.encode(source.renderer.render_node(0))  # warm-up (first CNN call, first ground textures)
     begin = time.perf_counter()
     views = [render_nodes([int(node)], source.renderer.render_node) for node in per_core]
@@ -289,6 +290,7 @@ def measure_build(n_nodes: int, plan: Plan) -> dict[str, Any]:
     :param plan: The run
     :return: the stage's record for this size
     """
+    from campusnav_env.features.parallel_build import stop_workers
     from campusnav_env.maps.navigation import NavigationGraph
     from campusnav_env.rendering.world import build_world
 
@@ -311,6 +313,7 @@ def measure_build(n_nodes: int, plan: Plan) -> dict[str, Any]:
         else:
             precision = "bfloat16" if path == "workers-bf16" else "float32"
             record["encoders"].append(measure_worker_build(graph, world, EFFNET, effnet_in_full, plan, precision))
+    stop_workers()  # else the stage's process waits at exit for the pool's idle workers to time out (30 s)
     return record
 
 
