@@ -276,4 +276,5 @@ APPEARANCES = {
     "night (19:30)": RenderSettings(time_of_day=19.5),
     "passing cars": RenderSettings(cars=True),
     "night + cars": RenderSettings(time_of_day=19.5, cars=True),
+    "22:30 + cars": RenderSettings(time_of_day=22.5, cars=True),
 }
