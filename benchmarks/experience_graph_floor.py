@@ -160,7 +160,8 @@ def floor_steps(
         raise ValueError(f"eval_every must be at least 1, got {eval_every}")
     if memory not in MEMORIES:
         raise ValueError(f"memory must be one of {MEMORIES}, got {memory!r}")
-    graph = RouteMemory.for_env(env, place_frame="auto" if memory == "places" else None)
+    # The floor keeps exact observations: its places are told apart bit for bit, as the fixed views repeat
+    graph = RouteMemory.for_env(env, place_frame="auto" if memory == "places" else None, recognition="exact")
     agent = FloorAgent(graph)
     driven = entered_states(env)  # for the report only: the agent is never told
     cap = max_env_steps if max_env_steps is not None else 200 * env.graph.transition_table.size

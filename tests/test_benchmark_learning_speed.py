@@ -24,9 +24,9 @@ def test_quick_run_records_each_run_and_writes_the_table_and_picture(tmp_path: P
         assert record["steps"] <= 600
         assert record["final_success"] == record["curve"][-1]["success"]
     text = out.read_text()
-    assert "| task | agent | solved | median time to solved (s) |" in text
+    assert "| task | world | agent | solved | median time to solved (s) |" in text
     for variant in ("DCQN", "DQN"):
-        assert f"| smoke run (CampusNav-v0, 64x48 pixel features) | {variant} | " in text
+        assert f"| smoke run (CampusNav-v0, 64x48 pixel features) | fixed | {variant} | " in text
     assert (tmp_path / "learning_speed.png").stat().st_size > 0
     # A second call finds both runs done and only rewrites the results
     again = subprocess.run(command, check=True, timeout=300, env=env, cwd=tmp_path, capture_output=True, text=True)

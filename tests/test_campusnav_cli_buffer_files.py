@@ -2,7 +2,7 @@
 
 A buffer of every kind DCQN trains with (plain, dict, with revision, prioritized, lean, hindsight relabelling) is
 written compactly after a few steps, read back with SB3's ``load_replay_buffer``, and compared with the live buffer
-attribute by attribute: the arrays bit for bit, everything else as it pickles. The file is a small share of SB3's own.
+attribute by attribute: the arrays bit for bit, sets as sets, everything else as it pickles. The file is a small share of SB3's own.
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ def assert_same(live: Any, loaded: Any, where: str) -> None:
         assert isinstance(loaded, dict) and loaded.keys() == live.keys(), where
         for key in live:
             assert_same(live[key], loaded[key], f"{where}[{key!r}]")
+    elif isinstance(live, (set, frozenset)):  # a set's pickle follows its iteration order, which its history sets
+        assert type(loaded) is type(live) and loaded == live, where
     elif hasattr(live, "__dict__") and not isinstance(live, type):
         assert type(loaded) is type(live), where
         for key, value in vars(live).items():

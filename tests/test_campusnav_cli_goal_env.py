@@ -92,7 +92,7 @@ def test_the_shipped_entry_trains_with_hindsight_relabelling_and_scores_routes_t
     # routes.png: the four landmark goals' routes in a 2 x 2 grid (each map is wider than tall), not a tall column
     height, width = cv2.imread(str(out / "routes.png")).shape[:2]
     assert 0.6 < height / width < 1.2
-    tags = tensorboard_tags(out / "tb" / "DCQN_1")
+    tags = tensorboard_tags(out / "tb" / "DCQN-memory_1")  # the shipped goal entry wears the route memory
     assert {"eval/success_rate", "train/critic_1_loss", "train/q_mean"} <= tags["scalars"]
     assert {"figures/routes", "figures/curves"} <= tags["images"]
     model = DCQN.load(out / "dcqn_campusnav.zip", env=make_env(EnvSettings.from_json(saved)))

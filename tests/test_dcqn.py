@@ -209,10 +209,10 @@ def test_dcqn_takes_dqns_parameters_plus_the_targets_two_options_and_predicts_as
 def test_dcqn_builds_and_learns_on_campusnav_behind_wrappers_that_change_its_spaces(wrapping: str) -> None:
     # DCQN reads nothing from the env's metadata: a frame declaration that no longer fits the wrapped spaces is none
     # of its business (the critics score compass slots where policy_kwargs give heading_key)
-    from campusnav_env import CampusNavEnv
+    from campusnav_env import CampusNavEnv, ViewBuild
     from campusnav_env.rendering.street_view import RenderSettings
 
-    env = CampusNavEnv(encoder="pixels", render_settings=RenderSettings(64, 48), progress=False)
+    env = CampusNavEnv(encoder="pixels", view_build=ViewBuild(render_settings=RenderSettings(64, 48), progress=False))
     wrapped: Any = {
         "flatten": lambda: FlattenObservation(env),
         "filter": lambda: FilterObservation(env, ["views", "heading"]),

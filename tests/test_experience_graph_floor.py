@@ -48,7 +48,7 @@ def test_the_floor_over_places_needs_a_small_share_of_the_floor_over_poses(env: 
 
 
 def test_the_agent_explores_untried_slots_before_it_plans(env: CampusNavEnv) -> None:
-    agent = FloorAgent(RouteMemory.for_env(env))
+    agent = FloorAgent(RouteMemory.for_env(env, recognition="exact"))
     observation, _ = env.reset(seed=0)
     tried = []
     for _ in range(4):  # a new place: its compass slots are tried in order, collisions included
@@ -63,7 +63,7 @@ def test_the_agent_explores_untried_slots_before_it_plans(env: CampusNavEnv) -> 
 
 
 def test_the_policy_takes_the_fixed_action_on_unseen_observations(env: CampusNavEnv) -> None:
-    agent = FloorAgent(RouteMemory.for_env(env), fixed_action=2)
+    agent = FloorAgent(RouteMemory.for_env(env, recognition="exact"), fixed_action=2)
     observations = env.observations_at(np.array([0, 1]), np.array(env.graph.map.state_headings[:2]), "Dreese Lab")
     assert agent.policy(observations).tolist() == [2, 2]
 
