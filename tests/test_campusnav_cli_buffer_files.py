@@ -2,7 +2,8 @@
 
 A buffer of every kind DCQN trains with (plain, dict, with revision, prioritized, lean, hindsight relabelling) is
 written compactly after a few steps, read back with SB3's ``load_replay_buffer``, and compared with the live buffer
-attribute by attribute: the arrays bit for bit, sets as sets, everything else as it pickles. The file is a small share of SB3's own.
+attribute by attribute: the arrays bit for bit, sets as sets, everything else as it pickles. The file is a small
+share of SB3's own.
 """
 
 from __future__ import annotations
