@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.campusnav_runs import WORLDS
-from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish
+from benchmarks.report import RESULTS_DIR, described, machine_line, markdown_table, publish
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.maps.campus import generate_city
@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         "# Aliased places",
         "",
-        (__doc__ or "").split("Usage::")[0].split("\n\n")[1].replace("\n", " ").strip(),
+        described(__doc__),
         "",
         "The town is the shipped `small_town.graphml` (15 intersections, metres). No real OSM map is on this machine.",
         "",

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish
+from benchmarks.report import RESULTS_DIR, described, machine_line, markdown_table, publish
 from sb3_dcqn.route_memory.places import Answer, PlaceRecogniser
 
 VIEWS, WIDTH = 4, 64
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         "# Recognition speed",
         "",
-        " ".join((__doc__ or "").split("Usage::")[0].split("\n\n")[1].split()),
+        described(__doc__),
         "",
         machine_line("one process, numpy's BLAS on one thread"),
         "",

@@ -28,7 +28,7 @@ import torch as th
 
 from benchmarks.campusnav_runs import TASKS, VARIANTS, quick_env_kwargs
 from benchmarks.closure_runs import positive_int
-from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish, run_missing
+from benchmarks.report import RESULTS_DIR, described, machine_line, markdown_table, publish, run_missing
 from campusnav_env.closures import ClosureEvent, busiest_road, road_usage
 from campusnav_env.recovery import RouteEvaluation
 from sb3_dcqn.campusnav.experiments import ClosurePlan, train_with_closures
@@ -139,7 +139,7 @@ def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None, 
     lines = [
         "# A closed road reopened: episodes until the routes use it again",
         "",
-        (__doc__ or "").split("Usage::")[0].split("\n\n")[1].replace("\n", " ").strip(),
+        described(__doc__),
         "",
         machine_line("runs one after another in one process"),
         "",

@@ -64,6 +64,11 @@ def machine_line(
     return f"Machine: {platform.platform()}, {cpu_model()}, {core_count()}{sharing}, {threads}; {runs}."
 
 
+def described(docstring: str | None) -> str:
+    """A script's docstring's second paragraph (what it measures, before ``Usage::``) as one line of a results file."""
+    return " ".join((docstring or "").split("Usage::")[0].split("\n\n")[1].split())
+
+
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
     """
     The lines of a Markdown table: the header, the separator, one line per row (cells already formatted as text).
