@@ -373,12 +373,22 @@ def test_gradient_steps_minus_one_does_one_update_per_env_step() -> None:
     assert model._n_updates == 8 * training_rollouts
 
 
-def test_cnn_policy_learns_on_a_small_image_env() -> None:
+def test_cnn_policy_trains_its_image_critics_and_acts_on_their_mean() -> None:
+    from stable_baselines3.common.torch_layers import NatureCNN
+
     env = FakeImageEnv(screen_height=40, screen_width=40, n_channels=1, discrete=True)
-    model = DCQN("CnnPolicy", env, seed=0, learning_starts=20, buffer_size=200, batch_size=8)
+    model = DCQN("CnnPolicy", env, seed=0, learning_starts=20, buffer_size=200, batch_size=8, train_freq=4)
+    assert isinstance(model.q_net.features_extractor, NatureCNN)  # the images go through SB3's CNN
+    before = [p.detach().clone() for p in model.q_net.parameters()]
     model.learn(60)
-    action, _ = model.predict(env.observation_space.sample(), deterministic=True)
-    assert env.action_space.contains(int(action))
+    assert model._n_updates == sum(1 for step in range(4, 61, 4) if step > 20)  # a gradient step per rollout
+    moved = [not th.equal(old, new) for old, new in zip(before, model.q_net.parameters(), strict=True)]
+    assert all(moved)  # every critic parameter, the CNN's included, was trained
+    images = np.stack([env.observation_space.sample() for _ in range(5)])
+    actions, _ = model.predict(images, deterministic=True)
+    with th.no_grad():
+        mean_q = model.q_net(model.policy.obs_to_tensor(images)[0])
+    np.testing.assert_array_equal(actions, mean_q.argmax(dim=1).cpu().numpy())
 
 
 # --- logging -------------------------------------------------------------------------------------------------------
