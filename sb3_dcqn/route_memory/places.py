@@ -24,10 +24,11 @@ pictures of the window is either that of two visits of one place (small: noise, 
 the distances of all pairs (of a sample of up to ``CALIBRATION_SAMPLE`` pictures) fall into two groups, split where
 their sorted logarithms jump the most (exact repeats count as distance 0). With ``g`` the 90th percentile of the
 repeat group and ``i`` the 10th of the other, ``known`` and ``new`` split ``[g, i]`` into thirds on a log scale.
-Where ``i < 2 g`` the pictures do not separate places: :attr:`PlaceRecogniser.separable` is ``False`` and every
-picture that is not an exact repeat of a remembered one is ``UNSURE``. Until the first calibration
-(``min_calibration`` distinct pictures) the same holds, so no state is made before it. The thresholds are
-renewed each time ``window`` new pictures have been shown, so they follow a world whose pictures drift.
+Where ``i < 2 g`` the pictures do not separate places: until they first do, :attr:`PlaceRecogniser.separable` is
+``False`` and every picture that is not an exact repeat of a remembered one is ``UNSURE`` (so no state is made
+before the first calibration, at ``min_calibration`` distinct pictures). The thresholds are renewed each time
+``window`` new pictures have been shown, so they follow a world whose pictures drift; a window that does not
+separate keeps the last thresholds.
 
 Cost: a search screens every place by a sketch of its prototype (a seeded random projection to ``SKETCH_DIM``
 numbers; a batch of pictures is one matrix product) and compares the ``SCREEN_CANDIDATES`` nearest exactly, view by
@@ -213,18 +214,20 @@ class PlaceRecogniser:
         scale = float(np.median(pairs)) if np.median(pairs) > 0 else 1.0
         logs = np.sort(np.log(np.maximum(np.concatenate([zeros, pairs]), _EXACT_FLOOR * scale)))
         split = widest_gap(logs, max(MIN_GROUP, len(logs) // 1000))
-        if split is None:
-            self.separable = False
-            return False
-        genuine = float(np.exp(np.percentile(logs[:split], GENUINE_QUANTILE)))
-        impostor = float(np.exp(np.percentile(logs[split:], IMPOSTOR_QUANTILE)))
-        self.genuine, self.impostor = genuine, impostor
-        self.separable = impostor >= SEPARATION * genuine
-        if self.separable:
+        separates = False
+        if split is not None:
+            genuine = float(np.exp(np.percentile(logs[:split], GENUINE_QUANTILE)))
+            impostor = float(np.exp(np.percentile(logs[split:], IMPOSTOR_QUANTILE)))
+            separates = impostor >= SEPARATION * genuine
+        if separates:
+            self.genuine, self.impostor = genuine, impostor
             gap = np.log(impostor) - np.log(genuine)
             self.known = float(np.exp(np.log(genuine) + KNOWN_SHARE * gap))
             self.new = float(np.exp(np.log(genuine) + NEW_SHARE * gap))
-        return self.separable
+        # Once the pictures have separated places, a window that does not (look-alike places met together) keeps the
+        # thresholds: whether recognition still works is the memory's guard's to say, from what it recognises
+        self.separable = separates or bool(self.separable)
+        return separates
 
     def _pair_distances(self, rows: np.ndarray) -> np.ndarray:
         """The place distance of every pair of rows (upper triangle)."""
