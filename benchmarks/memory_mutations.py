@@ -83,8 +83,8 @@ MUTATIONS = (
     Mutation(
         "places",
         "any split of the distances separates places",
-        "self.separable = impostor >= SEPARATION * genuine",
-        "self.separable = impostor > genuine",
+        "separates = impostor >= SEPARATION * genuine",
+        "separates = impostor > genuine",
     ),
     Mutation(
         "places",
