@@ -88,6 +88,12 @@ MUTATIONS = (
     ),
     Mutation(
         "places",
+        "a window that does not separate undoes the thresholds",
+        "self.separable = separates or bool(self.separable)",
+        "self.separable = separates",
+    ),
+    Mutation(
+        "places",
         "a prototype is its first picture (no averaging)",
         "self._prototypes[agreeing, state] += difference[agreeing] / count",
         "pass",

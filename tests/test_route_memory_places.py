@@ -156,6 +156,17 @@ def test_thresholds_follow_a_world_whose_pictures_drift() -> None:
     assert recogniser.calibrations >= 2 and recogniser.known > 5 * quiet
 
 
+def test_a_window_that_does_not_separate_keeps_the_thresholds_the_pictures_showed_before() -> None:
+    places = world(32)
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=64, min_calibration=16)
+    recogniser.show(visits(places, np.tile(np.arange(32), 2), seed=0))
+    known, new = recogniser.known, recogniser.new
+    assert recogniser.separable
+    look_alikes = np.random.default_rng(3).normal(0.0, 1.0, (64, VIEWS * WIDTH))  # no place twice, none apart
+    recogniser.show(look_alikes)
+    assert recogniser.calibrations >= 3 and recogniser.separable and (recogniser.known, recogniser.new) == (known, new)
+
+
 def test_no_state_past_max_states_and_the_memory_pickles() -> None:
     places = world(40)
     recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, max_states=39, window=512, min_calibration=16)
