@@ -24,8 +24,8 @@ relabelled transitions: what the terminal fix buys); ``relabel8`` (8 relabelled 
 ``goal_dropout`` (each goal view hidden with probability 0.25 in training: partial goal pictures);
 ``revision_blocked`` (experience revision, with the goal left out of the match, and the blocked-action target: for
 re-adaptation); ``goal_photos`` (training goals pictured at noon, 7:00, 16:00 and 20:30, one condition per episode);
-``night_goals`` (every goal pictured at 19:30 with passing cars, the agent's views at noon: held-out goals found by the
-memory's place matcher against the agent's own views, never through ``achieved_goal``).
+``night_goals`` (every goal pictured at 19:30 with passing cars, the agent's views at noon, in training too: held-out
+goals are found only where the memory recognises their pictures, never through ``achieved_goal``).
 
 With ``--after`` (both, or ``--after appearance`` / ``--after readapt``) the runs go on, once trained:
 **appearance change** (the trained policy evaluated on the protocol's goals -- every intersection, or the held-out
@@ -116,9 +116,9 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
         {},
     ),
     # Every goal (held-out ones too) pictured at night with passing cars, the agent's own views at noon: the memory
-    # matches the photos against its own views (the env declares goals_pictured_otherwise: AlignedNearestPlace)
+    # routes to a photo only where its recogniser knows the place, the critics act elsewhere
     "night_goals": (
-        "goals pictured at 19:30 with passing cars (the memory's matcher)",
+        "goals pictured at 19:30 with passing cars",
         {},
         {"goal_render_settings": (APPEARANCES["night + cars"],)},
     ),

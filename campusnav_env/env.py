@@ -738,7 +738,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
         }
 
 
-def place_frame(place_key: str, goal_key: str, goals_pictured_otherwise: bool = False) -> dict[str, Any]:
+def place_frame(place_key: str, goal_key: str) -> dict[str, Any]:
     """
     CampusNav's declaration of its frame (``metadata["place_frame"]``, read by :mod:`sb3_dcqn.place_frame`): the
     views picture the place in compass order whatever the heading, the heading is a one-hot frame the actions are
@@ -751,7 +751,6 @@ def place_frame(place_key: str, goal_key: str, goals_pictured_otherwise: bool = 
         "reverse_action": BACK,
         "views_per_place": len(COMPASS),
         "goal_pictures": {goal_key: place_key},
-        "goals_pictured_otherwise": goals_pictured_otherwise,
     }
 
 

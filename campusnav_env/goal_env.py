@@ -50,9 +50,9 @@ class CampusNavGoalEnv(CampusNavEnv):
 
     ## Frame
     As CampusNav's (``metadata["place_frame"]``), with ``"observation"`` picturing the place and ``"desired_goal"``
-    the goal place; ``goals_pictured_otherwise`` is set where ``goal_render_settings`` pictures goals in other
-    conditions than the agent's views. ``"achieved_goal"`` is left out of the declaration: it is the env's rendering of
-    the agent's location under the goal's conditions, which HER may use and a fair memory must not.
+    the goal place (goal pictures in other conditions than the agent's views need no declaration: the memory
+    recognises each picture or is unsure of it). ``"achieved_goal"`` is left out of the declaration: it is the env's
+    rendering of the agent's location under the goal's conditions, which HER may use and a fair memory must not.
 
     ## Rewards
     As in CampusNav: ``goal_reward`` (+1.0) on reaching the goal, ``collision_penalty`` (-0.01) for an action with no
@@ -174,11 +174,7 @@ class CampusNavGoalEnv(CampusNavEnv):
         self._condition = 0  # the condition of the current episode's goal pictures
         self._node_of_goal = _unique_rows(self._goal_tables)
         self.observation_space = self._goal_observation_space(unbounded=self.visible_closures)
-        pictured_otherwise = any(settings is not None for settings in conditions)
-        self.metadata = {
-            **type(self).metadata,
-            "place_frame": place_frame("observation", "desired_goal", goals_pictured_otherwise=pictured_otherwise),
-        }
+        self.metadata = {**type(self).metadata, "place_frame": place_frame("observation", "desired_goal")}
 
     @property
     def _goal_rows(self) -> np.ndarray:

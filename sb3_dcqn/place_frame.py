@@ -12,7 +12,6 @@ from this package)::
             "reverse_action": 2,            # two-way roads: right after a move, this action leads back
             "views_per_place": 4,           # the place key is this many equal blocks, one per view
             "goal_pictures": {"goal_views": "views"},  # goal keys that picture a place as the place key does
-            "goals_pictured_otherwise": False,         # goal pictures may be taken in other conditions (night)
         },
     }
 
@@ -35,7 +34,10 @@ from gymnasium import spaces
 __all__ = ["PLACE_FRAME_KEY", "PlaceFrame", "place_frame_of"]
 
 PLACE_FRAME_KEY = "place_frame"
-_FIELDS = ("place_keys", "frame_key", "reverse_action", "views_per_place", "goal_pictures", "goals_pictured_otherwise")
+_FIELDS = ("place_keys", "frame_key", "reverse_action", "views_per_place", "goal_pictures")
+# Read by earlier memories, which needed to be told that goals could look different; the recogniser now decides per
+# picture, so a declaration that still carries it is accepted with a warning
+_RETIRED = ("goals_pictured_otherwise",)
 
 
 @dataclass(frozen=True)
@@ -51,8 +53,6 @@ class PlaceFrame:
     :param views_per_place: The place picture is this many equal blocks (views): a place whose pictures change in a
         few views (a barrier) is still recognised by the others
     :param goal_pictures: Goal key -> the place key whose format it pictures a goal place in
-    :param goals_pictured_otherwise: Goal pictures may be taken in conditions the agent's own views never are (another
-        time of day): exact matches can fail, a place matcher is needed
     """
 
     place_keys: tuple[str, ...]
@@ -61,7 +61,6 @@ class PlaceFrame:
     reverse_action: int | None = None
     views_per_place: int = 1
     goal_pictures: Mapping[str, str] = field(default_factory=dict)
-    goals_pictured_otherwise: bool = False
 
     @classmethod
     def from_declaration(
@@ -69,7 +68,10 @@ class PlaceFrame:
     ) -> PlaceFrame:
         """The declaration checked against the env's spaces (a ValueError names the entry that does not fit)."""
         where = f"metadata[{PLACE_FRAME_KEY!r}]"
-        unknown = sorted(set(declaration) - set(_FIELDS))
+        retired = sorted(set(declaration) & set(_RETIRED))
+        if retired:
+            warnings.warn(f"{where}: {retired} no longer read (the memory recognises each goal picture)", stacklevel=2)
+        unknown = sorted(set(declaration) - set(_FIELDS) - set(_RETIRED))
         if unknown:
             raise ValueError(f"{where}: unknown entries {unknown}; allowed: {list(_FIELDS)}")
         if not isinstance(observation_space, spaces.Dict):
@@ -115,7 +117,6 @@ class PlaceFrame:
             reverse_action=None if reverse is None else int(reverse),
             views_per_place=views,
             goal_pictures=pictures,
-            goals_pictured_otherwise=bool(declaration.get("goals_pictured_otherwise", False)),
         )
 
     @property

@@ -220,6 +220,16 @@ def test_a_declaration_that_does_not_fit_the_spaces_is_named() -> None:
         PlaceFrame.from_declaration({"place_keys": ["views"], "frames": "heading"}, space, spaces.Discrete(4))
 
 
+def test_a_declaration_that_says_goals_look_different_is_read_with_a_warning_and_changes_nothing() -> None:
+    space = spaces.Dict({"views": spaces.Box(0, 1, (8,)), "goal": spaces.Box(0, 1, (8,))})
+    declaration = {"place_keys": ["views"], "goal_pictures": {"goal": "views"}}
+    with pytest.warns(UserWarning, match="no longer read"):
+        retired = PlaceFrame.from_declaration(
+            {**declaration, "goals_pictured_otherwise": True}, space, spaces.Discrete(4)
+        )
+    assert retired == PlaceFrame.from_declaration(declaration, space, spaces.Discrete(4))
+
+
 # ------------------------------------------------------------------------------------------ places, not poses
 @pytest.mark.parametrize("sigma", [0.0, NOISE])
 def test_a_place_is_one_state_at_every_heading_and_for_every_goal_with_or_without_noise(goal_env, sigma) -> None:
