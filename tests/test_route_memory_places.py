@@ -156,6 +156,26 @@ def test_thresholds_follow_a_world_whose_pictures_drift() -> None:
     assert recogniser.calibrations >= 2 and recogniser.known > 5 * quiet
 
 
+def test_a_world_of_a_few_renders_per_view_calibrates_on_the_renders_differences() -> None:
+    # Each view of a place is one of 3 renders, drawn per visit: revisits early on share most views bit for bit, which
+    # must not read as "repeats are exact" (every other render of a place would then be a new place)
+    places, renders = world(24), 3
+    rng = np.random.default_rng(5)
+    offsets = rng.normal(0.0, 2.0, (len(places), renders, VIEWS, WIDTH)).astype(np.float32)  # ~8 per view apart
+    order = np.concatenate([np.repeat(np.arange(4), 6), np.tile(np.arange(len(places)), 6)])
+    drawn = rng.integers(renders, size=(len(order), VIEWS))
+    pictures = places[order].reshape(len(order), VIEWS, WIDTH) + offsets[order[:, None], drawn, np.arange(VIEWS)]
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=256, min_calibration=8)
+    states = np.full(len(order), -1)
+    for index, row in enumerate(pictures.reshape(len(order), -1)):  # as the memory feeds it: shown, then recognised
+        recogniser.show(row[None])
+        states[index] = recogniser.recognise(row[None], add=True)[0][0]
+    assert recogniser.separable and recogniser.known > 1.0  # the renders' spread, not float error
+    known = states >= 0
+    merged = [state for state in set(states[known].tolist()) if len(set(order[states == state].tolist())) > 1]
+    assert not merged and abs(recogniser.n_states - len(places)) <= 2 and known[-len(places) :].mean() >= 0.75
+
+
 def test_a_window_that_does_not_separate_keeps_the_thresholds_the_pictures_showed_before() -> None:
     places = world(32)
     recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=64, min_calibration=16)

@@ -20,15 +20,16 @@ place turns an ``UNSURE`` into ``KNOWN``.
 
 **Calibration on the agent's own pictures.** The thresholds come from the pictures the memory is shown, not from a
 setting: the latest distinct pictures (a window) and the count of exact repeats among them. The distance between two
-pictures of the window is either that of two visits of one place (small: noise, light) or of two places (large), so
-the distances of all pairs (of a sample of up to ``CALIBRATION_SAMPLE`` pictures) fall into two groups, split where
-their sorted logarithms jump the most (exact repeats count as distance 0). With ``g`` the 90th percentile of the
-repeat group and ``i`` the 10th of the other, ``known`` and ``new`` split ``[g, i]`` into thirds on a log scale.
-Where ``i < 2 g`` the pictures do not separate places: until they first do, :attr:`PlaceRecogniser.separable` is
-``False`` and every picture that is not an exact repeat of a remembered one is ``UNSURE`` (so no state is made
-before the first calibration, at ``min_calibration`` distinct pictures). The thresholds are renewed each time
-``window`` new pictures have been shown, so they follow a world whose pictures drift; a window that does not
-separate keeps the last thresholds.
+pictures of the window is either that of two visits of one place (small: noise, light) or of two places (large), so the
+distances of all pairs (of a sample of up to ``CALIBRATION_SAMPLE`` pictures) fall into two groups, split where their
+sorted logarithms jump the most (exact repeats count as distance 0; views that two pictures share bit for bit are left
+out of their distance, so a world of a few renders per view calibrates on the renders' differences). With ``g`` the 90th
+percentile of the repeat group and ``i`` the 10th of the other, ``known`` and ``new`` split ``[g, i]`` into thirds on a
+log scale. Where ``i < 1.5 g`` the pictures do not separate places: until they first do,
+:attr:`PlaceRecogniser.separable` is ``False`` and every picture that is not an exact repeat of a remembered one is
+``UNSURE`` (so no state is made before the first calibration, at ``min_calibration`` distinct pictures). The thresholds
+are renewed each time ``window`` new pictures have been shown, so they follow a world whose pictures drift; a window
+that does not separate keeps the last thresholds.
 
 Cost: a search screens every place by a sketch of its prototype (a seeded random projection to ``SKETCH_DIM``
 numbers; a batch of pictures is one matrix product) and compares the ``SCREEN_CANDIDATES`` nearest exactly, view by
@@ -55,12 +56,13 @@ RECENT_PICTURES = 256  # beyond those, the latest pictures recognised (a transit
 PROTOTYPE_HORIZON = 32  # a prototype is the mean of a place's last pictures, about this many
 KNOWN_SHARE = 1 / 3  # of the log gap between repeat visits and other places: KNOWN below, UNSURE up to NEW_SHARE
 NEW_SHARE = 2 / 3
-SEPARATION = 2.0  # the other places' low quantile over the repeat visits' high one: below this, no two groups
+SEPARATION = 1.5  # the other places' low quantile over the repeat visits' high one: below this, no two groups
 GENUINE_QUANTILE = 90.0
 IMPOSTOR_QUANTILE = 10.0
 CALIBRATION_SAMPLE = 256  # pictures of the window whose every pair is measured (32,640 pairs)
 MIN_GROUP = 3  # pairs on each side of the split, at least
 _EXACT_FLOOR = 1e-4  # an exact repeat's distance, relative to the median distance between places (for logarithms)
+_IDENTICAL_VIEW = 1e-9  # a view's squared distance below this share of its squared norms: the same view, float error
 
 
 class Answer(IntEnum):
@@ -230,13 +232,22 @@ class PlaceRecogniser:
         return separates
 
     def _pair_distances(self, rows: np.ndarray) -> np.ndarray:
-        """The place distance of every pair of rows (upper triangle)."""
+        """The place distance of the pairs of rows (upper triangle), over the views in which the two differ."""
         blocks = rows.reshape(len(rows), self.views, -1).transpose(1, 0, 2).astype(np.float64)
         squares = (blocks**2).sum(axis=2)  # (view, row)
-        per_view = squares[:, :, None] + squares[:, None, :] - 2.0 * blocks @ blocks.transpose(0, 2, 1)
-        per_view = np.sqrt(np.maximum(per_view, 0.0))
-        distance = np.partition(per_view, self.kth - 1, axis=0)[self.kth - 1]
-        return distance[np.triu_indices(len(rows), k=1)]
+        sums = squares[:, :, None] + squares[:, None, :]
+        per_view = np.maximum(sums - 2.0 * blocks @ blocks.transpose(0, 2, 1), 0.0)
+        # A view pictured bit for bit as on another visit (a world of a few renders per view) says nothing of how far
+        # repeat visits vary: a pair's distance is the same quantile (the k-th of the views) of the views that differ,
+        # and a pair that differs in one view of several is left out (one view is no place's spread)
+        identical = per_view <= _IDENTICAL_VIEW * sums
+        per_view = np.sort(np.where(identical, np.inf, np.sqrt(per_view)), axis=0)
+        differ = self.views - identical.sum(axis=0)
+        rank = np.maximum(-(-self.kth * differ // self.views) - 1, 0)
+        distance = np.take_along_axis(per_view, rank[None], axis=0)[0]
+        distance[differ == 0] = 0.0
+        upper = np.triu_indices(len(rows), k=1)
+        return distance[upper][(differ[upper] != 1) | (self.views == 1)]
 
     # ------------------------------------------------------------------ recognition
     def recognise(
