@@ -88,6 +88,12 @@ MUTATIONS = (
     ),
     Mutation(
         "places",
+        "views shared bit for bit count in the calibration's distances",
+        "identical = per_view <= _IDENTICAL_VIEW * sums",
+        "identical = per_view < 0.0",
+    ),
+    Mutation(
+        "places",
         "a window that does not separate undoes the thresholds",
         "self.separable = separates or bool(self.separable)",
         "self.separable = separates",
