@@ -156,6 +156,17 @@ def test_thresholds_follow_a_world_whose_pictures_drift() -> None:
     assert recogniser.calibrations >= 2 and recogniser.known > 5 * quiet
 
 
+def test_look_alike_places_are_new_places_not_unsure_at_every_visit() -> None:
+    # Six places nearly repeat six others (about 3 apart per view, where repeat visits are 0.3 and two places 17): "new"
+    # is judged against each picture's nearest other place, so the look-alikes become places of their own
+    places = world(30)
+    twins = places[:6] + np.random.default_rng(9).normal(0.0, 0.8, places[:6].shape).astype(np.float32)
+    recogniser = calibrated(np.concatenate([places, twins]))
+    assert recogniser.n_states == 36
+    states, answers = recogniser.recognise(visits(np.concatenate([places, twins]), np.arange(36), seed=12))
+    assert (answers == Answer.KNOWN).all() and len(set(states.tolist())) == 36
+
+
 def test_a_world_of_a_few_renders_per_view_calibrates_on_the_renders_differences() -> None:
     # Each view of a place is one of 3 renders, drawn per visit: revisits early on share most views bit for bit, which
     # must not read as "repeats are exact" (every other render of a place would then be a new place)

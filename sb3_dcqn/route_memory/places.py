@@ -25,7 +25,8 @@ distances of all pairs (of a sample of up to ``CALIBRATION_SAMPLE`` pictures) fa
 sorted logarithms jump the most (exact repeats count as distance 0; views that two pictures share bit for bit are left
 out of their distance, so a world of a few renders per view calibrates on the renders' differences). With ``g`` the 90th
 percentile of the repeat group and ``i`` the 10th of the other, ``known`` and ``new`` split ``[g, i]`` into thirds on a
-log scale. Where ``i < 1.5 g`` the pictures do not separate places: until they first do,
+log scale, where ``i`` is the lower of that and the 10th percentile of each picture's nearest other place (look-alike
+places lie there). Where the pairs' ``i < 1.5 g`` the pictures do not separate places: until they first do,
 :attr:`PlaceRecogniser.separable` is ``False`` and every picture that is not an exact repeat of a remembered one is
 ``UNSURE`` (so no state is made before the first calibration, at ``min_calibration`` distinct pictures). The thresholds
 are renewed each time ``window`` new pictures have been shown, so they follow a world whose pictures drift; a window
@@ -210,12 +211,18 @@ class PlaceRecogniser:
             return False
         if len(rows) > CALIBRATION_SAMPLE:  # every pair of a seeded sample of the window
             rows = rows[np.random.default_rng(self.calibrations).choice(len(rows), CALIBRATION_SAMPLE, replace=False)]
-        pairs = self._pair_distances(rows)
+        matrix = self._pair_distances(rows)
+        pairs = matrix[np.triu_indices(len(rows), k=1)]
+        pairs = pairs[~np.isnan(pairs)]
+        if len(pairs) < 2:
+            return False
         zeros = np.zeros(min(self._repeats, len(pairs)), dtype=np.float64)
         self._repeats = 0
         scale = float(np.median(pairs)) if np.median(pairs) > 0 else 1.0
         logs = np.sort(np.log(np.maximum(np.concatenate([zeros, pairs]), _EXACT_FLOOR * scale)))
-        split = widest_gap(logs, max(MIN_GROUP, len(logs) // 1000))
+        # Each group holds a quarter as many pairs as pictures at least: a handful of pairs in the tail of one spread of
+        # distances (pictures that never repeat a place) is no group of repeat visits
+        split = widest_gap(logs, max(MIN_GROUP, len(logs) // 1000, len(rows) // 4))
         separates = False
         if split is not None:
             genuine = float(np.exp(np.percentile(logs[:split], GENUINE_QUANTILE)))
@@ -223,6 +230,14 @@ class PlaceRecogniser:
             separates = impostor >= SEPARATION * genuine
         if separates:
             self.genuine, self.impostor = genuine, impostor
+            # "New" means no remembered place is near, so the edge is the nearest other place of each picture (a low
+            # quantile of those), not of a random pair: look-alike places lie there, and between known and new they
+            # would stay unsure at every visit
+            other = np.where(matrix >= np.exp(logs[split]), matrix, np.nan)
+            has_other = ~np.isnan(other).all(axis=1)
+            if has_other.any():
+                nearest = np.nanmin(other[has_other], axis=1)
+                impostor = min(impostor, float(np.percentile(nearest, IMPOSTOR_QUANTILE)))
             gap = np.log(impostor) - np.log(genuine)
             self.known = float(np.exp(np.log(genuine) + KNOWN_SHARE * gap))
             self.new = float(np.exp(np.log(genuine) + NEW_SHARE * gap))
@@ -232,7 +247,10 @@ class PlaceRecogniser:
         return separates
 
     def _pair_distances(self, rows: np.ndarray) -> np.ndarray:
-        """The place distance of the pairs of rows (upper triangle), over the views in which the two differ."""
+        """
+        The place distance of every pair of rows, over the views in which the two differ: a symmetric matrix, NaN on
+        the diagonal and for a pair left out.
+        """
         blocks = rows.reshape(len(rows), self.views, -1).transpose(1, 0, 2).astype(np.float64)
         squares = (blocks**2).sum(axis=2)  # (view, row)
         sums = squares[:, :, None] + squares[:, None, :]
@@ -246,8 +264,10 @@ class PlaceRecogniser:
         rank = np.maximum(-(-self.kth * differ // self.views) - 1, 0)
         distance = np.take_along_axis(per_view, rank[None], axis=0)[0]
         distance[differ == 0] = 0.0
-        upper = np.triu_indices(len(rows), k=1)
-        return distance[upper][(differ[upper] != 1) | (self.views == 1)]
+        if self.views > 1:
+            distance[differ == 1] = np.nan
+        np.fill_diagonal(distance, np.nan)
+        return distance
 
     # ------------------------------------------------------------------ recognition
     def recognise(
