@@ -94,6 +94,18 @@ MUTATIONS = (
     ),
     Mutation(
         "places",
+        "a later split may put earlier repeat visits among the other places",
+        "above = -np.inf if self.genuine is None else float(np.log(self.genuine))",
+        "above = -np.inf",
+    ),
+    Mutation(
+        "places",
+        "'new' is judged against random pairs, not each picture's nearest other place",
+        "impostor = min(impostor, float(np.percentile(nearest, IMPOSTOR_QUANTILE)))",
+        "pass",
+    ),
+    Mutation(
+        "places",
         "a window that does not separate undoes the thresholds",
         "self.separable = separates or bool(self.separable)",
         "self.separable = separates",

@@ -156,6 +156,23 @@ def test_thresholds_follow_a_world_whose_pictures_drift() -> None:
     assert recogniser.calibrations >= 2 and recogniser.known > 5 * quiet
 
 
+def test_a_window_of_a_few_places_does_not_shrink_repeat_visits_into_other_places() -> None:
+    # After the places separated, a window of two places pictured at two noise levels has its widest gap inside the
+    # repeat visits (0.006 -> 0.8): the split stays above the repeat visits seen before, so visits stay known
+    places = world(32)
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=128, min_calibration=16)
+    first = visits(places, np.tile(np.arange(32), 4), seed=3, noise=0.2)
+    recogniser.show(first)
+    recogniser.recognise(first, add=True)
+    before, calibrations = recogniser.known, recogniser.calibrations
+    order = np.tile([0, 1], 64)
+    still, moving = visits(places, order[:64], seed=4, noise=0.001), visits(places, order[64:], seed=5, noise=0.2)
+    recogniser.show(np.concatenate([still, moving]))
+    assert recogniser.calibrations > calibrations and recogniser.known > 0.5 * before
+    states, answers = recogniser.recognise(visits(places, np.arange(32), seed=6, noise=0.2))
+    assert (answers == Answer.KNOWN).all() and states.tolist() == list(range(32))
+
+
 def test_look_alike_places_are_new_places_not_unsure_at_every_visit() -> None:
     # Six places nearly repeat six others (about 3 apart per view, where repeat visits are 0.3 and two places 17): "new"
     # is judged against each picture's nearest other place, so the look-alikes become places of their own

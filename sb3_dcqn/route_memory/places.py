@@ -79,14 +79,17 @@ def digest(data: bytes) -> bytes:
     return hashlib.blake2b(data, digest_size=16).digest()
 
 
-def widest_gap(values: np.ndarray, min_group: int) -> int | None:
+def widest_gap(values: np.ndarray, min_group: int, above: float = -np.inf) -> int | None:
     """
     The index ``j`` where sorted ``values`` jump the most from ``values[j - 1]`` to ``values[j]``, with at least
-    ``min_group`` values on either side (``None``: too few values).
+    ``min_group`` values on either side and ``values[j] > above`` (``None``: no such index).
     """
     if len(values) < 2 * min_group:
         return None
     gaps = np.diff(values)[min_group - 1 : len(values) - min_group]
+    gaps = np.where(values[min_group : len(values) - min_group + 1] > above, gaps, -np.inf)
+    if not np.isfinite(gaps).any():
+        return None
     return int(np.argmax(gaps)) + min_group
 
 
@@ -222,7 +225,10 @@ class PlaceRecogniser:
         logs = np.sort(np.log(np.maximum(np.concatenate([zeros, pairs]), _EXACT_FLOOR * scale)))
         # Each group holds a quarter as many pairs as pictures at least: a handful of pairs in the tail of one spread of
         # distances (pictures that never repeat a place) is no group of repeat visits
-        split = widest_gap(logs, max(MIN_GROUP, len(logs) // 1000, len(rows) // 4))
+        # Once places have separated, the repeat visits seen then are repeat visits still: a later split never puts
+        # them among the other places (a window of a few routes' pictures has gaps inside the repeat visits too)
+        above = -np.inf if self.genuine is None else float(np.log(self.genuine))
+        split = widest_gap(logs, max(MIN_GROUP, len(logs) // 1000, len(rows) // 4), above)
         separates = False
         if split is not None:
             genuine = float(np.exp(np.percentile(logs[:split], GENUINE_QUANTILE)))
