@@ -649,10 +649,10 @@ class RouteMemory:
             if not exclude:
                 self._exhausted.add(state)
 
-        def due(here: int) -> list[int]:
-            return np.flatnonzero(self.edges.retry_due(np.array([here]))[0]).tolist()
-
-        return path_to(self.edges, state, due, exclude)
+        due = self.edges.retry_due(np.arange(self.n_states))  # once for every state: the search visits many
+        if not due.any():
+            return None
+        return path_to(self.edges, state, lambda here: np.flatnonzero(due[here]).tolist(), exclude)
 
     # ------------------------------------------------------------------ saving
     def __getstate__(self) -> dict[str, Any]:
