@@ -320,7 +320,7 @@ MUTATIONS = (
     Mutation(
         "memory",
         "exploration never returns to a closed slot that is due",
-        "return path_to(self.edges, state, due, exclude)",
+        "return path_to(self.edges, state, lambda here: np.flatnonzero(due[here]).tolist(), exclude)",
         "return None",
     ),
     Mutation(
