@@ -131,6 +131,20 @@ def test_an_expected_place_is_no_reason_to_take_a_picture_that_another_place_cla
     assert answers.tolist() == [Answer.UNSURE] and states.tolist() == [-1]
 
 
+def test_a_picture_as_near_to_two_places_as_their_repeat_visits_is_unsure() -> None:
+    # Visits vary almost as much as places differ (noise 1.0: repeat visits about 6 apart, places 17): a picture
+    # halfway between two places is within "known" of both, and picks neither
+    places = world(40)
+    recogniser = calibrated(places, noise=1.0)
+    direction = np.random.default_rng(8).normal(0.0, 1.0, (VIEWS, WIDTH))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    shift = (1.05 * recogniser.new * direction).reshape(-1).astype(np.float32)
+    assert recogniser.recognise((recogniser._prototypes[:, 5].reshape(-1) + shift)[None], add=True)[1] == Answer.NEW
+    between = (recogniser._prototypes[:, 5].reshape(-1) + shift / 2)[None]
+    assert (np.sort(recogniser.distances(between[0]))[:2] <= recogniser.known).all()
+    assert recogniser.recognise(between)[1].tolist() == [Answer.UNSURE]
+
+
 def test_pictures_that_do_not_separate_places_say_so() -> None:
     recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=64, min_calibration=16)
     recogniser.show(np.random.default_rng(0).normal(0.0, 1.0, (64, VIEWS * WIDTH)))  # no place ever seen twice
