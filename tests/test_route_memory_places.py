@@ -139,8 +139,8 @@ def test_a_picture_as_near_to_two_places_as_their_repeat_visits_is_unsure() -> N
     direction = np.random.default_rng(8).normal(0.0, 1.0, (VIEWS, WIDTH))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     shift = (1.05 * recogniser.new * direction).reshape(-1).astype(np.float32)
-    assert recogniser.recognise((recogniser._prototypes[:, 5].reshape(-1) + shift)[None], add=True)[1] == Answer.NEW
-    between = (recogniser._prototypes[:, 5].reshape(-1) + shift / 2)[None]
+    assert recogniser.recognise((places[5] + shift)[None], add=True)[1] == Answer.NEW
+    between = (places[5] + shift / 2)[None]
     assert (np.sort(recogniser.distances(between[0]))[:2] <= recogniser.known).all()
     assert recogniser.recognise(between)[1].tolist() == [Answer.UNSURE]
 
