@@ -96,6 +96,18 @@ def test_a_slot_that_leads_to_two_places_twice_each_marks_its_state_aliased() ->
     assert edges.aliased == {0} and not edges.moves(np.array([0])).any()
 
 
+def test_a_slot_that_leads_to_two_states_of_one_look_is_no_alias() -> None:
+    edges = EdgeStore(2)
+    edges.ensure(4)
+    twins = lambda first, second: {first, second} == {1, 2}  # noqa: E731  (states 1 and 2: one place remembered twice)
+    for following in (1, 2, 1, 2, 1):
+        edges.record(0, 0, following=following, arrival=-1, dead=False, alike=twins)
+    assert edges.aliased == set() and edges.target[0, 0] == 1 and edges.moves(np.array([0]))[0, 0]
+    for following in (3, 3):  # another look: an alias
+        edges.record(0, 0, following=following, arrival=-1, dead=False, alike=twins)
+    assert edges.aliased == {0}
+
+
 def test_dead_ends_and_moves_outside_the_memory_are_kept_apart_from_moves() -> None:
     edges = EdgeStore(2)
     edges.ensure(2)

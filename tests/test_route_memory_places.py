@@ -145,6 +145,17 @@ def test_a_picture_as_near_to_two_places_as_their_repeat_visits_is_unsure() -> N
     assert recogniser.recognise(between)[1].tolist() == [Answer.UNSURE]
 
 
+def test_two_states_of_one_place_look_alike_and_two_places_do_not() -> None:
+    places = world(40)
+    recogniser = calibrated(places)
+    twin = recogniser.recognise(visits(places, np.array([7]), seed=9, noise=3.0), add=True)  # far off: a second state
+    assert twin[1].tolist() == [Answer.NEW]
+    assert recogniser.alike(7, int(twin[0][0])) is False  # as far as "new": the recogniser tells them apart
+    recogniser.new = 1e9  # thresholds that can tell nothing apart
+    assert recogniser.alike(7, int(twin[0][0])) and recogniser.alike(3, 4)
+    assert not PlaceRecogniser(8, 1, similar=False).alike(0, 1)
+
+
 def test_pictures_that_do_not_separate_places_say_so() -> None:
     recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=64, min_calibration=16)
     recogniser.show(np.random.default_rng(0).normal(0.0, 1.0, (64, VIEWS * WIDTH)))  # no place ever seen twice

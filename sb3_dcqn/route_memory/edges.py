@@ -8,7 +8,8 @@ is believed closed from the other (closures close both ways) until it is driven 
 back (a one-way road) says the inference was wrong and closes nothing else.
 
 A slot that led to two different states, each at least twice, marks its state *aliased* (two places that picture
-the same): routes never go through it. One odd outcome (a glitch) leaves it alone and the latest outcome wins.
+the same): routes never go through it. One odd outcome (a glitch) leaves it alone and the latest outcome wins, and so
+do two states the caller says look alike (one place remembered as two states: no alias).
 
 A closed slot is a fact with an age: ``last_tried`` (the memory's clock, in transitions) and ``failures`` (bumps in a
 row) say when it may be tried again (:meth:`EdgeStore.retry_due`): ``retry_after`` transitions after the first bump,
@@ -17,6 +18,7 @@ twice that after the second, and so on (a slot that never had a road is tried ev
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from enum import IntEnum
 
 import numpy as np
@@ -42,6 +44,10 @@ ROUTES = (Outcome.DRIVEN, Outcome.INFERRED)
 CLOSED = (Outcome.BLOCKED, Outcome.INFERRED_BLOCKED)
 _FILL = {"outcome": Outcome.UNTRIED, "target": -1, "arrival": -1, "last_tried": 0, "failures": 0}
 _DTYPES = {"outcome": np.int8, "target": np.int32, "arrival": np.int8, "last_tried": np.int64, "failures": np.int8}
+
+
+def _never_alike(_a: int, _b: int) -> bool:
+    return False
 
 
 class EdgeStore:
@@ -101,8 +107,20 @@ class EdgeStore:
         return self.n_rows * self.n_slots * (4 + 8 + 3)
 
     # ------------------------------------------------------------------ recording
-    def record(self, state: int, slot: int, following: int, arrival: int, dead: bool) -> None:
-        """One tried ``(state, slot)``: where it led (``following``, -1: outside the memory) and the frame there."""
+    def record(
+        self,
+        state: int,
+        slot: int,
+        following: int,
+        arrival: int,
+        dead: bool,
+        alike: Callable[[int, int], bool] | None = None,
+    ) -> None:
+        """
+        One tried ``(state, slot)``: where it led (``following``, -1: outside the memory) and the frame there.
+        ``alike(a, b)``: whether two states picture places the caller cannot tell apart; a slot that led to two such
+        states is one place remembered twice, not an alias (the latest target stands).
+        """
         self.clock += 1
         self.last_tried[state, slot] = self.clock
         if following < 0:
@@ -113,7 +131,7 @@ class EdgeStore:
         elif following == state:
             self._bump(state, slot)
         else:
-            self._drive(state, slot, following, arrival)
+            self._drive(state, slot, following, arrival, alike or _never_alike)
 
     def _set(
         self, state: int, slot: int, outcome: Outcome, target: int | None = None, arrival: int | None = None
@@ -148,12 +166,12 @@ class EdgeStore:
         if self.outcome[far, back] in ROUTES and self.target[far, back] == state:
             self._set(far, back, Outcome.INFERRED_BLOCKED)
 
-    def _drive(self, state: int, slot: int, following: int, arrival: int) -> None:
+    def _drive(self, state: int, slot: int, following: int, arrival: int, alike: Callable[[int, int], bool]) -> None:
         """A move; its way back is inferred where nothing was observed there."""
         known = int(self.target[state, slot])
         contradicts = known >= 0 and known != following and self.outcome[state, slot] in (*ROUTES, *CLOSED)
         if contradicts or (state, slot) in self._disputes:
-            self._dispute(state, slot, known, following)
+            self._dispute(state, slot, known, following, alike)
         self._set(state, slot, Outcome.DRIVEN, following, arrival)
         self.failures[state, slot] = 0
         back = self.back_slot(state, slot)
@@ -161,7 +179,7 @@ class EdgeStore:
             return
         far_outcome, far_target = int(self.outcome[following, back]), int(self.target[following, back])
         if far_outcome == Outcome.DRIVEN and far_target >= 0 and far_target != state:
-            self._dispute(following, back, far_target, state)  # the way back was driven and led elsewhere
+            self._dispute(following, back, far_target, state, alike)  # the way back was driven and led elsewhere
         elif far_outcome in (Outcome.UNTRIED, Outcome.INFERRED, Outcome.INFERRED_BLOCKED):
             # Arriving back here the agent would face away from the road, so that "back" again leads along it
             self._set(following, back, Outcome.INFERRED, state, (slot - self.reverse_action) % self.n_slots)
@@ -172,11 +190,15 @@ class EdgeStore:
             return None
         return (int(self.arrival[state, slot]) + self.reverse_action) % self.n_slots
 
-    def _dispute(self, state: int, slot: int, known: int, following: int) -> None:
-        """A slot that led to ``known`` now leads to ``following``: twice each, and the state is aliased."""
+    def _dispute(self, state: int, slot: int, known: int, following: int, alike: Callable[[int, int], bool]) -> None:
+        """A slot that led to ``known`` now leads to ``following``: two states that do not look alike, twice each, and
+        the state is aliased."""
         counts = self._disputes.setdefault((state, slot), {known: 1} if known >= 0 else {})
         counts[following] = counts.get(following, 0) + 1
-        if sum(count >= 2 for count in counts.values()) >= 2 and state not in self.aliased:
+        frequent = [target for target, count in counts.items() if count >= 2]
+        if state in self.aliased or len(frequent) < 2:
+            return
+        if any(not alike(first, second) for index, first in enumerate(frequent) for second in frequent[index + 1 :]):
             self.aliased.add(state)
             self.version += 1
 

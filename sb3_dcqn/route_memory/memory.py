@@ -465,7 +465,7 @@ class RouteMemory:
                 self.edges.clock += 1
                 continue
             self.edges.ensure(self.n_states)
-            self.edges.record(state, slot, following, arrival, is_dead)
+            self.edges.record(state, slot, following, arrival, is_dead, self.recogniser.alike)
         self._count(actions.size, self.n_states - before, int(unsure.sum()))
 
     def _expected(self, states: np.ndarray, slots: np.ndarray) -> np.ndarray:

@@ -347,6 +347,14 @@ class PlaceRecogniser:
             return self._known(row, key, nearest, add), Answer.KNOWN
         return -1, Answer.UNSURE
 
+    def alike(self, first: int, second: int) -> bool:
+        """Whether two states' prototypes are nearer than ``new``: places the recogniser cannot tell apart (a place
+        remembered twice, say); never for bit identity or before the thresholds are set."""
+        if not self.similar or self.new is None:
+            return False
+        blocks = self._prototypes[:, first].reshape(-1)
+        return bool(self._exact_distances(blocks, np.array([second]))[0] < self.new)
+
     def distances(self, row: np.ndarray) -> np.ndarray:
         """The place distance of one picture to every state."""
         return self._exact_distances(self._as_rows(np.asarray(row)[None])[0], np.arange(self.n_states))
