@@ -182,8 +182,14 @@ MUTATIONS = (
     Mutation(
         "edges",
         "one odd outcome marks an alias",
-        "if sum(count >= 2 for count in counts.values()) >= 2",
-        "if sum(count >= 1 for count in counts.values()) >= 2",
+        "frequent = [target for target, count in counts.items() if count >= 2]",
+        "frequent = [target for target, count in counts.items() if count >= 1]",
+    ),
+    Mutation(
+        "edges",
+        "two states of one look are an alias anyway",
+        "self._drive(state, slot, following, arrival, alike or _never_alike)",
+        "self._drive(state, slot, following, arrival, _never_alike)",
     ),
     Mutation(
         "edges",
