@@ -28,7 +28,8 @@ that carries a heading or a position is compared bit for bit), and slots are the
 transitions it is given, then remembers them in order: it never guesses a place before it knows what "the same place"
 looks like in this world. **A guard**: where states grow like transitions (more than ``GROWTH_GUARD`` new states per
 transition over ``GUARD_WINDOW`` transitions) or most pictures stay unsure, recognition is failing: the memory warns
-once and steps aside for good (every answer -1), so it is never worse than the critics alone.
+once and steps aside for good (every answer -1): the critics act alone from then on. (A memory that recognises
+places, but with places split in two, routes on: it can be slower than the critics alone; see README's Results.)
 
 **Success** is the env's ``info["is_success"]`` (the ``successes`` flags of :meth:`RouteMemory.add_batch`); where the
 env gives none, a terminated transition with a reward above ``success_reward`` reached its goal, if that is set (else
