@@ -2,7 +2,8 @@
 
 The recogniser (``sb3_dcqn.route_memory.places``) holds one prototype per place. Places here are random pictures of
 four views of 64 numbers (the shipped ``view_dim``: whitened features, about 11 apart), visits add fresh noise of
-sigma 0.05; the recogniser is calibrated on repeat visits of 200 of them. Per size: milliseconds per picture for
+sigma 0.05; the recogniser is calibrated on four visits of each of 200 of them (with two, a window holds too few
+repeat pairs for the recogniser to call them a group). Per size: milliseconds per picture for
 
 - **a search**: a picture of a remembered place, no place expected (an episode's start, a move never tried: the
   screen over every place, then the nearest 32 compared view by view);
@@ -29,6 +30,7 @@ from sb3_dcqn.route_memory.places import Answer, PlaceRecogniser
 VIEWS, WIDTH = 4, 64
 NOISE = 0.05
 CALIBRATION_PLACES = 200
+CALIBRATION_VISITS = 4
 
 
 def measure(size: int, queries: int, seed: int = 0) -> dict[str, float]:
@@ -41,7 +43,7 @@ def measure(size: int, queries: int, seed: int = 0) -> dict[str, float]:
 
     recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS)
     some = np.arange(min(CALIBRATION_PLACES, size))
-    recogniser.show(np.concatenate([visit(some), visit(some)]))
+    recogniser.show(np.concatenate([visit(some) for _ in range(CALIBRATION_VISITS)]))
     start = time.perf_counter()
     recogniser.recognise(places, add=True)
     add_ms = 1e3 * (time.perf_counter() - start) / size
