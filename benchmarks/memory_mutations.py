@@ -188,7 +188,7 @@ MUTATIONS = (
     Mutation(
         "edges",
         "two states of one look are an alias anyway",
-        "self._drive(state, slot, following, arrival, alike or _never_alike)",
+        "self._drive(state, slot, following, arrival, alike)",
         "self._drive(state, slot, following, arrival, _never_alike)",
     ),
     Mutation(

@@ -114,7 +114,7 @@ class EdgeStore:
         following: int,
         arrival: int,
         dead: bool,
-        alike: Callable[[int, int], bool] | None = None,
+        alike: Callable[[int, int], bool] = _never_alike,
     ) -> None:
         """
         One tried ``(state, slot)``: where it led (``following``, -1: outside the memory) and the frame there.
@@ -131,7 +131,7 @@ class EdgeStore:
         elif following == state:
             self._bump(state, slot)
         else:
-            self._drive(state, slot, following, arrival, alike or _never_alike)
+            self._drive(state, slot, following, arrival, alike)
 
     def _set(
         self, state: int, slot: int, outcome: Outcome, target: int | None = None, arrival: int | None = None

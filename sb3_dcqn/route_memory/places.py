@@ -223,10 +223,10 @@ class PlaceRecogniser:
         self._repeats = 0
         scale = float(np.median(pairs)) if np.median(pairs) > 0 else 1.0
         logs = np.sort(np.log(np.maximum(np.concatenate([zeros, pairs]), _EXACT_FLOOR * scale)))
-        # Each group holds a quarter as many pairs as pictures at least: a handful of pairs in the tail of one spread of
-        # distances (pictures that never repeat a place) is no group of repeat visits
-        # Once places have separated, the repeat visits seen then are repeat visits still: a later split never puts
-        # them among the other places (a window of a few routes' pictures has gaps inside the repeat visits too)
+        # Each group holds a quarter as many pairs as pictures at least (a handful of pairs in the tail of one spread of
+        # distances, pictures that never repeat a place, is no group of repeat visits); once places have separated, a
+        # later split never puts the repeat visits seen then among the other places (a window of a few routes'
+        # pictures has gaps inside the repeat visits too)
         above = -np.inf if self.genuine is None else float(np.log(self.genuine))
         split = widest_gap(logs, max(MIN_GROUP, len(logs) // 1000, len(rows) // 4), above)
         separates = False
