@@ -144,7 +144,12 @@ class FloorAgent:
 
 
 def floor_steps(
-    env: CampusNavEnv, seed: int, eval_every: int, max_env_steps: int | None = None, memory: str = "places"
+    env: CampusNavEnv,
+    seed: int,
+    eval_every: int,
+    max_env_steps: int | None = None,
+    memory: str = "places",
+    sample: int | None = None,
 ) -> FloorResult:
     """
     Run the experience-graph agent on ``env`` until its greedy policy solves the map (or ``max_env_steps``).
@@ -154,6 +159,8 @@ def floor_steps(
     :param eval_every: Env steps between evaluations
     :param max_env_steps: Step cap (default: 200 steps per (observation, action) pair, far beyond need)
     :param memory: ``"places"`` (the env's declared frame) or ``"poses"`` (exact observations)
+    :param sample: Check a seeded sample of this many (start, heading) pairs at each evaluation and every pair only
+        once the sample is at the bar (a large city); None: every pair at every evaluation
     :return: the run's figures
     """
     if eval_every < 1:
@@ -183,7 +190,9 @@ def floor_steps(
             observation, done = next_observation, terminated or truncated
             if steps % eval_every == 0:
                 began = time.perf_counter()
-                report = evaluate_routes(env, agent.policy)
+                report = evaluate_routes(env, agent.policy, sample=sample, seed=evaluations, keep_nodes=False)
+                if report.is_sample and is_solved(RouteEvaluation(steps, episodes, 0.0, report)):
+                    report = evaluate_routes(env, agent.policy, keep_nodes=False)  # only every pair counts
                 evaluation_seconds += time.perf_counter() - began
                 evaluations += 1
                 evaluation = RouteEvaluation(steps, episodes, time.perf_counter() - start, report)
@@ -251,10 +260,12 @@ def run_one(
     env: CampusNavEnv | None = None,
     map_seed: int = 0,
     memory: str = "places",
+    sample: int | None = None,
 ) -> dict[str, Any]:
-    """One run as a JSON-lines record (``env``: the size's env on that map seed, if already built)."""
+    """One run as a JSON-lines record (``env``: the size's env on that map seed, if already built; ``sample``: as
+    :func:`floor_steps`'s)."""
     env = make_env(n_nodes, map_seed) if env is None else env
-    result = floor_steps(env, seed, eval_every, max_env_steps, memory)
+    result = floor_steps(env, seed, eval_every, max_env_steps, memory, sample)
     return {
         "memory": memory,
         "size": n_nodes,

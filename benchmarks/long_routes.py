@@ -103,6 +103,7 @@ class Job:
     encoder: str
     quick: bool = False
     map_seed: int = 0
+    sample: int | None = None  # evaluate a seeded sample of (start, heading) pairs, every pair once it is at the bar
 
 
 def city_id(size: int) -> str:
@@ -175,6 +176,7 @@ def run_one(job: Job) -> dict[str, Any]:
         spl_threshold=SOLVED_SPL,
         stop_when_solved=True,
         every_goal=True,
+        sample=job.sample,
     )
     with peak_memory() as peak:
         result = train_until_solved(
@@ -205,7 +207,27 @@ def run_one(job: Job) -> dict[str, Any]:
         "max_episode_steps": env.unwrapped.max_steps,
         "peak_rss_mb": peak.peak_mb,
         "replay_bytes_per_transition": sum(buffer_arrays(buffer).values()) / buffer.buffer_size,
+        "evaluation_seconds": result.evaluation_seconds,
+        "evaluations": len(result.evaluations),
+        "sample": job.sample,
+        **memory_figures(model),
         "curve": result.curve(),
+    }
+
+
+def memory_figures(model: Any) -> dict[str, Any]:
+    """The route memory's size (places, bytes and bytes per place, as pickled in the model's file); none without
+    one."""
+    import pickle
+
+    memory = getattr(model, "memory", None)
+    if memory is None:
+        return {}
+    size = len(pickle.dumps(memory, protocol=pickle.HIGHEST_PROTOCOL))
+    return {
+        "memory_states": memory.n_states,
+        "memory_bytes": size,
+        "memory_bytes_per_state": size / max(memory.n_states, 1),
     }
 
 

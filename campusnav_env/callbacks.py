@@ -151,6 +151,15 @@ class RouteEvaluationCallback(_TrainingProgress):
     :param critics_alone: Where the model's greedy ``predict`` plans over a route memory (a model with
         ``route_memory`` set, e.g. DCQN's), also evaluate its critics alone (``model.policy.predict``) on ``goals``:
         kept in each evaluation's ``critics`` and logged under ``eval/<log_name>/critics/...``
+    :param sample: Evaluate only this many (start, heading) pairs per goal, drawn anew at each evaluation (seed
+        ``sample_seed`` plus the number of evaluations so far, so that a lucky draw is not kept), e.g. on a city whose
+        every pair takes minutes. A sample at both thresholds is confirmed at once by an evaluation of every pair of
+        ``goals``, which is the one recorded (its ``others`` and ``critics`` stay those of the sample): a map counts as
+        solved, and training stops, only on every pair. Every logged report says what it covers:
+        ``eval/.../sampled_pairs`` is the sample's size, 0 for every pair. Unless a :class:`RoadClosureCallback`
+        drives this callback (its closures read the routes' nodes), the routes keep only their start node
+        (``keep_nodes=False``). ``None`` (default): every evaluation covers every pair
+    :param sample_seed: Seed of the first sample's draw
     :param verbose: 1 prints a line per evaluation
     """
 
@@ -170,9 +179,13 @@ class RouteEvaluationCallback(_TrainingProgress):
         evaluate_at_end: bool = True,
         policy: Callable[[BaseAlgorithm], Policy] | None = None,
         critics_alone: bool = True,
+        sample: int | None = None,
+        sample_seed: int = 0,
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose)
+        if sample is not None and sample < 1:
+            raise ValueError(f"sample must be at least 1 pair (or None), got {sample}")
         if unit not in ("step", "episode"):
             raise ValueError(f"unit must be 'step' or 'episode', got {unit!r}")
         if eval_freq < 1:
@@ -195,6 +208,11 @@ class RouteEvaluationCallback(_TrainingProgress):
         self.evaluate_at_end = evaluate_at_end
         self.policy = policy
         self.critics_alone = critics_alone
+        self.sample = sample
+        self.sample_seed = sample_seed
+        # Sampled evaluations at both thresholds that the evaluation of every pair then confirmed or refuted
+        self.confirmed = 0
+        self.refuted = 0
         self.evaluations: list[RouteEvaluation] = []
         self.shares_training_env = False
         self._next_due = eval_freq
@@ -272,9 +290,18 @@ class RouteEvaluationCallback(_TrainingProgress):
 
         policy = greedy if self.policy is None else self.policy(model)
         observed = self.observed_env
-        report = evaluate_routes(observed, policy, goals=self.goals, max_steps=self.max_steps)
+        if self.sample is None:
+            sampling: dict[str, Any] = {}
+        else:
+            # A fresh draw at each evaluation; the same pairs for the policy, the other goal sets and the critics
+            sampling = {
+                "sample": self.sample,
+                "seed": self.sample_seed + len(self.evaluations),
+                "keep_nodes": isinstance(self.parent, RoadClosureCallback),
+            }
+        report = evaluate_routes(observed, policy, goals=self.goals, max_steps=self.max_steps, **sampling)
         others = {
-            name: evaluate_routes(observed, policy, goals=goals, max_steps=self.max_steps)
+            name: evaluate_routes(observed, policy, goals=goals, max_steps=self.max_steps, **sampling)
             for name, goals in self.other_goals.items()
         }
         critics = None
@@ -283,7 +310,20 @@ class RouteEvaluationCallback(_TrainingProgress):
             def critics_policy(observations: Any) -> np.ndarray:
                 return model.policy.predict(observations, deterministic=True)[0]
 
-            critics = evaluate_routes(observed, critics_policy, goals=self.goals, max_steps=self.max_steps)
+            critics = evaluate_routes(observed, critics_policy, goals=self.goals, max_steps=self.max_steps, **sampling)
+        sampled = report if report.is_sample else None
+        if sampled is not None and sampled.meets(self.success_threshold, self.spl_threshold, self.every_goal):
+            # A sample may have missed the starts that fail: only every pair counts the map as solved
+            report = evaluate_routes(
+                observed,
+                policy,
+                goals=self.goals,
+                max_steps=self.max_steps,
+                keep_nodes=sampling["keep_nodes"],
+            )
+            solved = report.meets(self.success_threshold, self.spl_threshold, self.every_goal)
+            self.confirmed += solved
+            self.refuted += not solved
         step = self.model.num_timesteps
         evaluation = RouteEvaluation(
             step=step,
@@ -303,9 +343,17 @@ class RouteEvaluationCallback(_TrainingProgress):
         self.logger.record("eval/train_seconds", evaluation.train_seconds)
         self.logger.dump(step)
         if self.verbose >= 1:
+            scope = ""
+            if sampled is report:
+                scope = f" (a sample of {sampled.evaluated_pairs} of {sampled.total_pairs} pairs)"
+            elif sampled is not None:
+                scope = (
+                    f" (every pair, after a sample of {sampled.evaluated_pairs} at success "
+                    f"{sampled.success_rate:.3f}, SPL {sampled.spl:.3f})"
+                )
             print(
                 f"[routes] step {evaluation.step}, episode {evaluation.episode}, {evaluation.train_seconds:.1f} s: "
-                f"success {report.success_rate:.3f}, SPL {report.spl:.3f}"
+                f"success {report.success_rate:.3f}, SPL {report.spl:.3f}{scope}"
                 + ("" if critics is None else f" (critics alone {critics.success_rate:.3f} / {critics.spl:.3f})"),
                 flush=True,
             )
@@ -319,6 +367,8 @@ class RouteEvaluationCallback(_TrainingProgress):
         summary = report.summary()
         for key in _SUMMARY_KEYS:
             self.logger.record(f"{prefix}/{key}", summary[key])
+        if self.sample is not None:  # whether the figures above come from a sample (0: from every pair)
+            self.logger.record(f"{prefix}/sampled_pairs", report.evaluated_pairs if report.is_sample else 0)
         by_goal = report.by_goal()
         if 1 < len(by_goal) <= PER_GOAL_LOG_LIMIT:
             for goal in sorted(by_goal):

@@ -165,7 +165,7 @@ class CampusNavEnv(gym.Env[dict[str, np.ndarray] | np.ndarray, np.int64]):
       env starts with) or the path of a GraphML road network (:func:`campusnav_env.maps.osm.load_graphml`, e.g.
       ``campusnav_env.maps.examples.example_path("small_town.graphml")``). The env keeps its own
       :class:`~campusnav_env.maps.navigation.NavigationGraph` (:attr:`graph`): closures made in one env never reach
-      another. A map too large for its street views to be built (more than 100 km across or 10,000 km of road, see
+      another. A map too large for its street views to be built (more than 100 km across or 40,000 km of road, see
       :mod:`campusnav_env.maps.extent`) is refused before any view is built.
     - ``map_coords``: how a GraphML ``world``'s x / y are read: ``"auto"`` (default: the file's ``crs``, else a
       guess that says what it chose, see :mod:`campusnav_env.maps.osm`), ``"lonlat"`` or ``"projected"`` (metres).

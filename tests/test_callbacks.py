@@ -23,6 +23,7 @@ from campusnav_env.callbacks import RoadClosureCallback, RouteEvaluationCallback
 from campusnav_env.closures import ClosureEvent
 from campusnav_env.features.view_build import ViewBuild
 from campusnav_env.rendering.street_view import RenderSettings
+from campusnav_env.route_evaluation import evaluate_routes
 from sb3_dcqn import DCQN
 
 WORLD = generate_campus(16, seed=1)
@@ -186,6 +187,91 @@ def test_stop_when_solved_ends_training_at_the_first_solved_evaluation(env_kwarg
     assert model.num_timesteps == 50 and evaluation.solved
     assert len(evaluation.evaluations) == 1 and evaluation.evaluations[0].report.success_rate == 1.0
     assert evaluation.evaluations[0].train_seconds > 0
+
+
+def failing_at(env: CampusNavEnv, trap: int) -> Callable[..., tuple[np.ndarray, None]]:
+    """The shortest-path ``predict``, except at node ``trap``: there it tries a move without a road, again and again."""
+    route = shortest_path_policy(env)
+    table = env.graph.transition_table
+    views = env._node_views
+
+    def predict(observations: dict[str, np.ndarray], deterministic: bool = True) -> tuple[np.ndarray, None]:
+        nodes = np.array([int(np.flatnonzero((views == v).all(axis=1))[0]) for v in observations["views"]])
+        states = nodes * 4 + np.argmax(observations["heading"], axis=1)
+        stuck = np.argmax(table[states] < 0, axis=1)
+        return np.where(nodes == trap, stuck, route(observations)[0]), None
+
+    return predict
+
+
+def test_a_sample_at_the_thresholds_counts_only_once_every_pair_confirms_it(env_kwargs, tmp_path: Path) -> None:
+    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
+    nav = env.envs[0].unwrapped
+    # The first evaluation's sample (seed 7) and a node that none of its routes passes: the policy fails there alone
+    drawn = evaluate_routes(nav, lambda obs: shortest_path_policy(nav)(obs)[0], sample=4, seed=7)
+    passed = {node for route in drawn.routes for node in route.nodes}
+    trap = next(n for n in range(WORLD.n_nodes) if n not in passed and WORLD.degrees[n] < 4)
+    model = explorer(env, tmp_path)
+    model.predict = failing_at(nav, trap)
+    evaluation = RouteEvaluationCallback(eval_freq=50, stop_when_solved=True, sample=4, sample_seed=7)
+    model.learn(100, callback=evaluation)
+
+    # The sample looked solved; every pair did not: training went on, and what was recorded is every pair
+    first = evaluation.evaluations[0]
+    assert not first.report.is_sample and first.report.evaluated_pairs == drawn.total_pairs
+    assert first.report.success_rate <= 1 - 4 / drawn.total_pairs  # the trap's four headings fail
+    assert evaluation.refuted >= 1 and evaluation.confirmed == 0
+    assert model.num_timesteps == 100 and not evaluation.solved
+    # What train_until_solved reads: no recorded evaluation is at the thresholds
+    assert not any(e.meets(evaluation.success_threshold, evaluation.spl_threshold) for e in evaluation.evaluations)
+    assert all(route.nodes == (route.start,) for route in first.report.routes)  # nothing here needs the nodes
+    logged = scalars(tmp_path)
+    assert [v for _, v in logged["eval/sampled_pairs"]] == [4 * e.report.is_sample for e in evaluation.evaluations]
+
+
+def test_a_sample_at_the_thresholds_that_every_pair_confirms_solves_the_map(env_kwargs) -> None:
+    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
+    model = explorer(env)
+    model.predict = shortest_path_policy(env.envs[0].unwrapped)
+    evaluation = RouteEvaluationCallback(eval_freq=50, stop_when_solved=True, spl_threshold=0.98, sample=4)
+    model.learn(10_000, callback=evaluation)
+    assert model.num_timesteps == 50 and evaluation.solved and evaluation.confirmed == 1
+    (solved,) = evaluation.evaluations
+    assert not solved.report.is_sample and solved.report.success_rate == 1.0
+    assert solved.report.evaluated_pairs == solved.report.total_pairs == 4 * (WORLD.n_nodes - 1)
+
+
+def test_each_sampled_evaluation_draws_its_own_pairs(env_kwargs, tmp_path: Path) -> None:
+    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
+    nav = env.envs[0].unwrapped
+    model = explorer(env, tmp_path)
+    model.predict = lambda observations, deterministic=True: (np.full(len(observations["heading"]), 2), None)
+    # Back and forth: never at the thresholds, so every evaluation stays a sample
+    evaluation = RouteEvaluationCallback(eval_freq=50, sample=5, sample_seed=10, evaluate_at_end=False)
+    model.learn(150, callback=evaluation)
+
+    def drawn(seed: int) -> list[tuple[int, int]]:
+        report = evaluate_routes(nav, lambda obs: model.predict(obs)[0], sample=5, seed=seed)
+        return [(r.start, r.heading) for r in report.routes]
+
+    evaluated = [[(r.start, r.heading) for r in e.report.routes] for e in evaluation.evaluations]
+    assert evaluated == [drawn(10), drawn(11), drawn(12)] and evaluated[0] != evaluated[1]
+    assert evaluation.confirmed == evaluation.refuted == 0
+    assert [v for _, v in scalars(tmp_path)["eval/sampled_pairs"]] == [5.0, 5.0, 5.0]
+    with pytest.raises(ValueError, match="sample must be at least 1 pair"):
+        RouteEvaluationCallback(sample=0)
+
+
+def test_sampled_evaluations_keep_the_nodes_a_closure_on_the_route_needs(env_kwargs) -> None:
+    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
+    model = explorer(env)
+    model.predict = shortest_path_policy(env.envs[0].unwrapped)
+    evaluation = RouteEvaluationCallback(eval_freq=100_000, sample=8)
+    closures = RoadClosureCallback([ClosureEvent(at=1, close_on_route="busiest")], evaluation=evaluation)
+    model.learn(100, callback=closures)
+    (record,) = closures.records
+    assert len(record.closed) == 1 and record.routes_affected > 0
+    assert any(len(route.nodes) > 1 for route in evaluation.evaluations[0].report.routes)
 
 
 def test_the_evaluated_policy_can_be_made_from_the_model_anew_at_each_evaluation(env_kwargs) -> None:

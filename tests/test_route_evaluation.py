@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,27 @@ def env(shared_cache_dir: Path) -> CampusNavEnv:
             progress=False,
         ),
     )
+
+
+def nodes_of(env: CampusNavEnv, observations: dict[str, np.ndarray]) -> np.ndarray:
+    """The nodes that a batch of observations shows (read off the fixed views)."""
+    return np.array([int(np.flatnonzero((env._node_views == views).all(axis=1))[0]) for views in observations["views"]])
+
+
+def mixed(env: CampusNavEnv):
+    """A deterministic policy whose routes end every way: back at nodes 0, 3, 6, ... (blocked at a dead end, a loop
+    elsewhere), forward at nodes 2, 5, 8, ... and the shortest path elsewhere."""
+    shortest = oracle(env)
+
+    def act(observations: dict[str, np.ndarray]) -> np.ndarray:
+        kind = nodes_of(env, observations) % 3
+        return np.where(kind == 1, shortest(observations), np.array([2, 0, 0])[kind])
+
+    return act
+
+
+def pairs(report: RouteReport) -> list[tuple[str, int, int]]:
+    return [(r.goal, r.start, r.heading) for r in report.routes]
 
 
 def oracle(env: CampusNavEnv):
@@ -120,3 +142,95 @@ def test_a_start_that_cannot_reach_the_goal_is_refused(env: CampusNavEnv) -> Non
     goal_state = int(env.graph.map.state_of[env.goal_nodes[0]].max())
     with pytest.raises(ValueError, match="cannot reach goal"):
         evaluate_routes(env, oracle(env), starts=[goal_state])
+
+
+def test_batches_of_starts_give_the_routes_of_one_batch(env: CampusNavEnv) -> None:
+    one_batch = evaluate_routes(env, mixed(env), max_steps=40, chunk_size=None)
+    assert {r.ended for r in one_batch.routes} == {"goal", "blocked", "loop"}  # every way a route stops is batched
+    for chunk_size in (7, 64):
+        assert evaluate_routes(env, mixed(env), max_steps=40, chunk_size=chunk_size).routes == one_batch.routes
+    running = evaluate_routes(env, mixed(env), max_steps=40, stop_loops=False)
+    assert evaluate_routes(env, mixed(env), max_steps=40, stop_loops=False, chunk_size=7).routes == running.routes
+    with pytest.raises(ValueError, match="chunk_size must be at least 1"):
+        evaluate_routes(env, mixed(env), chunk_size=0)
+
+
+def test_a_route_ends_blocked_where_its_move_fails_and_in_a_loop_where_it_returns(env: CampusNavEnv) -> None:
+    observed = []
+
+    def back(observations: dict[str, np.ndarray]) -> np.ndarray:
+        observed.append(len(observations["heading"]))
+        return np.full(len(observations["heading"]), 2)
+
+    table, state_of = env.graph.transition_table, env.graph.map.state_of
+    goal = env.goal_nodes[0]
+    routes = evaluate_routes(env, back, max_steps=30).routes
+    # Each stops at the move that repeats a state: one observation where that is the first move, two for a loop
+    assert sum(observed) == sum(1 + (r.ended == "loop") for r in routes)
+    for route in routes:
+        behind = table[state_of[route.start, route.heading], 2]
+        if behind < 0:  # no road behind: the first move fails, and the state it stays in is one it has seen
+            assert (route.ended, route.nodes, route.steps) == ("blocked", (route.start,), 30)
+        elif behind // 4 == goal:
+            assert (route.ended, route.nodes, route.steps) == ("goal", (route.start, goal), 1)
+        else:  # there and back: the state it left is the first one it sees again
+            assert route.ended == "loop" and route.nodes == (route.start, behind // 4, route.start)
+            assert not route.success and route.steps == 30
+
+
+def test_routes_without_their_nodes_keep_every_score(env: CampusNavEnv) -> None:
+    full = evaluate_routes(env, mixed(env), max_steps=40)
+    lean = evaluate_routes(env, mixed(env), max_steps=40, keep_nodes=False, chunk_size=50)
+    assert lean.routes == [dataclasses.replace(r, nodes=(r.start,)) for r in full.routes]
+    assert lean.summary() == full.summary()
+
+
+def test_a_sample_draws_distinct_pairs_again_for_the_same_seed(env: CampusNavEnv) -> None:
+    every = evaluate_routes(env, mixed(env), max_steps=40)
+    by_pair = {(r.goal, r.start, r.heading): r for r in every.routes}
+    sample = evaluate_routes(env, mixed(env), max_steps=40, sample=25, seed=3)
+    assert len(set(pairs(sample))) == sample.evaluated_pairs == 25 and sample.total_pairs == len(every.routes)
+    assert sample.is_sample and not every.is_sample
+    assert sample.routes == [by_pair[pair] for pair in pairs(sample)]  # each route as in the full evaluation
+    assert pairs(evaluate_routes(env, mixed(env), max_steps=40, sample=25, seed=3)) == pairs(sample)
+    assert pairs(evaluate_routes(env, mixed(env), max_steps=40, sample=25, seed=4)) != pairs(sample)
+    with pytest.raises(ValueError, match="sample must be at least 1"):
+        evaluate_routes(env, mixed(env), sample=0)
+
+
+def test_a_goal_draws_the_same_sample_whichever_goals_come_with_it(env: CampusNavEnv) -> None:
+    def forward(observations: dict[str, np.ndarray]) -> np.ndarray:
+        return np.zeros(len(observations["heading"]), dtype=np.int64)
+
+    two_goals = CampusNavEnv(encoder="pixels", goals=["Dreese Lab", "Library"], view_build=env.view_build)
+    library = evaluate_routes(two_goals, forward, goals=["Library"], max_steps=3, sample=10, seed=0)
+    both = evaluate_routes(two_goals, forward, max_steps=3, sample=10, seed=0)
+    assert pairs(both.for_goal("Library")) == pairs(library)
+    assert both.evaluated_pairs == 20 and both.total_pairs == 2 * library.total_pairs
+    assert both.by_goal()["Library"].total_pairs == library.total_pairs == 4 * (env.graph.map.n_nodes - 1)
+
+
+def test_a_sample_of_at_least_every_pair_is_every_pair_and_estimates_nothing(env: CampusNavEnv) -> None:
+    every = evaluate_routes(env, mixed(env), max_steps=40)
+    whole = evaluate_routes(env, mixed(env), max_steps=40, sample=len(every.routes), seed=0)
+    assert whole.routes == every.routes and not whole.is_sample
+    assert whole.success_interval() == (every.success_rate, every.success_rate) == every.success_interval(0.5)
+    assert 0 < every.success_rate < 1
+
+
+def test_the_success_interval_is_wilsons_score_interval() -> None:
+    def report(successes: int, n: int, population: int | None) -> RouteReport:
+        routes = [Route("g", i, 0, i < successes, steps=5, shortest=5, nodes=(i,)) for i in range(n)]
+        return RouteReport(routes, None if population is None else {"g": population})
+
+    # 8 of 10, z = 1.959964: (p + z^2/2n -+ z sqrt(p(1 - p)/n + z^2/4n^2)) / (1 + z^2/n) with p = 0.8, n = 10
+    low, high = report(8, 10, 1_000).success_interval(0.95)
+    assert (low, high) == (pytest.approx(0.490162, abs=1e-6), pytest.approx(0.943318, abs=1e-6))
+    # All 10 of 10: from n / (n + z^2) up to exactly 1; none: from exactly 0
+    assert report(10, 10, 1_000).success_interval() == (pytest.approx(10 / (10 + 1.959964**2), abs=1e-6), 1.0)
+    assert report(0, 10, 1_000).success_interval()[0] == 0.0
+    # A wider confidence, a wider interval; every pair (no population): no estimate
+    assert report(8, 10, 1_000).success_interval(0.99)[0] < low
+    assert report(8, 10, None).success_interval() == (0.8, 0.8) == report(8, 10, 10).success_interval()
+    with pytest.raises(ValueError, match="confidence must lie in"):
+        report(8, 10, 1_000).success_interval(1.0)

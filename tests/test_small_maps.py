@@ -126,7 +126,7 @@ def test_degrees_forced_on_a_metres_map_are_refused_before_any_view_is_built(
     monkeypatch.setattr(env_module, "ViewSource", no_views)
     message = (
         r"map '.*town.graphml': too large to build its street views: it spans 8,132 km x 8,896 km and its roads add up"
-        r" to 58,362 km \(the longest, road 0-3, 8,896 km\); the limits are 100 km across and 10,000 km of road\. "
+        r" to 58,362 km \(the longest, road 0-3, 8,896 km\); the limits are 100 km across and 40,000 km of road\. "
         r"If x/y are metres read as longitude/latitude, load the map with coords='projected' \(the env's map_coords\)"
     )
     with pytest.raises(MapExtentError, match=message):
@@ -166,12 +166,12 @@ def test_the_extent_limits_are_the_documented_ones() -> None:
     check_map_extent(_straight_roads([0.0, MAX_MAP_SPAN_M]))  # 100 km across: built
     with pytest.raises(MapExtentError, match=r"map 'line': .* spans 101 km x 0 m .* \(the longest, road 0-1, 101 km\)"):
         check_map_extent(_straight_roads([0.0, MAX_MAP_SPAN_M + 1000.0]))
-    # Within 100 km, but back and forth: 102 roads of 99 km, more road than 10,000 km
+    # Within 100 km, but back and forth: 410 roads of 99 km, more road than 40,000 km
     zigzag = RoadGraph(
-        np.array([[99_000.0 * (i % 2), 10.0 * i] for i in range(103)]), [(i, i + 1) for i in range(102)], name="zigzag"
+        np.array([[99_000.0 * (i % 2), 10.0 * i] for i in range(411)]), [(i, i + 1) for i in range(410)], name="zigzag"
     )
     assert zigzag.lengths.sum() > MAX_ROAD_NETWORK_M
-    with pytest.raises(MapExtentError, match=r"map 'from a file': .* roads add up to 10,098 km .* 10,000 km of road"):
+    with pytest.raises(MapExtentError, match=r"map 'from a file': .* roads add up to 40,590 km .* 40,000 km of road"):
         check_map_extent(zigzag, source="from a file")
     with pytest.raises(MapExtentError, match="too large to build its street views"):
         build_world(zigzag)

@@ -33,12 +33,12 @@ from campusnav_env.features.feature_cache import cached_batched_features, cached
 from campusnav_env.features.parallel_build import check_workers, encode_batches_in_workers
 from campusnav_env.features.ray_build import encode_batches_on_ray
 from campusnav_env.features.view_worker import default_workers, pickle_for_workers
+from campusnav_env.features.world_cache import MIN_NODES_FOR_WORLD_CACHE, cached_world
 from campusnav_env.maps.road_graph import RoadGraph
 from campusnav_env.rendering.barriers import BARRIER_VERSION
 from campusnav_env.rendering.scene import WORLD_VERSION, World
 from campusnav_env.rendering.street_view import RenderSettings, StreetViewRenderer
 from campusnav_env.rendering.variation import VariedRenderer, ViewVariation, check_settings_vary
-from campusnav_env.rendering.world import build_world
 
 __all__ = ["BUILD_BACKENDS", "IMAGE_MODE_VIEW", "MIN_NODES_FOR_WORKERS", "ViewSource", "settings_for_encoder"]
 
@@ -178,9 +178,10 @@ class ViewSource:
 
     @property
     def world(self) -> World:
-        """The 3D world, built on first use (once: the workers get a copy)."""
+        """The 3D world, built on first use (once: the workers get a copy; a big map's is kept in the cache folder,
+        so that a resumed build reads it instead of placing it again: :mod:`~campusnav_env.features.world_cache`)."""
         if self._world is None:
-            self._world = build_world(self.graph, seed=self.world_seed)
+            self._world = cached_world(self.graph, self.world_seed, self.cache_dir)
         return self._world
 
     @property
@@ -235,8 +236,16 @@ class ViewSource:
             )
             workers = 1
         if workers > 1:
-            return encode_batches_in_workers(batches, make_renderer, self.encoder, workers=workers)
+            built = encode_batches_in_workers(batches, make_renderer, self.encoder, workers=workers)
+            self._release_world()  # the workers have their copy
+            return built
         return encode_batches(batches, lambda node: self.renderer.render_node(node), self.encoder)
+
+    def _release_world(self) -> None:
+        """Free this process's copy of a big map's world (gigabytes at 56,000 intersections) once the workers have
+        theirs: it is in the cache folder, read back if barrier views need it."""
+        if self.graph.n_nodes >= MIN_NODES_FOR_WORLD_CACHE:
+            self._world = self._renderer = None
 
     def renders_with(self, node: int, closed_roads: frozenset[tuple[int, int]]) -> np.ndarray:
         """

@@ -6,11 +6,12 @@ Building a map's street views places buildings, trees and parks along every metr
 with the number of intersections: 10 intersections read with the wrong units (metres over 0-100 taken for degrees:
 8,132 x 8,896 km, 58,362 km of road) sat at "encoding views 0/10" for as long as anyone watched (the area alone asks
 for 43 million parks). The limits below are well above the largest maps the product
-builds (the 10,000-intersection city: 23 x 15 km, 3,180 km of road; the 1,000-intersection city, 301 km of road,
-builds its world in 13 s on one core of a 2-core EPYC) and far below a mistake of units:
+builds (the 56,000-intersection city: 55 x 36 km, 17,871 km of road; the 10,000-intersection city: 23 x 15 km,
+3,180 km; the 1,000-intersection city, 301 km of road, builds its world in 13 s on one core of a 2-core EPYC) and far
+below a mistake of units:
 
 - :data:`MAX_MAP_SPAN_M`: the map's bounding box is at most 100 km on either side;
-- :data:`MAX_ROAD_NETWORK_M`: its roads add up to at most 10,000 km (about three times the largest city's).
+- :data:`MAX_ROAD_NETWORK_M`: its roads add up to at most 40,000 km (about twice the largest city's).
 
 :func:`check_map_extent` refuses a map beyond them with :class:`MapExtentError`, naming the map, its longest road,
 the figures and the limits. The same span is what makes a coordinate guess plausible on import
@@ -27,7 +28,7 @@ from campusnav_env.maps.road_graph import RoadGraph
 __all__ = ["MAX_MAP_SPAN_M", "MAX_ROAD_NETWORK_M", "MapExtentError", "check_map_extent", "describe_length", "span_m"]
 
 MAX_MAP_SPAN_M = 100_000.0
-MAX_ROAD_NETWORK_M = 10_000_000.0
+MAX_ROAD_NETWORK_M = 40_000_000.0
 
 
 class MapExtentError(RefusedInput):

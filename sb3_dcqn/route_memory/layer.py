@@ -119,7 +119,12 @@ class RouteMemoryLayer:
           shorter (a reopened road is found again);
         - exploration (epsilon's share and the warm-up) drives to the nearest untried (place, slot) and tries it
           (Go-Explore's return-then-explore); a uniform action where the memory knows no way there (a place it does
-          not recognise, nothing untried within reach). Setting ``explore=False``: epsilon explores as DQN's;
+          not recognise, nothing untried within reach). So does a rollout's greedy step where the memory knows the
+          place but no route from it to the goal (the goal not found yet, or a part of the map not joined to it yet):
+          the critics have learnt nothing there that the memory lacks, and on a large map an episode spent on their
+          guess is mostly spent in the same loop (a 10,000 city: 85% of the rollout steps after 36k env steps).
+          The algorithm's greedy action where nothing untried is within reach. Evaluation never explores. Setting
+          ``explore=False``: epsilon explores as DQN's, and a step with no route is the algorithm's;
         - evaluation never learns, so a move that just left an env where it was (a bump) is not given again at that
           place for the rest of its episode: the algorithm's best other action instead. It needs to know the envs
           and their episodes: SB3's convention for per-env state, ``episode_start`` (``evaluate_policy`` passes it);
@@ -304,6 +309,14 @@ class RouteMemoryLayer:
         actions = self._uniform_where(actions)  # epsilon's own draw where the memory knows no way to the untried
         return actions if batched else actions[0]
 
+    def _explore_where(self, mask: np.ndarray, actions: np.ndarray, batch: Any) -> np.ndarray:
+        """``actions`` with the way to the nearest untried move where ``mask`` is set (-1 where there is none)."""
+        if mask.any():
+            assert self._explorer is not None and self.memory is not None
+            states = np.where(mask, self.memory.states_of(batch), -1)  # envs with a route drop their exploring path
+            actions = np.where(mask, self._explorer.actions_at(states, batch), actions)
+        return actions
+
     def _routes(
         self, observation: Any, state: Any, episode_start: Any, rollout: bool = False
     ) -> tuple[np.ndarray, Any]:
@@ -318,6 +331,8 @@ class RouteMemoryLayer:
         batched, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
         staleness = ROLLOUT_STALENESS if rollout else 0
         actions = self.memory.route_actions(batch, staleness, retry=rollout)
+        if rollout and self.explores_untried:
+            actions = self._explore_where(actions < 0, actions, batch)
         actions, state = self._greedy_where(actions < 0, actions, batch, state, episode_start)
         if not rollout and episode_start is not None:
             actions = self._without_repeated_bumps(batch, actions, np.asarray(episode_start, dtype=bool).reshape(-1))
@@ -326,7 +341,8 @@ class RouteMemoryLayer:
     def _without_repeated_bumps(self, batch: Any, actions: np.ndarray, episode_start: np.ndarray) -> np.ndarray:
         """``actions`` with a move that just left its env where it was replaced by the best other action."""
         assert self.memory is not None
-        places = _guard_places(batch, self.memory.states_of(batch))
+        frame = self.memory.place_frame
+        places = _guard_places(batch, self.memory.states_of(batch), None if frame is None else frame.frame_key)
         if self._bumps is None or self._bumps.n_envs != len(places):
             self._bumps = _BumpGuard(len(places))
         self._bumps.start(episode_start)
@@ -409,7 +425,8 @@ class _BumpGuard:
     Per env of an evaluation (the rows of ``predict``'s batch; episodes marked by ``episode_start``): the (place,
     slot) each env last moved by, and the moves that left an env where it was, not to be given again at that place
     in the same episode (evaluation does not teach the memory the bump). A place is the memory's state, or the
-    observation itself where the memory does not know it (a deterministic world shows the same one after a bump).
+    observation itself where the memory does not know it (a deterministic world shows the same one after a bump),
+    less its heading where the frame is declared (the place's views are in compass order, its slots compass slots).
 
     :param n_envs: Number of envs
     """
@@ -444,9 +461,13 @@ class _BumpGuard:
         self._last = [(place, int(slot)) for place, slot in zip(places, slots.tolist(), strict=True)]
 
 
-def _guard_places(batch: Any, states: np.ndarray) -> list[Hashable]:
-    """Each observation's place for the bump guard: its memory state, else its bytes (every key, sorted)."""
-    arrays = [np.asarray(batch[key]) for key in sorted(batch)] if isinstance(batch, Mapping) else [np.asarray(batch)]
+def _guard_places(batch: Any, states: np.ndarray, frame_key: str | None = None) -> list[Hashable]:
+    """Each observation's place for the bump guard: its memory state, else its bytes (every key, sorted; but the
+    frame's key, where the frame is declared: the slots are compass slots then, the same at every heading)."""
+    if isinstance(batch, Mapping):
+        arrays = [np.asarray(batch[key]) for key in sorted(batch) if key != frame_key]
+    else:
+        arrays = [np.asarray(batch)]
     return [
         int(state) if state >= 0 else b"".join(array[row].tobytes() for array in arrays)
         for row, state in enumerate(states.tolist())
