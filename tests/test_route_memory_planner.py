@@ -38,6 +38,44 @@ def test_hops_count_the_moves_to_a_target_and_first_slots_start_a_shortest_route
     assert planner.hops_to(at_the_end(edges, 5)(np.arange(6)))[5] == NO_ROUTE
 
 
+def breadth_first_hops(edges: EdgeStore, targets: np.ndarray) -> list[int]:
+    """The hops of a plain breadth-first search, one state at a time (what ``hops_to`` must equal)."""
+    n = edges.n_rows
+    moves = edges.moves(np.arange(n))
+    into: dict[int, list[int]] = {}
+    for state, slot in zip(*np.nonzero(moves), strict=True):
+        into.setdefault(int(edges.target[state, slot]), []).append(int(state))
+    hops = [NO_ROUTE] * n
+    level = [int(s) for s in np.flatnonzero(targets.any(axis=1))]
+    for state in level:
+        hops[state] = 1
+    while level:
+        following = []
+        for state in level:
+            for source in into.get(state, []):
+                if hops[source] == NO_ROUTE:
+                    hops[source] = hops[state] + 1
+                    following.append(source)
+        level = following
+    return hops
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_hops_are_a_breadth_first_searchs_on_any_graph(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    edges = EdgeStore(4)
+    edges.ensure(300)
+    for _ in range(1_000):  # one-way moves, self-loops and states nothing leads to among them
+        state, slot, following = int(rng.integers(300)), int(rng.integers(4)), int(rng.integers(300))
+        edges.record(state, slot, following=following, arrival=-1, dead=False)
+    moves = np.argwhere(edges.moves(np.arange(300)))
+    targets = np.zeros((300, 4), dtype=bool)
+    targets[tuple(moves[rng.choice(len(moves), size=3, replace=False)].T)] = True
+    hops = Planner(edges, BoundedCache(1 << 20)).hops_to(targets)
+    assert hops.tolist() == breadth_first_hops(edges, targets)
+    assert (hops == NO_ROUTE).any() and (hops > 3).any()  # the graphs are not trivial
+
+
 def test_the_lowest_slot_wins_a_tie() -> None:
     edges = EdgeStore(3)
     edges.ensure(3)

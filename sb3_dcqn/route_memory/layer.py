@@ -46,6 +46,7 @@ from sb3_dcqn.route_memory.memory import RouteMemory, UntriedExplorer, batch_of_
 
 __all__ = [
     "ROLLOUT_STALENESS",
+    "ROLLOUT_STALENESS_PLACES",
     "RouteMemoryDCQN",
     "RouteMemoryDQN",
     "RouteMemoryLayer",
@@ -55,8 +56,11 @@ __all__ = [
     "with_route_memory",
 ]
 
-# Rollouts plan over routes at most this many memory changes old (a search per step costs milliseconds on a city)
+# Rollouts plan over routes at most this many memory changes old (a search per step costs milliseconds on a city),
+# and one more per ROLLOUT_STALENESS_PLACES places remembered: a search reads every move (155 ms at 56,000 places on
+# one core), so its cost per step stays flat as the map grows; a route a stale search misses is explored instead
 ROLLOUT_STALENESS = 32
+ROLLOUT_STALENESS_PLACES = 100
 # The layer's own settings; the others are the memory's (RouteMemory.for_env's keyword arguments)
 _LAYER_SETTINGS = ("explore", "success_reward")
 # Where the algorithms a made class can be named after live, to rebuild it by name in a fresh process (unpickling);
@@ -323,13 +327,14 @@ class RouteMemoryLayer:
         """
         The memory's route where it has one, the algorithm's greedy action elsewhere.
 
-        :param rollout: A rollout's greedy step: routes up to :data:`ROLLOUT_STALENESS` changes of the memory old, and
-            roads blocked long enough ago are tried again (:meth:`RouteMemory.route_actions`); else evaluation's exact
-            routes, with no bump twice in an episode where ``episode_start`` says which rows are envs
+        :param rollout: A rollout's greedy step: routes up to :data:`ROLLOUT_STALENESS` changes of the memory old (and
+            one more per :data:`ROLLOUT_STALENESS_PLACES` states), and roads blocked long enough ago are tried again
+            (:meth:`RouteMemory.route_actions`); else evaluation's exact routes, with no bump twice in an episode
+            where ``episode_start`` says which rows are envs
         """
         assert self.memory is not None
         batched, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
-        staleness = ROLLOUT_STALENESS if rollout else 0
+        staleness = ROLLOUT_STALENESS + self.memory.n_states // ROLLOUT_STALENESS_PLACES if rollout else 0
         actions = self.memory.route_actions(batch, staleness, retry=rollout)
         if rollout and self.explores_untried:
             actions = self._explore_where(actions < 0, actions, batch)
