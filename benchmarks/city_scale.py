@@ -257,7 +257,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--map-seed", type=int, default=MAP_SEED)
     parser.add_argument("--encoder", default=PIXELS, help="features: pixels (64x48 views) or efficientnet-lite0")
-    parser.add_argument("--no-floor", action="store_true", help="DCQN only (the table reads the floor runs there are)")
+    parser.add_argument(
+        "--parts",
+        nargs="+",
+        choices=("floor", "dcqn"),
+        default=["floor", "dcqn"],
+        help="what to run (the table reads every run there is: two processes may run the parts side by side)",
+    )
     parser.add_argument("--quick", action="store_true", help="smoke run: 101 intersections, seconds")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "city_scale.md")
     args = parser.parse_args(argv)
@@ -267,7 +273,7 @@ def main(argv: list[str] | None = None) -> None:
     floor_file = args.out.with_name(args.out.stem + "_floor_runs.jsonl")
     jobs = [job_for(size, seed, args.map_seed, args.encoder, args.quick) for size in sizes for seed in seeds]
     floors = [r for r in read_runs(floor_file) if r.get("quick", False) == args.quick]
-    if not args.no_floor:
+    if "floor" in args.parts:
         done = {(f["size"], f["map_seed"], f["seed"]) for f in floors}
         for job in jobs:
             if (job.size, job.map_seed, job.seed) not in done:
@@ -277,7 +283,7 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"floor {job.size:,}: solved {record['solved']} at {record['env_steps']:,} env steps", flush=True)
     runs = run_missing(
         runs_file,
-        jobs,
+        jobs if "dcqn" in args.parts else [],
         run_one,
         key=lambda r: tuple(r[k] for k in RUN_KEY),
         job_key=lambda job: (job.size, job.map_seed, job.seed, job.encoder),

@@ -26,7 +26,7 @@ from sb3_dcqn import DCQN, RouteMemoryDCQN, RouteMemoryDQN, algorithm_name, with
 from sb3_dcqn.place_frame import place_frame_of
 from sb3_dcqn.replay import DCQNHerReplayBuffer, RevisionDictReplayBuffer, RevisionHerReplayBuffer
 from sb3_dcqn.replay.revision import RevisionReplay
-from sb3_dcqn.route_memory import batch_of_one
+from sb3_dcqn.route_memory import UntriedExplorer, batch_of_one
 
 pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
@@ -257,6 +257,36 @@ def test_the_memory_routes_every_start_and_heading_of_the_places_it_saw(wearer: 
         route for route in with_memory.routes if (route.goal, route.start) in routed and not route.success
     ]
     assert len(routed) > 50 and failed_at_a_routed_place == []
+
+
+def test_a_rollout_step_with_no_route_to_the_goal_explores_towards_the_untried_and_evaluation_asks_the_critics() -> (
+    None
+):
+    env = CampusNavEnv(goals=["Dreese Lab", "Cinema", "Intramural fields", "Town house"], **SMALL)
+    model = RouteMemoryDCQN("MultiInputPolicy", env, learning_starts=10_000, seed=0, **NET)
+    model.learn(120)  # the warm-up explores: a part of the campus is known, not every goal's place
+    model.exploration_rate = 0.0  # a rollout's greedy step from here on
+    memory, graph = model.memory, env.graph.map
+    poses = [(int(graph.state_nodes[s]), int(graph.state_headings[s])) for s in range(graph.n_states)]
+    known = [pose for pose in poses if memory.state_of(env.observation_at(*pose, env.goal_nodes[0])) >= 0]
+    unseen_goal = next(
+        goal
+        for goal in env.goal_nodes
+        if not any(memory.state_of(env.observation_at(goal, heading, goal)) >= 0 for heading in env.headings_at(goal))
+    )
+    differs = 0
+    for pose in known[:40]:
+        observation = env.observation_at(*pose, unseen_goal)
+        assert memory.route_actions(batch_of_one(observation)).tolist() == [-1]  # no route to a place never seen
+        path = memory.path_to_untried(memory.state_of(observation))
+        assert path is not None
+        towards_untried = int(memory.slot_actions(batch_of_one(observation), np.array(path[:1]))[0])
+        model._explorer = UntriedExplorer(memory, 1)  # a fresh path for each start
+        assert int(model.predict(observation)[0]) == towards_untried
+        critics = int(model.policy.predict(observation, deterministic=True)[0])
+        assert int(model.predict(observation, deterministic=True)[0]) == critics  # evaluation never explores
+        differs += critics != towards_untried
+    assert len(known) > 40 and differs > 0  # the critics would have gone elsewhere
 
 
 # ----------------------------------------------------------------------------------------------- what it learns
