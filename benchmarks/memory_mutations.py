@@ -332,8 +332,8 @@ MUTATIONS = (
     Mutation(
         "explorer",
         "envs chase the same untried pair",
-        "slots = self.memory.path_to_untried(state, self._claimed(env))",
-        "slots = self.memory.path_to_untried(state)",
+        "slots = self.memory.path_to_untried(state, self._claimed(env), retry)",
+        "slots = self.memory.path_to_untried(state, retry=retry)",
     ),
 )
 

@@ -289,6 +289,33 @@ def test_a_rollout_step_with_no_route_to_the_goal_explores_towards_the_untried_a
     assert len(known) > 40 and differs > 0  # the critics would have gone elsewhere
 
 
+def test_explore_first_drives_to_the_untried_while_one_is_in_reach_even_where_a_route_is_known() -> None:
+    env = CampusNavEnv(goals=["Dreese Lab"], **SMALL)
+    model = RouteMemoryDCQN(
+        "MultiInputPolicy", env, learning_starts=10_000, seed=0, route_memory={"explore": "first"}, **NET
+    )
+    model.learn(300)  # the warm-up explores: the goal is found and a part of the campus known
+    model.exploration_rate = 0.0  # a rollout's greedy step from here on
+    memory, graph, goal = model.memory, env.graph.map, env.goal_nodes[0]
+    routed_yet_untried = 0
+    for state in range(graph.n_states):
+        observation = env.observation_at(int(graph.state_nodes[state]), int(graph.state_headings[state]), goal)
+        place = memory.state_of(observation)
+        if place < 0 or memory.route_actions(batch_of_one(observation))[0] < 0:
+            continue
+        path = memory.path_to_untried(place, retry=False)
+        model._explorer = UntriedExplorer(memory, 1)  # a fresh path for each start
+        action = int(model.predict(observation)[0])
+        if path is None:  # nothing untried in reach: the route
+            assert action == int(memory.route_actions(batch_of_one(observation))[0])
+        else:
+            assert action == int(memory.slot_actions(batch_of_one(observation), np.array(path[:1]))[0])
+            routed_yet_untried += 1
+    assert routed_yet_untried > 10
+    with pytest.raises(ValueError, match=r"explore must be True, False or 'first', got 'always'"):
+        RouteMemoryDCQN("MultiInputPolicy", env, route_memory={"explore": "always"}, **NET)
+
+
 # ----------------------------------------------------------------------------------------------- what it learns
 @WEARERS
 def test_success_is_the_envs_word_else_a_reward_above_the_success_reward_setting_else_none(wearer: type) -> None:

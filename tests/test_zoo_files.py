@@ -230,7 +230,7 @@ def test_an_entry_without_zoo_only_settings_says_so() -> None:
 def test_the_shipped_city_entries_pass_the_checks_and_bring_their_curriculum(env_id: str) -> None:
     entry = load_zoo_entry(default_hyperparams_path(), env_id)
     assert entry.hyperparams["replay_buffer_class"] is LeanDictReplayBuffer and entry.hyperparams["n_steps"] > 1
-    assert entry.route_memory is True and entry.algorithm_kwargs["route_memory"] is True
+    assert entry.route_memory == {"explore": "first"} and entry.algorithm_kwargs["route_memory"] == {"explore": "first"}
     assert [type(c).__name__ for c in entry.make_callbacks()] == ["StartCurriculumCallback"]
 
 

@@ -68,13 +68,33 @@ class UntriedExplorer:
         """The exploring action of each env's observation (a batch), -1 where the memory has none."""
         return self.actions_at(self.memory.states_of(observations), observations)
 
-    def actions_at(self, states: np.ndarray, observations: Any) -> np.ndarray:
-        """:meth:`actions` for the envs' memory states (-1: unknown), where the caller has them already."""
+    def actions_at(self, states: np.ndarray, observations: Any, untried_only: bool = False) -> np.ndarray:
+        """
+        :meth:`actions` for the envs' memory states (-1: unknown), where the caller has them already.
+
+        :param untried_only: Seek untried pairs only, not closed ones whose retry is due (-1 where none is in reach)
+        """
         if states.size != len(self._paths):
             self._paths = [[] for _ in range(states.size)]
             self._targets = [None] * states.size
-        slots = np.array([self._slot(env, int(state)) for env, state in enumerate(states)], dtype=np.int64)
+        slots = np.array(
+            [self._slot(env, int(state), untried_only) for env, state in enumerate(states)], dtype=np.int64
+        )
         return self.memory.slot_actions(observations, slots)
+
+    def driving(self, states: np.ndarray) -> np.ndarray:
+        """Which envs are on their way to an untried pair: their path goes on from their state (-1: unknown) and its
+        pair is still untried (or its retry still due)."""
+        states = np.asarray(states, dtype=np.int64).reshape(-1)
+        if states.size != len(self._paths):
+            return np.zeros(states.size, dtype=bool)
+        return np.array(
+            [
+                state >= 0 and bool(path) and path[0][0] == state and self._still_wanted(target)
+                for state, path, target in zip(states.tolist(), self._paths, self._targets, strict=True)
+            ],
+            dtype=bool,
+        )
 
     def _still_wanted(self, target: tuple[int, int] | None) -> bool:
         if target is None:
@@ -91,17 +111,19 @@ class UntriedExplorer:
             if other != env and target is not None and self._still_wanted(target)
         }
 
-    def _slot(self, env: int, state: int) -> int:
+    def _slot(self, env: int, state: int, untried_only: bool = False) -> int:
         path, target = self._paths[env], self._targets[env]
-        if state >= 0 and path and path[0][0] == state and self._still_wanted(target):
+        wanted = target is not None and (self.memory.edges.outcome[target] == Outcome.UNTRIED or not untried_only)
+        if state >= 0 and path and path[0][0] == state and wanted and self._still_wanted(target):
             return path.pop(0)[1]
         path.clear()
         self._targets[env] = None
         if state < 0:
             return -1
-        slots = self.memory.path_to_untried(state, self._claimed(env))
+        retry = not untried_only
+        slots = self.memory.path_to_untried(state, self._claimed(env), retry)
         if slots is None:
-            slots = self.memory.path_to_untried(state)  # every reachable pair is claimed: share one
+            slots = self.memory.path_to_untried(state, retry=retry)  # every reachable pair is claimed: share one
         if slots is None:
             return -1
         edges = self.memory.edges

@@ -630,11 +630,13 @@ class RouteMemory:
         slots = self.planner.first_slots(self.states_of(observations), hops, self.edges.untried)
         return self.slot_actions(observations, slots)
 
-    def path_to_untried(self, state: int, exclude: set[tuple[int, int]] | frozenset = frozenset()) -> list[int] | None:
+    def path_to_untried(
+        self, state: int, exclude: set[tuple[int, int]] | frozenset = frozenset(), retry: bool = True
+    ) -> list[int] | None:
         """
         The slots from ``state`` to the nearest untried ``(state, slot)`` (``exclude``'s pairs passed over), that slot
         last; where nothing untried can be reached, to the nearest closed slot whose retry is due (see
-        :func:`~sb3_dcqn.route_memory.explorer.path_to`).
+        :func:`~sb3_dcqn.route_memory.explorer.path_to`), unless ``retry`` is False.
 
         :return: the slots, or ``None`` if nothing can be reached
         """
@@ -649,7 +651,8 @@ class RouteMemory:
                 return path
             if not exclude:
                 self._exhausted.add(state)
-
+        if not retry:
+            return None
         due = self.edges.retry_due(np.arange(self.n_states))  # once for every state: the search visits many
         if not due.any():
             return None
