@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks import experience_graph_floor as floor_bench
-from benchmarks.long_routes import PIXELS, Job, job_entry, make_env, median_worst, run_one
+from benchmarks import floor_runs
+from benchmarks.city_runs import PIXELS, Job, job_entry, make_env, median_worst, run_one
 from benchmarks.report import RESULTS_DIR, append_run, machine_line, markdown_table, publish, read_runs, run_missing
 
 SIZES = (101, 1_000, 2_626, 4_406, 10_000, 56_000)
@@ -80,7 +80,7 @@ def job_for(size: int, seed: int, map_seed: int, encoder: str, quick: bool) -> J
 def run_floor(job: Job) -> dict[str, Any]:
     """The place floor on the job's city (the same views as the DCQN run, so no second build)."""
     env = make_env(job, job_entry(job).env_kwargs).unwrapped
-    return floor_bench.run_one(
+    return floor_runs.run_one(
         job.size,
         job.seed,
         eval_freq(job.size),

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS = ROOT / "benchmarks"
 sys.path.insert(0, str(ROOT))  # the benchmarks package, as `python -m benchmarks.NAME` imports it
 
-from benchmarks.experience_graph_floor import FloorAgent, floor_steps, make_env  # noqa: E402
+from benchmarks.floor_runs import FloorAgent, floor_steps, make_env  # noqa: E402
 from campusnav_env import CampusNavEnv  # noqa: E402
 from sb3_dcqn.route_memory import RouteMemory  # noqa: E402
 
