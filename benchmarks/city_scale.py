@@ -170,7 +170,8 @@ def scale_table(rows: list[dict[str, Any]]) -> list[str]:
 
 def slope_lines(rows: list[dict[str, Any]]) -> list[str]:
     """The fitted slopes of DCQN's and the floor's env steps (and DCQN's seconds) against intersections."""
-    fitted = [r for r in rows if r["size"] >= SLOPE_FROM and r["solved"] == len(r["runs"])]
+    # One line per size: the features every size was run with (pixels), the others' rows stand beside it
+    fitted = [r for r in rows if r["size"] >= SLOPE_FROM and r["solved"] == len(r["runs"]) and r["encoder"] == PIXELS]
     sizes = [r["size"] for r in fitted]
     lines = []
     for name, values in (
@@ -242,7 +243,7 @@ def write_report(runs: list[dict[str, Any]], floors: list[dict[str, Any]], out: 
         "",
         *scale_table(rows),
         "",
-        "Slopes of log-log fits (sizes from 1,000 up, all seeds solved):",
+        "Slopes of log-log fits (pixel features, sizes from 1,000 up, all seeds solved):",
         "",
         *slope_lines(rows),
         "",

@@ -127,3 +127,35 @@ def test_long_routes_reads_the_floor_of_the_same_size_and_map_seed(tmp_path: Pat
     # 400k steps against the map-23 floor's 200k (not map 0's 100k), and against its exploration alone (20k)
     assert line.startswith("| 1,000 | 23 | pixels | CampusNav-v0's entry")
     assert "| 2.0 | 20.0 |" in line
+
+
+def test_city_scale_quick_run_puts_the_floor_beside_dcqn_on_the_same_city(
+    tmp_path: Path, shared_cache_dir: Path
+) -> None:
+    out = tmp_path / "city_scale.md"
+    env = {**os.environ, "CAMPUSNAV_CACHE": str(shared_cache_dir)}
+    command = [sys.executable, str(BENCHMARKS / "city_scale.py"), "--quick", "--out", str(out)]
+    subprocess.run(command, check=True, timeout=600, env=env)
+    text = out.read_text()
+    assert "| 101 | pixels | 0 |" in text and (tmp_path / "city_scale.png").is_file()
+    assert "Command: `python benchmarks/city_scale.py --quick --out" in text
+    floor = [json.loads(line) for line in (tmp_path / "city_scale_floor_runs.jsonl").read_text().splitlines()]
+    assert [(run["size"], run["map_seed"], run["memory"]) for run in floor] == [(101, 71, "places")]
+
+
+def test_city_scale_fits_the_slope_of_a_log_log_line() -> None:
+    from benchmarks.city_scale import slope
+
+    assert slope([1_000, 10_000, 100_000], [4_000, 40_000, 400_000]) == pytest.approx(1.0)
+    assert slope([1_000, 4_000], [1_000, 2_000]) == pytest.approx(0.5)
+    assert slope([1_000], [4_000]) is None
+
+
+def test_city_build_quick_run_measures_before_the_views_and_the_pool(tmp_path: Path) -> None:
+    out = tmp_path / "city_build.md"
+    command = [sys.executable, str(BENCHMARKS / "city_build.py"), "--quick", "--no-ray", "--out", str(out)]
+    subprocess.run(command, check=True, timeout=600)
+    text = out.read_text()
+    assert "| 300 |" in text and "Command: `python benchmarks/city_build.py --quick --no-ray --out" in text
+    run = json.loads((tmp_path / "city_build_runs.jsonl").read_text().splitlines()[0])
+    assert run["world_s"] > 0 and run["pool_nodes_s"] > 0 and run["world_file_mb"] is None  # 300 < 2,000: no file
