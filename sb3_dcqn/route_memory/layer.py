@@ -325,12 +325,13 @@ class RouteMemoryLayer:
         actions = self._uniform_where(actions)  # epsilon's own draw where the memory knows no way to the untried
         return actions if batched else actions[0]
 
-    def _explore_where(self, mask: np.ndarray, actions: np.ndarray, batch: Any) -> np.ndarray:
-        """``actions`` with the way to the nearest untried move where ``mask`` is set (-1 where there is none)."""
+    def _explore_where(self, mask: np.ndarray, actions: np.ndarray, batch: Any, states: np.ndarray) -> np.ndarray:
+        """``actions`` with the way to the nearest untried move where ``mask`` is set (-1 where there is none);
+        ``states``: the batch's memory states."""
         if mask.any():
-            assert self._explorer is not None and self.memory is not None
-            states = np.where(mask, self.memory.states_of(batch), -1)  # envs with a route drop their exploring path
-            actions = np.where(mask, self._explorer.actions_at(states, batch), actions)
+            assert self._explorer is not None
+            masked = np.where(mask, states, -1)  # envs with a route drop their exploring path
+            actions = np.where(mask, self._explorer.actions_at(masked, batch), actions)
         return actions
 
     def _routes(
@@ -347,21 +348,23 @@ class RouteMemoryLayer:
         assert self.memory is not None
         batched, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
         staleness = ROLLOUT_STALENESS + self.memory.n_states // ROLLOUT_STALENESS_PLACES if rollout else 0
-        if rollout and self._explores_first:
+        # Recognised once for the explorer's calls below (a picture's digest is most of a recognition's cost)
+        states = self.memory.states_of(batch) if rollout and self.explores_untried else None
+        if states is not None and self._explores_first:
             assert self._explorer is not None
-            untried = self._explorer.actions_at(self.memory.states_of(batch), batch, untried_only=True)
+            untried = self._explorer.actions_at(states, batch, untried_only=True)
             if (untried >= 0).all():
                 return (untried if batched else untried[0]), state
             actions = self.memory.route_actions(batch, staleness, retry=rollout)
             actions = np.where(untried >= 0, untried, actions)
         else:
             actions = self.memory.route_actions(batch, staleness, retry=rollout)
-        if rollout and self.explores_untried:
+        if states is not None:
             assert self._explorer is not None
             # A trip to the untried, once begun (epsilon's draw), is driven to its end: one step of it between route
             # steps back to the goal would never reach the untried pair (temporally extended exploration)
-            driving = self._explorer.driving(self.memory.states_of(batch))
-            actions = self._explore_where((actions < 0) | driving, actions, batch)
+            driving = self._explorer.driving(states)
+            actions = self._explore_where((actions < 0) | driving, actions, batch, states)
         actions, state = self._greedy_where(actions < 0, actions, batch, state, episode_start)
         if not rollout and episode_start is not None:
             actions = self._without_repeated_bumps(batch, actions, np.asarray(episode_start, dtype=bool).reshape(-1))
