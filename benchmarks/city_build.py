@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish, run_missing
+from benchmarks.report import RESULTS_DIR, first_paragraph, machine_line, markdown_table, publish, run_missing
 from benchmarks.scale_common import peak_memory
 from benchmarks.workers import run_in_fresh_process
 
@@ -183,7 +183,7 @@ def write_report(records: list[dict[str, Any]], out: Path, argv: list[str] | Non
     lines = [
         "# City build: before the views, the views, and N machines",
         "",
-        (__doc__ or "").split("\n\n")[0].replace("\n", " "),
+        first_paragraph(__doc__),
         "",
         machine,
         "",

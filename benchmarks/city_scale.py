@@ -31,7 +31,16 @@ import numpy as np
 
 from benchmarks import floor_runs
 from benchmarks.city_runs import PIXELS, Job, job_entry, make_env, median_worst, run_one
-from benchmarks.report import RESULTS_DIR, append_run, machine_line, markdown_table, publish, read_runs, run_missing
+from benchmarks.report import (
+    RESULTS_DIR,
+    append_run,
+    first_paragraph,
+    machine_line,
+    markdown_table,
+    publish,
+    read_runs,
+    run_missing,
+)
 
 SIZES = (101, 1_000, 2_626, 4_406, 10_000, 56_000)
 MAP_SEED = 71  # a city seed no entry was tuned on
@@ -232,7 +241,7 @@ def write_report(runs: list[dict[str, Any]], floors: list[dict[str, Any]], out: 
     lines = [
         "# City scale: one entry at every size",
         "",
-        (__doc__ or "").split("\n\n")[0].replace("\n", " "),
+        first_paragraph(__doc__),
         "",
         machine,
         "",

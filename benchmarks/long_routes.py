@@ -37,7 +37,16 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.city_runs import PIXELS, ROWS, Job, median_worst, run_one
-from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, measured_on, publish, read_runs, run_missing
+from benchmarks.report import (
+    RESULTS_DIR,
+    first_paragraph,
+    machine_line,
+    markdown_table,
+    measured_on,
+    publish,
+    read_runs,
+    run_missing,
+)
 from benchmarks.workers import workers_argument
 
 # ------------------------------------------------------------------------------------------------ report
@@ -148,7 +157,7 @@ def write_report(runs: list[dict[str, Any]], out: Path, argv: list[str] | None, 
     lines = [
         "# Long routes: what each lever buys on a city",
         "",
-        (__doc__ or "").split("\n\n")[0].replace("\n", " "),
+        first_paragraph(__doc__),
         "",
         measured_on(out, machine),
         "",

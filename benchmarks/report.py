@@ -69,6 +69,11 @@ def described(docstring: str | None) -> str:
     return " ".join((docstring or "").split("Usage::")[0].split("\n\n")[1].split())
 
 
+def first_paragraph(docstring: str | None) -> str:
+    """A script's docstring's first paragraph (what it is) as one line: a results file's opening line."""
+    return (docstring or "").split("\n\n")[0].replace("\n", " ")
+
+
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
     """
     The lines of a Markdown table: the header, the separator, one line per row (cells already formatted as text).
