@@ -59,26 +59,81 @@ MUTATIONS = (
     Mutation(
         "places",
         "a second place as near is no reason for doubt",
-        "if first <= self.known and second >= self.new:",
+        "if first <= self.known and (second >= self.new or first <= RATIO * second):",
         "if first <= self.known:",
     ),
     Mutation(
         "places",
         "no unsure band: what is not known is new",
-        "if first >= self.new:\n            return self._new",
+        "if first >= self.new and (not add or self._unlike_every_place(row, pool)):"
+        "  # a query adds no place: no check\n            return self._new",
         "if first > self.known:\n            return self._new",
     ),
     Mutation(
         "places",
         "the graph's prior never settles an unsure picture",
-        "if nearest == expected and second >= self.new:",
+        "        if 0 <= expected < self.n_states:\n            # The graph's prior",
+        "        if False:\n            # The graph's prior",
+    ),
+    Mutation(
+        "places",
+        "no ratio test: a place within known is unsure wherever a second lies within new",
+        "(second >= self.new or first <= RATIO * second)",
+        "second >= self.new",
+    ),
+    Mutation(
+        "places",
+        "a picture with two odd views is a new place",
+        "return not (per_view[self.kth - 1] < self.new).any() and not self._matching_but_two_views(per_view).any()",
+        "return not (per_view[self.kth - 1] < self.new).any()",
+    ),
+    Mutation(
+        "places",
+        "a new picture is judged on the screen's pool alone",
+        "if pool is None or self.n_states <= VERIFY_ALL_STATES else pool",
+        "if pool is None else pool",
+    ),
+    Mutation(
+        "places",
+        "the expected place's odd picture is a new place",
+        "if to_expected < PRIOR_REACH * self.new:",
         "if False:",
     ),
     Mutation(
         "places",
+        "the expected place is taken over a place clearly nearer",
+        "if agrees and first >= RATIO * to_expected:",
+        "if agrees:",
+    ),
+    Mutation(
+        "places",
+        "two views that agree with the expected place do not settle it",
+        "agrees = to_expected < self.new or (self.kth >= 2 and views[self.kth - 2] < self.known)",
+        "agrees = to_expected < self.new",
+    ),
+    Mutation(
+        "places",
+        "a query never takes the clearly nearest place short of new",
+        "if first < self.new and first <= RATIO * second:",
+        "if False:",
+    ),
+    Mutation(
+        "places",
+        "a query never takes the one place it matches but for two views",
+        "if matching.size and (self._owner[matching] == self._owner[matching[0]]).all():",
+        "if False:",
+    ),
+    Mutation(
+        "places",
+        "a merged place keeps only its own prototype",
+        "members = [*self.members(keep).tolist(), *self.members(drop).tolist()]",
+        "members = [*self.members(drop).tolist()]",
+    ),
+    Mutation(
+        "places",
         "an expected place is taken anywhere short of new",
-        "if 0 <= expected < self.n_states and self._exact_distances(row, np.array([expected]))[0] <= self.known:",
-        "if 0 <= expected < self.n_states and self._exact_distances(row, np.array([expected]))[0] < self.new:",
+        "if distances.min() <= self.known:",
+        "if distances.min() < self.new:",
     ),
     Mutation(
         "places",
@@ -97,6 +152,12 @@ MUTATIONS = (
         "a later split may put earlier repeat visits among the other places",
         "above = -np.inf if self.genuine is None else float(np.log(self.genuine))",
         "above = -np.inf",
+    ),
+    Mutation(
+        "places",
+        "a later split may put the other places among the repeat visits",
+        "below = np.inf if self.impostor is None else float(np.log(self.impostor))",
+        "below = np.inf",
     ),
     Mutation(
         "places",
@@ -136,6 +197,24 @@ MUTATIONS = (
         "no way back inferred",
         "elif far_outcome in (Outcome.UNTRIED, Outcome.INFERRED, Outcome.INFERRED_BLOCKED):",
         "elif False:",
+    ),
+    Mutation(
+        "edges",
+        "two states that several moves lead to by turns are two aliased places",
+        "not alike(first, second) and not self._one_place(first, second, source)",
+        "not alike(first, second)",
+    ),
+    Mutation(
+        "edges",
+        "a merged state's moves are dropped, not handed over",
+        "take = theirs & (~ours | (self.last_tried[drop] > self.last_tried[keep]))",
+        "take = theirs & ~theirs",
+    ),
+    Mutation(
+        "edges",
+        "an alias is never cleared once its states show to be one place",
+        "for aliased in [other for other in self.aliased if other != state]:",
+        "for aliased in []:",
     ),
     Mutation(
         "edges",
@@ -182,8 +261,8 @@ MUTATIONS = (
     Mutation(
         "edges",
         "one odd outcome marks an alias",
-        "frequent = [target for target, count in counts.items() if count >= 2]",
-        "frequent = [target for target, count in counts.items() if count >= 1]",
+        "frequent = [target for target, count in self._disputes[source].items() if count >= 2]",
+        "frequent = [target for target, count in self._disputes[source].items() if count >= 1]",
     ),
     Mutation(
         "edges",
@@ -301,6 +380,12 @@ MUTATIONS = (
     Mutation("memory", "an unsure picture is recorded as leading outside", "if skip or state < 0:", "if state < 0:"),
     Mutation(
         "memory",
+        "states shown to be one place are never merged",
+        "        self._merge_twins()\n",
+        "",
+    ),
+    Mutation(
+        "memory",
         "no guard on states growing like transitions",
         "elif transitions >= GUARD_WINDOW and new > GROWTH_GUARD * transitions:",
         "elif False:",
@@ -320,14 +405,20 @@ MUTATIONS = (
     Mutation(
         "memory",
         "no expected place: no localisation on the graph",
-        "expected=self._expected(states, slots))",
-        "expected=None)",
+        "expected=self.expected_states(states, slots)",
+        "expected=None",
     ),
     Mutation(
         "memory",
         "exploration never returns to a closed slot that is due",
         "return path_to(self.edges, state, lambda here: np.flatnonzero(due[here]).tolist(), exclude)",
         "return None",
+    ),
+    Mutation(
+        "layer",
+        "evaluation recognises each picture without the graph's prior",
+        "states = self.memory.states_of(batch, expected=self._bumps.expected_states(self.memory))",
+        "states = self.memory.states_of(batch)",
     ),
     Mutation(
         "explorer",
@@ -372,7 +463,11 @@ def mutated_copy(mutation: Mutation, into: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", type=int, nargs="*", help="numbers of the mutations to run (default: all)")
-    parser.add_argument("--with-layer", action="store_true", help=f"also run {LAYER_TESTS} (agents train: slower)")
+    parser.add_argument(
+        "--with-layer",
+        action="store_true",
+        help=f"also run {LAYER_TESTS} (agents train: slower; always for the layer's)",
+    )
     parser.add_argument("--out", type=Path, default=None, help="results file (default: results/memory_mutations.md)")
     args = parser.parse_args()
     tests = TESTS if args.with_layer else [test for test in TESTS if test != LAYER_TESTS]
@@ -390,7 +485,7 @@ def main() -> None:
             tree.mkdir()
             mutated_copy(mutation, tree)
             start = time.perf_counter()
-            dead = not run_tests(tree, tests)
+            dead = not run_tests(tree, TESTS if mutation.module == "layer" else tests)
             shutil.rmtree(tree)
             killed += dead
             rows.append([str(number), mutation.module, mutation.what, "killed" if dead else "**survived**"])
@@ -399,7 +494,8 @@ def main() -> None:
     lines = [
         "# Route memory: single-behaviour mutations against its tests",
         "",
-        f"{killed} of {len(rows)} mutations killed by `{' '.join(tests)}`.",
+        f"{killed} of {len(rows)} mutations killed by `{' '.join(tests)}`"
+        + ("." if args.with_layer else f" (the layer's own mutations also by `{LAYER_TESTS}`)."),
         "",
         machine_line("one pytest process per mutation"),
         "",

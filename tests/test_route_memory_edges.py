@@ -108,6 +108,39 @@ def test_a_slot_that_leads_to_two_states_of_one_look_is_no_alias() -> None:
     assert edges.aliased == {0}
 
 
+def test_two_states_that_another_move_also_leads_to_are_one_place_remembered_twice_not_an_alias() -> None:
+    edges = EdgeStore(2)
+    edges.ensure(6)
+    for following in (1, 2, 1, 2):  # from state 3: states 1 and 2 by turns (a place whose pictures vary a lot)
+        edges.record(3, 0, following=following, arrival=-1, dead=False)
+    assert edges.aliased == {3}  # alone, two places that state 3 pictures alike
+    for following in (2, 1):  # state 4's move led to both too: one place, two states
+        edges.record(4, 1, following=following, arrival=-1, dead=False)
+    assert edges.aliased == set() and edges.moves(np.array([3]))[0, 0]  # state 3 routes again
+    for following in (1, 2, 1, 2):
+        edges.record(0, 0, following=following, arrival=-1, dead=False)
+    assert edges.aliased == set() and edges.target[0, 0] == 2 and edges.moves(np.array([0]))[0, 0]
+
+
+def test_two_states_shown_to_be_one_place_are_handed_over_and_merge_into_one() -> None:
+    edges = EdgeStore(4)
+    edges.ensure(6)
+    for following in (1, 2, 1, 2):
+        edges.record(3, 0, following=following, arrival=0, dead=False)
+    for following in (2, 1):
+        edges.record(4, 1, following=following, arrival=0, dead=False)
+    assert edges.twins == {(1, 2)}  # for the caller to merge
+    edges.record(1, 0, following=5, arrival=0, dead=False)  # state 1 drove slot 0, state 2 slots 0 (later) and 3
+    edges.record(2, 3, following=0, arrival=0, dead=False)
+    edges.record(2, 0, following=0, arrival=0, dead=False)
+    edges.merge(1, 2)
+    assert edges.target[1, 3] == 0 and edges.outcome[1, 3] == Outcome.DRIVEN  # state 2's move, state 1 had none
+    assert edges.target[1, 0] == 0  # both tried slot 0: the later try stands
+    assert not edges.moves(np.array([2])).any() and not edges.untried(np.array([2])).any()  # 2 keeps nothing
+    assert (edges.target[:6] != 2).all() and edges.target[3, 0] == 1 and edges.target[4, 1] == 1
+    assert edges.twins == set() and edges.aliased == set()
+
+
 def test_dead_ends_and_moves_outside_the_memory_are_kept_apart_from_moves() -> None:
     edges = EdgeStore(2)
     edges.ensure(2)

@@ -460,6 +460,31 @@ def test_evaluation_never_repeats_a_move_that_just_bumped_into_a_barrier(wearer:
     assert again == guarded  # a new episode: the guard starts afresh
 
 
+def test_evaluation_hands_the_recogniser_the_place_each_envs_last_move_leads_to() -> None:
+    env = CampusNavEnv(**SMALL)  # fixed views: where the agent is, the memory knows exactly
+    model = RouteMemoryDQN("MultiInputPolicy", env, learning_starts=100, exploration_fraction=1.0, seed=0, **NET)
+    model.learn(800)
+    memory, asked = model.memory, []
+    states_of = memory.states_of
+
+    def spy(observations: Any, *, add: bool = False, expected: np.ndarray | None = None) -> np.ndarray:
+        asked.append((None if expected is None else expected.tolist(), states_of(observations).tolist()))
+        return states_of(observations, add=add, expected=expected)
+
+    memory.states_of = spy
+    for episode in range(2):
+        observation, _ = env.reset(seed=episode)
+        for step in range(6):
+            action = model.predict(batch_of_one(observation), episode_start=np.array([step == 0]), deterministic=True)
+            observation, _, terminated, truncated, _ = env.step(int(action[0][0]))
+            if terminated or truncated:
+                break
+    priors = [prior for prior, _ in asked if prior is not None]
+    assert len(priors) >= 8 and priors[0] == [-1]  # one recognition per step; a new episode expects nothing
+    expected_right = [prior == where for prior, where in asked[1:] if prior is not None and prior != [-1]]
+    assert len(expected_right) >= 5 and all(expected_right)  # every prior named where the agent then was
+
+
 def test_sb3s_evaluate_policy_passes_episode_starts_and_the_guard_keeps_each_env_apart() -> None:
     env = CampusNavEnv(visible_closures=True, **SMALL)
     model = RouteMemoryDQN("MultiInputPolicy", env, learning_starts=100, seed=0, **NET)

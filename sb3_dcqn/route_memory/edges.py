@@ -9,7 +9,9 @@ back (a one-way road) says the inference was wrong and closes nothing else.
 
 A slot that led to two different states, each at least twice, marks its state *aliased* (two places that picture
 the same): routes never go through it. One odd outcome (a glitch) leaves it alone and the latest outcome wins, and so
-do two states the caller says look alike (one place remembered as two states: no alias).
+do two states that are one place remembered twice: the caller says they look alike, or another move has led to both
+of them too (a place whose pictures vary more than the recogniser's thresholds; two twin places behind two sources
+that each picture alike are far less likely).
 
 A closed slot is a fact with an age: ``last_tried`` (the memory's clock, in transitions) and ``failures`` (bumps in a
 row) say when it may be tried again (:meth:`EdgeStore.retry_due`): ``retry_after`` transitions after the first bump,
@@ -60,6 +62,8 @@ class EdgeStore:
     :param retry_after: Transitions after a bump before a closed slot may be tried again (doubling with each bump)
     :param forget_moves_into_on_bump: Pose states (see :meth:`forget_moves_into`): a bump where a move into a state
         used to be makes every other move into that state untried again
+    :param one_place_twice: Whether two states can be one place remembered twice (places recognised by similarity;
+        not states that are exact observations, where two states a move leads to by turns are a stochastic world's)
     """
 
     def __init__(
@@ -68,6 +72,7 @@ class EdgeStore:
         reverse_action: int | None = None,
         retry_after: int = 50,
         forget_moves_into_on_bump: bool = False,
+        one_place_twice: bool = True,
     ) -> None:
         if n_slots < 1 or retry_after < 1:
             raise ValueError(f"n_slots and retry_after must be at least 1, got {n_slots}, {retry_after}")
@@ -75,11 +80,13 @@ class EdgeStore:
         self.reverse_action = reverse_action
         self.retry_after = int(retry_after)
         self.forget_moves_into_on_bump = forget_moves_into_on_bump
+        self.one_place_twice = one_place_twice
         self.forgotten = 0  # moves made untried again by forget_moves_into
         self.clock = 0  # transitions recorded
         self.version = 0  # counts changes of moves
         self.lost_move_version = 0  # the last change that removed a move: routes computed before it are stale
         self.aliased: set[int] = set()
+        self.twins: set[tuple[int, int]] = set()  # pairs of states shown to be one place, for the caller to merge
         self._disputes: dict[tuple[int, int], dict[int, int]] = {}
         self.n_rows = 0
         self.outcome = np.zeros((0, n_slots), dtype=np.int8)
@@ -191,16 +198,67 @@ class EdgeStore:
         return (int(self.arrival[state, slot]) + self.reverse_action) % self.n_slots
 
     def _dispute(self, state: int, slot: int, known: int, following: int, alike: Callable[[int, int], bool]) -> None:
-        """A slot that led to ``known`` now leads to ``following``: two states that do not look alike, twice each, and
-        the state is aliased."""
+        """A slot that led to ``known`` now leads to ``following``: two states that are not one place, twice each, and
+        the state is aliased; a state aliased before is cleared where its states have since shown to be one place."""
         counts = self._disputes.setdefault((state, slot), {known: 1} if known >= 0 else {})
         counts[following] = counts.get(following, 0) + 1
-        frequent = [target for target, count in counts.items() if count >= 2]
-        if state in self.aliased or len(frequent) < 2:
-            return
-        if any(not alike(first, second) for index, first in enumerate(frequent) for second in frequent[index + 1 :]):
+        for aliased in [other for other in self.aliased if other != state]:
+            if not any(self._splits(key, alike) for key in self._disputes if key[0] == aliased):
+                self.aliased.discard(aliased)
+                self.version += 1
+        if state not in self.aliased and self._splits((state, slot), alike):
             self.aliased.add(state)
             self.version += 1
+
+    def _splits(self, source: tuple[int, int], alike: Callable[[int, int], bool]) -> bool:
+        """Whether a disputed move led to two states, twice each, that are not one place remembered twice."""
+        frequent = [target for target, count in self._disputes[source].items() if count >= 2]
+        return any(
+            not alike(first, second) and not self._one_place(first, second, source)
+            for index, first in enumerate(frequent)
+            for second in frequent[index + 1 :]
+        )
+
+    def _one_place(self, first: int, second: int, source: tuple[int, int]) -> bool:
+        """Whether another move has led to both states too: one place remembered as two (its pictures vary more than
+        the recogniser's thresholds), not two places that ``source``'s state pictures alike. Such pairs are kept in
+        :attr:`twins` for the caller to merge (:meth:`merge`)."""
+        if not self.one_place_twice:
+            return False
+        twins = any(key != source and first in counts and second in counts for key, counts in self._disputes.items())
+        if twins:
+            self.twins.add((min(first, second), max(first, second)))
+        return twins
+
+    def merge(self, keep: int, drop: int) -> None:
+        """
+        Two states that are one place: ``drop``'s moves become ``keep``'s where ``keep`` has observed nothing there (the
+        later try where both have), every move into ``drop`` leads into ``keep``, and ``drop`` keeps no move (its row
+        is ``OUTSIDE``: neither a route nor untried).
+        """
+        if keep == drop or max(keep, drop) >= self.n_rows:
+            return
+        observed = (Outcome.DRIVEN, Outcome.BLOCKED, Outcome.DEAD_END, Outcome.OUTSIDE)
+        theirs = np.isin(self.outcome[drop], observed)
+        ours = np.isin(self.outcome[keep], observed)
+        take = theirs & (~ours | (self.last_tried[drop] > self.last_tried[keep]))
+        for name in _FILL:
+            array = getattr(self, name)
+            array[keep, take] = array[drop, take]
+            array[drop] = _FILL[name]
+        self.outcome[drop] = Outcome.OUTSIDE
+        rows = slice(0, self.n_rows)
+        self.target[rows][self.target[rows] == drop] = keep
+        for key in [key for key in self._disputes if key[0] == drop]:
+            del self._disputes[key]
+        for counts in self._disputes.values():
+            if drop in counts:
+                counts[keep] = counts.get(keep, 0) + counts.pop(drop)
+        self.aliased.discard(drop)
+        self.twins = {(a, b) for a, b in ((keep if a == drop else a, keep if b == drop else b) for a, b in self.twins)}
+        self.twins = {(a, b) for a, b in self.twins if a != b}
+        self.version += 1
+        self.lost_move_version = self.version
 
     def forget_moves_into(self, lost: int) -> int:
         """
@@ -251,5 +309,7 @@ class EdgeStore:
         return state
 
     def __setstate__(self, state: dict) -> None:
+        state.setdefault("twins", set())  # saved before states were merged
+        state.setdefault("one_place_twice", False)
         self.__dict__.update(state)
         self._grow(max(1024, 2 * self.n_rows))

@@ -146,6 +146,14 @@ class GoalIndex:
                 entry[1].add(int(state))
                 self.version += 1
 
+    def merge(self, keep: int, drop: int) -> None:
+        """Two states that are one place: goals at ``drop`` are at ``keep``."""
+        for states in [*self._reached.values(), *(states for _, states in self._achieved.values())]:
+            if drop in states:
+                states.discard(drop)
+                states.add(keep)
+                self.version += 1
+
     # ------------------------------------------------------------------ where a goal is
     def states(self, goal: bytes, observations: Any, index: int, batch: int) -> np.ndarray:
         """The states where the goal of observation ``index`` of a batch is reached (empty: not in memory)."""
@@ -176,11 +184,11 @@ class GoalIndex:
             return set()
         if len(self._asked) < MAX_GOALS_ASKED:
             self._asked.setdefault(digest(row.tobytes()), row[0].copy())
-        references = np.stack([self.recogniser.prototype(s) for s in range(self.recogniser.n_states)])
-        labels = np.arange(len(references), dtype=np.int64)
+        labels = self.recogniser.live_states()
+        references = np.stack([self.recogniser.prototype(int(state)) for state in labels])
         asked = np.stack(list(self._asked.values()))
         matched = int(self.place_matcher.match(row, references, labels, asked)[0])
-        return set() if matched < 0 else {matched}
+        return set() if matched < 0 else {int(labels[matched])}
 
     def _achieved_states(self, row: np.ndarray) -> set[int]:
         entry = self._achieved.get(digest(row.tobytes()))

@@ -349,35 +349,41 @@ class RouteMemoryLayer:
         batched, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
         staleness = ROLLOUT_STALENESS + self.memory.n_states // ROLLOUT_STALENESS_PLACES if rollout else 0
         # Recognised once for the explorer's calls below (a picture's digest is most of a recognition's cost)
-        states = self.memory.states_of(batch) if rollout and self.explores_untried else None
-        if states is not None and self._explores_first:
+        evaluation = not rollout and episode_start is not None
+        if evaluation:  # each env's last place and move say where it should be now (the graph's prior)
+            starts = np.asarray(episode_start, dtype=bool).reshape(-1)
+            if self._bumps is None or self._bumps.n_envs != starts.size:
+                self._bumps = _BumpGuard(starts.size)
+            self._bumps.start(starts)
+            states = self.memory.states_of(batch, expected=self._bumps.expected_states(self.memory))
+        else:
+            states = self.memory.states_of(batch) if rollout and self.explores_untried else None
+        if rollout and states is not None and self._explores_first:
             assert self._explorer is not None
             untried = self._explorer.actions_at(states, batch, untried_only=True)
             if (untried >= 0).all():
                 return (untried if batched else untried[0]), state
-            actions = self.memory.route_actions(batch, staleness, retry=rollout)
+            actions = self.memory.route_actions(batch, staleness, retry=rollout, states=states)
             actions = np.where(untried >= 0, untried, actions)
         else:
-            actions = self.memory.route_actions(batch, staleness, retry=rollout)
-        if states is not None:
+            actions = self.memory.route_actions(batch, staleness, retry=rollout, states=states)
+        if rollout and states is not None:
             assert self._explorer is not None
             # A trip to the untried, once begun (epsilon's draw), is driven to its end: one step of it between route
             # steps back to the goal would never reach the untried pair (temporally extended exploration)
             driving = self._explorer.driving(states)
             actions = self._explore_where((actions < 0) | driving, actions, batch, states)
         actions, state = self._greedy_where(actions < 0, actions, batch, state, episode_start)
-        if not rollout and episode_start is not None:
-            actions = self._without_repeated_bumps(batch, actions, np.asarray(episode_start, dtype=bool).reshape(-1))
+        if evaluation:
+            actions = self._without_repeated_bumps(batch, actions, states)
         return (actions if batched else actions[0]), state
 
-    def _without_repeated_bumps(self, batch: Any, actions: np.ndarray, episode_start: np.ndarray) -> np.ndarray:
-        """``actions`` with a move that just left its env where it was replaced by the best other action."""
-        assert self.memory is not None
+    def _without_repeated_bumps(self, batch: Any, actions: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """``actions`` with a move that just left its env where it was replaced by the best other action (``states``:
+        the batch's memory states; the guard has been told which envs start an episode)."""
+        assert self.memory is not None and self._bumps is not None
         frame = self.memory.place_frame
-        places = _guard_places(batch, self.memory.states_of(batch), None if frame is None else frame.frame_key)
-        if self._bumps is None or self._bumps.n_envs != len(places):
-            self._bumps = _BumpGuard(len(places))
-        self._bumps.start(episode_start)
+        places = _guard_places(batch, states, None if frame is None else frame.frame_key)
         self._bumps.observe(places)
         n_slots = int(self.action_space.n)  # type: ignore[attr-defined]
         frames = self._slots(batch, np.zeros_like(actions))  # the slot of action 0: the frame (0 where none)
@@ -461,8 +467,9 @@ class RouteMemoryLayer:
 class _BumpGuard:
     """
     Per env of an evaluation (the rows of ``predict``'s batch; episodes marked by ``episode_start``): the (place,
-    slot) each env last moved by, and the moves that left an env where it was, not to be given again at that place
-    in the same episode (evaluation does not teach the memory the bump). A place is the memory's state, or the
+    slot) each env last moved by (where the memory expects it now: the prior that recognises its next picture), and
+    the moves that left an env where it was, not to be given again at that place in the same episode (evaluation does
+    not teach the memory the bump). A place is the memory's state, or the
     observation itself where the memory does not know it (a deterministic world shows the same one after a bump),
     less its heading where the frame is declared (the place's views are in compass order, its slots compass slots).
 
@@ -497,6 +504,12 @@ class _BumpGuard:
     def remember(self, places: list[Hashable], slots: np.ndarray) -> None:
         """Each env's move now."""
         self._last = [(place, int(slot)) for place, slot in zip(places, slots.tolist(), strict=True)]
+
+    def expected_states(self, memory: RouteMemory) -> np.ndarray:
+        """Per env, the state its last move should have led to by the memory (-1: none, or a new episode)."""
+        known = [last if last is not None and isinstance(last[0], int) else (-1, -1) for last in self._last]
+        states, slots = np.array(known, dtype=np.int64).reshape(-1, 2).T
+        return memory.expected_states(states, slots)
 
 
 def _guard_places(batch: Any, states: np.ndarray, frame_key: str | None = None) -> list[Hashable]:

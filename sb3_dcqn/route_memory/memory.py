@@ -20,7 +20,9 @@ is kept in **compass slots**, ``slot = (frame + action) mod n``, so a move tried
 heading, and a route's slot is turned back into the action for the current heading. With two-way roads declared, a
 driven road also records its way back (inferred), and a bump on a driven road closes its way back too, for every goal
 at once. Pictures that vary between visits (light, cars, noise) are recognised by similarity; where they do not
-separate places at all, the memory says so once and steps aside (:attr:`RouteMemory.stepped_aside`). **Poses, where
+separate places at all, the memory says so once and steps aside (:attr:`RouteMemory.stepped_aside`). Two states
+that moves from two places lead to by turns are one place remembered twice (its pictures vary more than the
+thresholds): they are merged into one (:attr:`RouteMemory.merged` counts them), moves and goals included. **Poses, where
 the env declares nothing**: a state is the exact observation without its goal keys (no similarity: an observation
 that carries a heading or a position is compared bit for bit), and slots are the actions.
 
@@ -156,15 +158,16 @@ class RouteMemory:
         self.success_reward = None if success_reward is None else float(success_reward)
         self.place_frame = place_frame
         self.cache = BoundedCache(max_cache_bytes)
+        self._state_keys = place_frame.place_keys if place_frame is not None else None
+        width, views, similar = self._picture_layout(recognition)
         self.edges = EdgeStore(
             n_actions,
             None if place_frame is None else place_frame.reverse_action,
             retry_after,
             forget_moves_into_on_bump=place_frame is None,
+            one_place_twice=similar,
         )
         self.planner = Planner(self.edges, self.cache)
-        self._state_keys = place_frame.place_keys if place_frame is not None else None
-        width, views, similar = self._picture_layout(recognition)
         self.recogniser = PlaceRecogniser(
             width, views, similar=similar, max_states=max_states, window=calibration_window,
             min_calibration=min(8, calibration_window),
@@ -185,6 +188,7 @@ class RouteMemory:
         self._exhausted_version = -1
         self.stepped_aside = False
         self.aside_reason = ""
+        self.merged = 0  # pairs of states merged into one place
         self._guard: deque[np.ndarray] = deque()  # per recorded batch: (transitions, new states, unsure pictures)
         self._guard_totals = np.zeros(3, dtype=np.int64)
 
@@ -276,7 +280,8 @@ class RouteMemory:
         transitions, new, unsure = self._guard_totals.tolist()
         recogniser = self.recogniser
         return {
-            "states": float(self.n_states),
+            "states": float(self.recogniser.live_states().size),
+            "merged": float(self.merged),
             "tried": float(self.n_tried),
             "aliased": float(len(self.aliased)),
             "new_states_per_transition": new / transitions if transitions else 0.0,
@@ -328,13 +333,16 @@ class RouteMemory:
             return np.concatenate(arrays, axis=1) if len(arrays) > 1 else arrays[0]
         return _as_rows(observations, self.observation_space)
 
-    def states_of(self, observations: Any, *, add: bool = False) -> np.ndarray:
+    def states_of(self, observations: Any, *, add: bool = False, expected: np.ndarray | None = None) -> np.ndarray:
         """
         The states of a batch of observations (a dict of batches for Dict observations): -1 where unknown or unsure.
 
         :param add: Give new places new states
+        :param expected: Per observation, the state the caller expects (-1: none), e.g. from
+            :meth:`expected_states` of its last state and move: the graph's prior, which settles pictures the views
+            alone leave unsure
         """
-        states, _ = self._recognise(observations, add)
+        states, _ = self._recognise(observations, add, expected)
         return states
 
     def state_of(self, observation: Any, *, add: bool = False) -> int:
@@ -448,7 +456,9 @@ class RouteMemory:
         before = self.n_states
         states, answers = self._recognise(observations, add=True)
         slots = self._slots(self._frames(observations), actions)
-        next_states, next_answers = self._recognise(next_observations, add=True, expected=self._expected(states, slots))
+        next_states, next_answers = self._recognise(
+            next_observations, add=True, expected=self.expected_states(states, slots)
+        )
         if success.any():
             self.goals.add_reached(select_rows(next_observations, success), next_states[success])
         if self.goals.achieved_key is not None:
@@ -468,11 +478,25 @@ class RouteMemory:
             self.edges.ensure(self.n_states)
             self.edges.record(state, slot, following, arrival, is_dead, self.recogniser.alike)
         self._count(actions.size, self.n_states - before, int(unsure.sum()))
+        self._merge_twins()
 
-    def _expected(self, states: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    def _merge_twins(self) -> None:
+        """States the moves showed to be one place (:attr:`EdgeStore.twins`) become one: the older keeps it."""
+        while self.edges.twins:
+            keep, drop = sorted(self.edges.twins.pop())
+            if not (self.recogniser.live(keep) and self.recogniser.live(drop)):
+                continue
+            self.recogniser.merge(keep, drop)
+            self.edges.merge(keep, drop)
+            self.goals.merge(keep, drop)
+            self.cache.clear()
+            self.merged += 1
+
+    def expected_states(self, states: np.ndarray, slots: np.ndarray) -> np.ndarray:
         """Where each (state, slot) should lead, by the memory (-1: unknown): the prior that localises on the graph."""
+        states, slots = np.asarray(states, dtype=np.int64).reshape(-1), np.asarray(slots, dtype=np.int64).reshape(-1)
         expected = np.full(states.size, -1, dtype=np.int64)
-        known = states >= 0
+        known = (states >= 0) & (states < self.n_states) & (slots >= 0)
         if not known.any():
             return expected
         rows, columns = states[known], slots[known]
@@ -542,7 +566,9 @@ class RouteMemory:
         goal = self.goal_digests(batch)[0]
         return self.planner.cached_hops(("hops", goal, False), self._goal_targets(goal, batch, 0)).astype(np.int64)
 
-    def route_actions(self, observations: Any, staleness: int = 0, retry: bool = False) -> np.ndarray:
+    def route_actions(
+        self, observations: Any, staleness: int = 0, retry: bool = False, states: np.ndarray | None = None
+    ) -> np.ndarray:
         """
         The first action of a shortest remembered route from each observation to its goal (the lowest slot on
         ties): a batch (a dict of batches) in, int64 actions for each observation's own frame out, -1 where there is
@@ -553,8 +579,9 @@ class RouteMemory:
             taken again unless ``retry``); 0: exact
         :param retry: Routes may go through closed roads whose retry is due, and a state next to such a road tries
             it (training's rollouts: a reopened road is found again; evaluation never drives a road seen closed)
+        :param states: The observations' states where the caller has recognised them (:meth:`states_of`)
         """
-        states = self.states_of(observations)
+        states = self.states_of(observations) if states is None else np.asarray(states, dtype=np.int64)
         slots = np.full(states.size, -1, dtype=np.int64)
         if self.stepped_aside or self.n_states == 0:
             return slots
@@ -665,6 +692,7 @@ class RouteMemory:
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
+        state.setdefault("merged", 0)  # saved before states were merged
         if "edges" not in state:  # saved by an earlier release: its facts carried over, recognised bit for bit
             from sb3_dcqn.route_memory.legacy import load_earlier_memory
 

@@ -9,14 +9,29 @@ recogniser answers each picture with one of three :class:`Answer`\\ s:
 - ``UNSURE``: neither clearly; the caller does not act on it (the critics act, nothing is recorded).
 
 **The fast path** is bit identity: a picture seen before (its 16-byte digest) is its place at once. **Otherwise** the
-picture is compared with every place's *prototype* (the running mean of its pictures) view by view, and the
-*distance* to a place is the k-th smallest of the per-view L2 distances, ``k = views - 1`` from four views on: one
-view may differ wholly (a construction barrier in it, a bus in front of the camera) and the place is still the place,
-while two places that share two of four views are never one. A picture is ``KNOWN`` at distance ``<= known`` from one
-place and ``>= new`` from every other, ``NEW`` at ``>= new`` from all; between the two thresholds it is ``UNSURE``.
-The caller may name the place it expects (where a remembered place and slot led before: localisation on the graph,
-as PlaceNav's filter); an expected place within ``known`` is taken without searching, and one that is the nearest
-place turns an ``UNSURE`` into ``KNOWN``.
+picture is compared with every place's *prototypes* (the running mean of its pictures; a place has one, or more
+where places were merged) view by view, and the *distance* to a prototype is the k-th smallest of the per-view L2
+distances, ``k = views - 1`` from four views on: one view may differ wholly (a construction barrier in it, a bus in
+front of the camera) and the place is still the place, while two places that share two of four views are never one.
+A picture is ``KNOWN`` at distance ``<= known`` from one place when it is clearly the nearest: every other place
+``>= new`` away, or ``RATIO`` times as far at least (Lowe's ratio test). It is ``NEW`` at ``>= new`` from every place,
+unless some place is within ``known`` in ``k - 1`` views and not far beyond ``new`` (``PRIOR_REACH``) in ``k``: a
+place pictured with two odd views, cars before two cameras, is no new place; anything else is ``UNSURE``. A ``NEW``
+answer is checked against every state (the screen below may miss the place) up to ``VERIFY_ALL_STATES`` states.
+**A query** (a picture recognised without remembering it: evaluation, a rollout's choice of action) also takes the
+clearly nearest place short of ``new``, and the one place the picture matches but for two views: a wrong answer
+there costs a step, not a place merged with another, and the algorithm's own guess would cost as much.
+
+**The graph's prior.** The caller may name the place it expects (where a remembered place and slot led before:
+localisation on the graph, as PlaceNav's filter). An expected place within ``known`` is taken without searching;
+otherwise it is taken where the picture is within ``new`` of it or ``k - 1`` views are within ``known`` of it, unless
+another place is clearly nearer (the ratio); a picture a little beyond ``new`` of it (``PRIOR_REACH``) is ``UNSURE``,
+not ``NEW``: a place's odd picture, not a new place. Only a picture far from the expected place is new there (a road
+that now leads elsewhere).
+
+**Places merged.** Where the graph shows two states to be one place (:meth:`PlaceRecogniser.merge`: moves from two
+places lead to both by turns), the place keeps both prototypes: either kind of picture is the place, and the other
+state is never answered again.
 
 **Calibration on the agent's own pictures.** The thresholds come from the pictures the memory is shown, not from a
 setting: the latest distinct pictures (a window) and the count of exact repeats among them. The distance between two
@@ -29,8 +44,9 @@ log scale, where ``i`` is the lower of that and the 10th percentile of each pict
 places lie there). Where the pairs' ``i < 1.5 g`` the pictures do not separate places: until they first do,
 :attr:`PlaceRecogniser.separable` is ``False`` and every picture that is not an exact repeat of a remembered one is
 ``UNSURE`` (so no state is made before the first calibration, at ``min_calibration`` distinct pictures). The thresholds
-are renewed each time ``window`` new pictures have been shown, so they follow a world whose pictures drift; a window
-that does not separate keeps the last thresholds.
+are renewed each time the window's distinct pictures double until it is full (a first calibration on a few pictures
+does not stand for long), then each time ``window`` new pictures have been shown, so they follow a world whose
+pictures drift; a window that does not separate keeps the last thresholds.
 
 Cost: a search screens every place by a sketch of its prototype (a seeded random projection to ``SKETCH_DIM``
 numbers; a batch of pictures is one matrix product) and compares the ``SCREEN_CANDIDATES`` nearest exactly, view by
@@ -57,6 +73,10 @@ RECENT_PICTURES = 256  # beyond those, the latest pictures recognised (a transit
 PROTOTYPE_HORIZON = 32  # a prototype is the mean of a place's last pictures, about this many
 KNOWN_SHARE = 1 / 3  # of the log gap between repeat visits and other places: KNOWN below, UNSURE up to NEW_SHARE
 NEW_SHARE = 2 / 3
+RATIO = 0.8  # Lowe's ratio test: a place is clearly the nearest at most this share of the next one's distance
+VERIFY_ALL_STATES = 4_096  # up to this many states a "new" picture is checked against all (about a millisecond)
+PRIOR_REACH = 1.25  # of "new": a picture this near a place that it matches in k - 1 views, or that the graph expects,
+# is no new place (unsure at most)
 SEPARATION = 1.5  # the other places' low quantile over the repeat visits' high one: below this, no two groups
 GENUINE_QUANTILE = 90.0
 IMPOSTOR_QUANTILE = 10.0
@@ -79,15 +99,16 @@ def digest(data: bytes) -> bytes:
     return hashlib.blake2b(data, digest_size=16).digest()
 
 
-def widest_gap(values: np.ndarray, min_group: int, above: float = -np.inf) -> int | None:
+def widest_gap(values: np.ndarray, min_group: int, above: float = -np.inf, below: float = np.inf) -> int | None:
     """
     The index ``j`` where sorted ``values`` jump the most from ``values[j - 1]`` to ``values[j]``, with at least
-    ``min_group`` values on either side and ``values[j] > above`` (``None``: no such index).
+    ``min_group`` values on either side, ``values[j] > above`` and ``values[j - 1] < below`` (``None``: no such index).
     """
     if len(values) < 2 * min_group:
         return None
     gaps = np.diff(values)[min_group - 1 : len(values) - min_group]
-    gaps = np.where(values[min_group : len(values) - min_group + 1] > above, gaps, -np.inf)
+    upper, lower = values[min_group : len(values) - min_group + 1], values[min_group - 1 : len(values) - min_group]
+    gaps = np.where((upper > above) & (lower < below), gaps, -np.inf)
     if not np.isfinite(gaps).any():
         return None
     return int(np.argmax(gaps)) + min_group
@@ -131,7 +152,9 @@ class PlaceRecogniser:
         self.separable: bool | None = None  # None: not calibrated yet
         self.n_states = 0
         self.version = 0  # counts new states and calibrations: what a picture is recognised as may have changed
-        self._exact: dict[bytes, int] = {}
+        self._exact: dict[bytes, int] = {}  # a picture's digest: the prototype it was recognised by
+        self._owner = np.zeros(0, dtype=np.int64)  # per prototype: its place (itself, until merged into another)
+        self._members: dict[int, list[int]] = {}  # a place with several prototypes (merged): all of them
         self._recent: OrderedDict[bytes, int] = OrderedDict()  # pictures recognised lately (past the digest cap)
         self._digests_of = np.zeros(0, dtype=np.int8)  # per state: exact pictures remembered
         self._prototypes = np.zeros((views, 0, max(dim, 1) // views), dtype=np.float32)  # (view, state, features)
@@ -199,9 +222,10 @@ class PlaceRecogniser:
 
     def _due(self) -> bool:
         distinct = len(self._window_rows)
-        if self.separable:
+        if self.separable and distinct >= self.window:
             return self._shown_since >= self.window
-        # Until the pictures separate: at min_calibration distinct pictures, then each time their number doubles
+        # Until the window is full: at min_calibration distinct pictures, then each time their number doubles (a first
+        # calibration on a few pictures is renewed as soon as there are twice as many)
         return distinct >= self.min_calibration and (distinct & (distinct - 1) == 0 or distinct == self.window)
 
     def calibrate(self) -> bool:
@@ -226,9 +250,11 @@ class PlaceRecogniser:
         # Each group holds a quarter as many pairs as pictures at least (a handful of pairs in the tail of one spread of
         # distances, pictures that never repeat a place, is no group of repeat visits); once places have separated, a
         # later split never puts the repeat visits seen then among the other places (a window of a few routes'
-        # pictures has gaps inside the repeat visits too)
+        # pictures has gaps inside the repeat visits too), nor the other places seen then among the repeat visits (a
+        # window with a few odd pictures, far from everything, has a gap inside the other places too)
         above = -np.inf if self.genuine is None else float(np.log(self.genuine))
-        split = widest_gap(logs, max(MIN_GROUP, len(logs) // 1000, len(rows) // 4), above)
+        below = np.inf if self.impostor is None else float(np.log(self.impostor))
+        split = widest_gap(logs, max(MIN_GROUP, len(logs) // 1000, len(rows) // 4), above, below)
         separates = False
         if split is not None:
             genuine = float(np.exp(np.percentile(logs[:split], GENUINE_QUANTILE)))
@@ -319,9 +345,9 @@ class PlaceRecogniser:
 
     def _quick(self, row: np.ndarray, key: bytes, expected: int, add: bool) -> tuple[int, int]:
         """What needs no search: a picture seen before, the expected place, no calibration yet (else ``SEARCH``)."""
-        state = self._exact.get(key, self._recent.get(key))
-        if state is not None:
-            return state, Answer.KNOWN
+        found = self._exact.get(key, self._recent.get(key))
+        if found is not None:
+            return int(self._owner[found]), Answer.KNOWN
         if not self.similar:
             return self._new(row, key, add), Answer.NEW
         if not self.separable:
@@ -329,31 +355,80 @@ class PlaceRecogniser:
         if self.n_states == 0:
             return self._new(row, key, add), Answer.NEW
         assert self.known is not None
-        if 0 <= expected < self.n_states and self._exact_distances(row, np.array([expected]))[0] <= self.known:
-            return self._known(row, key, expected, add), Answer.KNOWN
+        if 0 <= expected < self.n_states:
+            members = self.members(expected)
+            distances = self._exact_distances(row, members)
+            if distances.min() <= self.known:
+                return self._known(row, key, int(members[distances.argmin()]), add), Answer.KNOWN
         return -1, SEARCH
 
     def _search(
         self, row: np.ndarray, key: bytes, add: bool, expected: int, pool: np.ndarray | None
     ) -> tuple[int, int]:
-        """The answer from the nearest two states of the pool (every state where ``None``)."""
+        """The answer from the nearest two states of the pool (every state where ``None``) and the expected place."""
         assert self.known is not None and self.new is not None
         nearest, first, second = self._two_nearest(row, np.arange(self.n_states) if pool is None else pool)
-        if first <= self.known and second >= self.new:
+        # Within "known" of one place and clearly nearer it than any other (no second within "new", or Lowe's ratio)
+        if first <= self.known and (second >= self.new or first <= RATIO * second):
             return self._known(row, key, nearest, add), Answer.KNOWN
-        if first >= self.new:
+        if not add:
+            # A query (nothing is remembered) takes the clearly nearest place short of "new", or the one place the
+            # picture matches but for two odd views: a wrong answer costs a step, not a place merged with another
+            if first < self.new and first <= RATIO * second:
+                return self._known(row, key, nearest, add), Answer.KNOWN
+            candidates = np.arange(self.n_states) if pool is None else pool
+            matching = candidates[
+                self._matching_but_two_views(np.sort(self._per_view_distances(row, candidates), axis=0))
+            ]
+            if matching.size and (self._owner[matching] == self._owner[matching[0]]).all():
+                return self._known(row, key, int(matching[0]), add), Answer.KNOWN
+        if 0 <= expected < self.n_states:
+            # The graph's prior settles what the picture leaves unsure: the expected place where the picture is within
+            # "new" of it or two views agree with it (cars before the other two), unless another place is clearly
+            # nearer; and a picture a little beyond "new" of it is its odd picture, not a new place
+            per_view = np.sort(self._per_view_distances(row, self.members(expected)), axis=0)
+            closest = int(per_view[self.kth - 1].argmin())
+            views, prototype = per_view[:, closest], int(self.members(expected)[closest])
+            to_expected = float(views[self.kth - 1])
+            agrees = to_expected < self.new or (self.kth >= 2 and views[self.kth - 2] < self.known)
+            if agrees and first >= RATIO * to_expected:
+                return self._known(row, key, prototype, add), Answer.KNOWN
+            if to_expected < PRIOR_REACH * self.new:
+                return -1, Answer.UNSURE
+        if first >= self.new and (not add or self._unlike_every_place(row, pool)):  # a query adds no place: no check
             return self._new(row, key, add), Answer.NEW
-        if nearest == expected and second >= self.new:  # the graph's prior settles what the picture leaves unsure
-            return self._known(row, key, nearest, add), Answer.KNOWN
         return -1, Answer.UNSURE
+
+    def _unlike_every_place(self, row: np.ndarray, pool: np.ndarray | None) -> bool:
+        """
+        Whether no remembered place is within ``new`` in ``kth`` views, nor matches the picture but for two odd views
+        (:meth:`_matching_but_two_views`): a place pictured with cars before two cameras is no new place (unsure).
+        Checked on every state up to ``VERIFY_ALL_STATES`` (the screen's pool may miss the place), on the pool beyond.
+        """
+        assert self.new is not None
+        states = np.arange(self.n_states) if pool is None or self.n_states <= VERIFY_ALL_STATES else pool
+        per_view = np.sort(self._per_view_distances(row, states), axis=0)
+        return not (per_view[self.kth - 1] < self.new).any() and not self._matching_but_two_views(per_view).any()
+
+    def _matching_but_two_views(self, per_view: np.ndarray) -> np.ndarray:
+        """Per prototype (columns of sorted per-view distances): within ``known`` in ``kth - 1`` views and a little
+        beyond ``new`` (``PRIOR_REACH``) in ``kth``."""
+        assert self.known is not None and self.new is not None
+        if self.kth < 2:
+            return np.zeros(per_view.shape[1], dtype=bool)
+        return (per_view[self.kth - 2] < self.known) & (per_view[self.kth - 1] < PRIOR_REACH * self.new)
 
     def alike(self, first: int, second: int) -> bool:
         """Whether two states' prototypes are nearer than ``new``: places the recogniser cannot tell apart (a place
         remembered twice, say); never for bit identity or before the thresholds are set."""
         if not self.similar or self.new is None:
             return False
-        blocks = self._prototypes[:, first].reshape(-1)
-        return bool(self._exact_distances(blocks, np.array([second]))[0] < self.new)
+        if int(self._owner[first]) == int(self._owner[second]):
+            return True
+        return any(
+            self._exact_distances(self._prototypes[:, member].reshape(-1), self.members(second)).min() < self.new
+            for member in self.members(first).tolist()
+        )
 
     def distances(self, row: np.ndarray) -> np.ndarray:
         """The place distance of one picture to every state."""
@@ -361,10 +436,13 @@ class PlaceRecogniser:
 
     def _exact_distances(self, row: np.ndarray, states: np.ndarray) -> np.ndarray:
         """The place distance of one picture to some states: the k-th smallest per-view L2 distance (float64)."""
+        return np.partition(self._per_view_distances(row, states), self.kth - 1, axis=0)[self.kth - 1]
+
+    def _per_view_distances(self, row: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """``(views, states)``: each view's L2 distance from one picture to some states' prototypes (float64)."""
         blocks = row.reshape(self.views, 1, -1).astype(np.float64)
         difference = self._prototypes[:, states].astype(np.float64) - blocks  # (view, state, features)
-        per_view = np.sqrt((difference**2).sum(axis=2))
-        return np.partition(per_view, self.kth - 1, axis=0)[self.kth - 1]
+        return np.sqrt((difference**2).sum(axis=2))
 
     def _candidates(self, rows: np.ndarray) -> np.ndarray | None:
         """
@@ -386,13 +464,13 @@ class PlaceRecogniser:
         return chosen
 
     def _two_nearest(self, row: np.ndarray, pool: np.ndarray) -> tuple[int, float, float]:
-        """The nearest state of a pool and the exact distances of the nearest two (``inf``: no second)."""
+        """The nearest prototype of a pool, its exact distance and that of the nearest prototype of another place
+        (``inf``: none)."""
         distances = self._exact_distances(row, pool)
-        if len(pool) == 1:
-            return int(pool[0]), float(distances[0]), np.inf
-        order = np.argpartition(distances, 1)[:2]
-        order = order[np.argsort(distances[order])]
-        return int(pool[order[0]]), float(distances[order[0]]), float(distances[order[1]])
+        nearest = int(distances.argmin())
+        others = self._owner[pool] != self._owner[pool[nearest]]
+        second = float(distances[others].min()) if others.any() else np.inf
+        return int(pool[nearest]), float(distances[nearest]), second
 
     # ------------------------------------------------------------------ states
     def _new(self, row: np.ndarray, key: bytes, add: bool) -> int:
@@ -405,16 +483,18 @@ class PlaceRecogniser:
             self._prototypes[:, state] = row.reshape(self.views, -1)
             self._sketch(state)
         self._counts[state] = 1
+        self._owner[state] = state
         self.n_states += 1
         self.version += 1
         self._remember_digest(key, state)
         return state
 
     def _known(self, row: np.ndarray, key: bytes, state: int, add: bool) -> int:
-        """A picture of ``state``: with ``add`` its views move the prototype (all but a view that differs wholly)."""
+        """A picture of prototype ``state``: with ``add`` its views move the prototype (all but a view that differs
+        wholly). Returns its place."""
         if not add:
             self._remember_recent(key, state)
-            return state
+            return int(self._owner[state])
         self._remember_digest(key, state)
         blocks = row.reshape(self.views, -1)
         difference = blocks - self._prototypes[:, state]
@@ -424,7 +504,7 @@ class PlaceRecogniser:
         self._prototypes[agreeing, state] += difference[agreeing] / count
         self._sketch(state)
         self._counts[state] = count
-        return state
+        return int(self._owner[state])
 
     def _sketch(self, state: int) -> None:
         sketch = self._prototypes[:, state].reshape(-1) @ self._projection
@@ -457,6 +537,33 @@ class PlaceRecogniser:
             self._prototypes, self._sketches, self._sketch_squares = prototypes, sketches, sketch_squares
         self._counts = np.concatenate([self._counts, np.zeros(capacity - old, dtype=np.int32)])
         self._digests_of = np.concatenate([self._digests_of, np.zeros(capacity - old, dtype=np.int8)])
+        self._owner = np.concatenate([self._owner, np.arange(old, capacity, dtype=np.int64)])
+
+    def merge(self, keep: int, drop: int) -> None:
+        """
+        Two places that are one (the caller's evidence: the graph): ``drop``'s prototypes become ``keep``'s. The place
+        keeps each of them (a place pictured two ways, say by day and with a lorry parked before it, is recognised by
+        either); no picture is answered as ``drop`` again.
+        """
+        if keep == drop or not (self.live(keep) and self.live(drop)):
+            return
+        members = [*self.members(keep).tolist(), *self.members(drop).tolist()]
+        self._owner[members] = keep
+        self._members[keep] = members
+        self._members.pop(drop, None)
+        self.version += 1
+
+    def live(self, state: int) -> bool:
+        """Whether a state is a place (not merged into another)."""
+        return 0 <= state < self.n_states and int(self._owner[state]) == state
+
+    def live_states(self) -> np.ndarray:
+        """The states that are places (not merged into another)."""
+        return np.flatnonzero(self._owner[: self.n_states] == np.arange(self.n_states))
+
+    def members(self, state: int) -> np.ndarray:
+        """The prototypes of a place (itself, unless others were merged into it)."""
+        return np.array(self._members.get(state, [state]), dtype=np.int64)
 
     def prototype(self, state: int) -> np.ndarray:
         """The mean picture of a state, ``(dim,)`` float32."""
@@ -478,4 +585,11 @@ class PlaceRecogniser:
         state["_sketch_squares"] = self._sketch_squares[:n].copy()
         state["_counts"] = self._counts[:n].copy()
         state["_digests_of"] = self._digests_of[:n].copy()
+        state["_owner"] = self._owner[:n].copy()
         return state
+
+    def __setstate__(self, state: dict) -> None:
+        if "_owner" not in state:  # saved before places could merge: each prototype its own place
+            state["_owner"] = np.arange(len(state["_counts"]), dtype=np.int64)
+            state["_members"] = {}
+        self.__dict__.update(state)
