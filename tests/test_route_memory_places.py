@@ -162,7 +162,7 @@ def test_a_known_place_that_the_screen_misses_is_never_a_new_place() -> None:
     barrier = visits(places, np.array([17]), seed=4)
     barrier[0, :WIDTH] = 50.0 * np.random.default_rng(3).normal(0.0, SPREAD, WIDTH)  # one view huge: the sketch is its
     assert 17 not in recogniser._candidates(barrier)[0]  # (the test's own construction: the screen misses place 17)
-    states, answers = recogniser.recognise(barrier, add=True)
+    answers = recogniser.recognise(barrier, add=True)[1]
     assert answers.tolist() != [Answer.NEW] and recogniser.n_states == 200
 
 
