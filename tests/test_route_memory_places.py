@@ -159,10 +159,15 @@ def test_a_picture_clearly_nearest_one_place_is_known_though_another_lies_within
 def test_a_known_place_that_the_screen_misses_is_never_a_new_place() -> None:
     places = world(200)
     recogniser = calibrated(places)  # 200 states: a search screens them by sketch, 32 compared view by view
-    barrier = visits(places, np.array([17]), seed=4)
-    barrier[0, :WIDTH] = 50.0 * np.random.default_rng(3).normal(0.0, SPREAD, WIDTH)  # one view huge: the sketch is its
-    assert 17 not in recogniser._candidates(barrier)[0]  # (the test's own construction: the screen misses place 17)
-    answers = recogniser.recognise(barrier, add=True)[1]
+
+    def behind_a_barrier(place: int) -> np.ndarray:
+        picture = visits(places, np.array([place]), seed=4)
+        picture[0, :WIDTH] = 50.0 * np.random.default_rng(place).normal(0.0, SPREAD, WIDTH)  # the sketch is this view's
+        return picture
+
+    # (the test's own construction: a place whose picture the screen's 32 candidates leave out)
+    place = next(place for place in range(200) if place not in recogniser._candidates(behind_a_barrier(place))[0])
+    answers = recogniser.recognise(behind_a_barrier(place), add=True)[1]
     assert answers.tolist() != [Answer.NEW] and recogniser.n_states == 200
 
 
