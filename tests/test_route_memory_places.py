@@ -258,14 +258,20 @@ def test_thresholds_follow_a_world_whose_pictures_drift() -> None:
     assert recogniser.calibrations >= 2 and recogniser.known > 5 * quiet
 
 
+def separated(places: np.ndarray, noise: float) -> PlaceRecogniser:
+    """A recogniser of a 128-picture window shown four visits of each place (they separate), states added."""
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=128, min_calibration=16)
+    first = visits(places, np.tile(np.arange(len(places)), 4), seed=3, noise=noise)
+    recogniser.show(first)
+    recogniser.recognise(first, add=True)
+    return recogniser
+
+
 def test_a_window_of_a_few_places_does_not_shrink_repeat_visits_into_other_places() -> None:
     # After the places separated, a window of two places pictured at two noise levels has its widest gap inside the
     # repeat visits (0.006 -> 0.8): the split stays above the repeat visits seen before, so visits stay known
     places = world(32)
-    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=128, min_calibration=16)
-    first = visits(places, np.tile(np.arange(32), 4), seed=3, noise=0.2)
-    recogniser.show(first)
-    recogniser.recognise(first, add=True)
+    recogniser = separated(places, noise=0.2)
     before, calibrations = recogniser.known, recogniser.calibrations
     order = np.tile([0, 1], 64)
     still, moving = visits(places, order[:64], seed=4, noise=0.001), visits(places, order[64:], seed=5, noise=0.2)
@@ -280,10 +286,7 @@ def test_a_window_with_odd_pictures_far_from_everything_does_not_raise_repeat_vi
     # everything as places from each other) has its widest gap inside the other places: the split stays below the
     # other places seen before, so two places never become one
     places = world(32)
-    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=128, min_calibration=16)
-    first = visits(places, np.tile(np.arange(32), 4), seed=3, noise=1.0)
-    recogniser.show(first)
-    recogniser.recognise(first, add=True)
+    recogniser = separated(places, noise=1.0)
     impostor, calibrations = recogniser.impostor, recogniser.calibrations
     odd = 10.0 * world(32, seed=9)
     recogniser.show(np.concatenate([visits(places, np.tile(np.arange(32), 3), seed=4, noise=1.0), odd]))
