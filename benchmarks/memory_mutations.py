@@ -65,8 +65,8 @@ MUTATIONS = (
     Mutation(
         "places",
         "no unsure band: what is not known is new",
-        "if first >= self.new and (not add or self._unlike_every_place(row, pool)):"
-        "  # a query adds no place: no check\n            return self._new",
+        "if first >= self.new and (not add or self._unlike_every_place(row, pool, per_view)):"
+        "  # a query adds none\n            return self._new",
         "if first > self.known:\n            return self._new",
     ),
     Mutation(
@@ -90,8 +90,8 @@ MUTATIONS = (
     Mutation(
         "places",
         "a new picture is judged on the screen's pool alone",
-        "if pool is None or self.n_states <= VERIFY_ALL_STATES else pool",
-        "if pool is None else pool",
+        "if pool is not None and self.n_states <= VERIFY_ALL_STATES:",
+        "if False:",
     ),
     Mutation(
         "places",

@@ -367,7 +367,10 @@ class PlaceRecogniser:
     ) -> tuple[int, int]:
         """The answer from the nearest two states of the pool (every state where ``None``) and the expected place."""
         assert self.known is not None and self.new is not None
-        nearest, first, second = self._two_nearest(row, np.arange(self.n_states) if pool is None else pool)
+        candidates = np.arange(self.n_states) if pool is None else pool
+        # Each candidate's per-view distances, sorted: read by every rule below (the k-th is the place distance)
+        per_view = np.sort(self._per_view_distances(row, candidates), axis=0)
+        nearest, first, second = self._two_nearest(candidates, per_view[self.kth - 1])
         # Within "known" of one place and clearly nearer it than any other (no second within "new", or Lowe's ratio)
         if first <= self.known and (second >= self.new or first <= RATIO * second):
             return self._known(row, key, nearest, add), Answer.KNOWN
@@ -376,10 +379,7 @@ class PlaceRecogniser:
             # picture matches but for two odd views: a wrong answer costs a step, not a place merged with another
             if first < self.new and first <= RATIO * second:
                 return self._known(row, key, nearest, add), Answer.KNOWN
-            candidates = np.arange(self.n_states) if pool is None else pool
-            matching = candidates[
-                self._matching_but_two_views(np.sort(self._per_view_distances(row, candidates), axis=0))
-            ]
+            matching = candidates[self._matching_but_two_views(per_view)]
             if matching.size and (self._owner[matching] == self._owner[matching[0]]).all():
                 return self._known(row, key, int(matching[0]), add), Answer.KNOWN
         if 0 <= expected < self.n_states:
@@ -395,19 +395,21 @@ class PlaceRecogniser:
                 return self._known(row, key, prototype, add), Answer.KNOWN
             if to_expected < PRIOR_REACH * self.new:
                 return -1, Answer.UNSURE
-        if first >= self.new and (not add or self._unlike_every_place(row, pool)):  # a query adds no place: no check
+        if first >= self.new and (not add or self._unlike_every_place(row, pool, per_view)):  # a query adds none
             return self._new(row, key, add), Answer.NEW
         return -1, Answer.UNSURE
 
-    def _unlike_every_place(self, row: np.ndarray, pool: np.ndarray | None) -> bool:
+    def _unlike_every_place(self, row: np.ndarray, pool: np.ndarray | None, pool_per_view: np.ndarray) -> bool:
         """
         Whether no remembered place is within ``new`` in ``kth`` views, nor matches the picture but for two odd views
         (:meth:`_matching_but_two_views`): a place pictured with cars before two cameras is no new place (unsure).
-        Checked on every state up to ``VERIFY_ALL_STATES`` (the screen's pool may miss the place), on the pool beyond.
+        Checked on every state up to ``VERIFY_ALL_STATES`` (the screen's pool may miss the place), on the pool beyond
+        (``pool_per_view``: the pool's sorted per-view distances, already measured).
         """
         assert self.new is not None
-        states = np.arange(self.n_states) if pool is None or self.n_states <= VERIFY_ALL_STATES else pool
-        per_view = np.sort(self._per_view_distances(row, states), axis=0)
+        per_view = pool_per_view
+        if pool is not None and self.n_states <= VERIFY_ALL_STATES:
+            per_view = np.sort(self._per_view_distances(row, np.arange(self.n_states)), axis=0)
         return not (per_view[self.kth - 1] < self.new).any() and not self._matching_but_two_views(per_view).any()
 
     def _matching_but_two_views(self, per_view: np.ndarray) -> np.ndarray:
@@ -463,10 +465,9 @@ class PlaceRecogniser:
             ]
         return chosen
 
-    def _two_nearest(self, row: np.ndarray, pool: np.ndarray) -> tuple[int, float, float]:
-        """The nearest prototype of a pool, its exact distance and that of the nearest prototype of another place
-        (``inf``: none)."""
-        distances = self._exact_distances(row, pool)
+    def _two_nearest(self, pool: np.ndarray, distances: np.ndarray) -> tuple[int, float, float]:
+        """The nearest prototype of a pool (given its place distances), its distance and that of the nearest prototype
+        of another place (``inf``: none)."""
         nearest = int(distances.argmin())
         others = self._owner[pool] != self._owner[pool[nearest]]
         second = float(distances[others].min()) if others.any() else np.inf
