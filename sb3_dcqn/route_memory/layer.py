@@ -469,9 +469,9 @@ class _BumpGuard:
     Per env of an evaluation (the rows of ``predict``'s batch; episodes marked by ``episode_start``): the (place,
     slot) each env last moved by (where the memory expects it now: the prior that recognises its next picture), and
     the moves that left an env where it was, not to be given again at that place in the same episode (evaluation does
-    not teach the memory the bump). A place is the memory's state, or the
-    observation itself where the memory does not know it (a deterministic world shows the same one after a bump),
-    less its heading where the frame is declared (the place's views are in compass order, its slots compass slots).
+    not teach the memory the bump). A place is the memory's state, or the observation itself where the memory does
+    not know it (a deterministic world shows the same one after a bump), less its heading where the frame is declared
+    (the place's views are in compass order, its slots compass slots).
 
     :param n_envs: Number of envs
     """
