@@ -44,11 +44,12 @@ from benchmarks.campusnav_runs import APPEARANCES, HELD_OUT_FRACTION, TRAINING_P
 from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish, write_results
 from campusnav_env.features.view_build import with_view_build
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
-from sb3_dcqn.place_recognition import NOT_IN_MEMORY, NearestPlace, fit_place_matcher
+from sb3_dcqn.place_recognition import NOT_IN_MEMORY, AlignedNearestPlace, NearestPlace, fit_place_matcher
 from sb3_dcqn.zoo_entry import load_zoo_entry
 from sb3_dcqn.zoo_files import default_hyperparams_path
 
 ENTRY = "CampusNavGoal-v0"
+VIEWS = 4  # a goal vector's views (north, east, south, west)
 SEEDS = (0, 1, 2)
 MATCHERS = {"raw cosine": False, "learned embedding": True}
 REFERENCE_CASES = ("driven through", "noon only")
@@ -117,12 +118,44 @@ def measure(tables: np.ndarray, seed: int) -> dict[str, Any]:
                         "nearest_accuracy": scores(nearest.match(photos, refs, labels), labels, every)["accuracy"],
                     }
             record["cases"][f"{case}/{matcher_name}"] = entry
+    record["memory_matcher"] = measure_memory_matcher(tables, training, held_out, seed)
     return record
+
+
+def asked_in_turn(
+    matcher: AlignedNearestPlace, photos: np.ndarray, refs: np.ndarray, labels: np.ndarray, seed: int
+) -> np.ndarray:
+    """Each photo matched in a seeded order, shown the photos asked before it (as the memory asks its matcher)."""
+    answers = np.full(len(photos), NOT_IN_MEMORY, dtype=np.int64)
+    order = np.random.default_rng(seed).permutation(len(photos))
+    for position, row in enumerate(order):
+        answers[row] = matcher.match(photos[[row]], refs, labels, photos[order[:position]])[0]
+    return answers
+
+
+def measure_memory_matcher(
+    tables: np.ndarray, training: np.ndarray, held_out: np.ndarray, seed: int
+) -> dict[str, dict[str, float]]:
+    """The route memory's own matcher (its default) against the agent's own views at noon: every place visited, then
+    only the training places (the held-out ones never visited: their photos must get no place)."""
+    n_photo, every = len(TRAINING_PHOTOS), np.arange(tables.shape[1])
+    conditions = {"noon": tables[0], **{name: tables[n_photo + k] for k, name in enumerate(APPEARANCES)}}
+    matcher = AlignedNearestPlace(views=VIEWS)
+    results: dict[str, dict[str, float]] = {}
+    for name, photos in conditions.items():
+        visited = scores(asked_in_turn(matcher, photos, tables[0], every, seed), every, every)
+        absent = asked_in_turn(matcher, photos[held_out], tables[0][training], training, seed)
+        results[name] = {**visited, "absent_answered": float((absent != NOT_IN_MEMORY).mean())}
+    return results
 
 
 def summary(records: list[dict[str, Any]], key: str, condition: str, metric: str, worst: Callable) -> str:
     """A metric over the seeds: one value when they agree, else ``median (worst)``."""
-    values = [r["cases"][key]["conditions"][condition][metric] for r in records if key in r["cases"]]
+    return spread_text([r["cases"][key]["conditions"][condition][metric] for r in records if key in r["cases"]], worst)
+
+
+def spread_text(values: list[float], worst: Callable) -> str:
+    """One value when the seeds agree, else ``median (worst)``."""
     median, bad = statistics.median(values), worst(values)
     return f"{median:.3f}" if abs(bad - median) < 5e-4 else f"{median:.3f} ({bad:.3f})"
 
@@ -196,6 +229,39 @@ def report(records: list[dict[str, Any]], quick: bool, d: int, seconds: float) -
                     summary(records, key, name, "wrong", max),
                 ]
             )
+    lines += markdown_table(header, rows)
+    lines += [
+        "",
+        "## The route memory's own matcher",
+        "",
+        "`AlignedNearestPlace(views=4)`, attached by default where an env declares goal pictures: references are the "
+        "agent's own views at noon (no other condition, no label), each query matched in a seeded order and shown "
+        "the queries asked before it (as the memory asks it). visited: every intersection is a reference; absent "
+        "answered: the share of the held-out intersections' queries given a place (a wrong one: they are not among "
+        "the references, the training 80% only).",
+        "",
+    ]
+    header = ["condition", "accuracy", "not in memory", "wrong", "absent answered"]
+    rows = []
+    for name in records[0]["memory_matcher"]:
+        values = {
+            metric: [r["memory_matcher"][name][metric] for r in records]
+            for metric in ("accuracy", "not_in_memory", "wrong", "absent_answered")
+        }
+        rows.append(
+            [
+                name,
+                *(
+                    spread_text(values[metric], worst)
+                    for metric, worst in (
+                        ("accuracy", min),
+                        ("not_in_memory", max),
+                        ("wrong", max),
+                        ("absent_answered", max),
+                    )
+                ),
+            ]
+        )
     lines += markdown_table(header, rows)
     fits = [r["cases"]["driven through/learned embedding"]["fit_seconds"] for r in records]
     lines += [

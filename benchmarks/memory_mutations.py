@@ -341,8 +341,26 @@ MUTATIONS = (
     Mutation(
         "goals",
         "a goal's place is not looked up again when states are added",
-        "version = (self.version << 32) + self.recogniser.version",
-        "version = self.version",
+        "version = hash((self.version, self.recogniser.version, self._asked_count))",
+        "version = hash((self.version, self._asked_count))",
+    ),
+    Mutation(
+        "goals",
+        "a goal's place is not looked up again when the matcher has seen more goal pictures",
+        "version = hash((self.version, self.recogniser.version, self._asked_count))",
+        "version = hash((self.version, self.recogniser.version))",
+    ),
+    Mutation(
+        "goals",
+        "the matcher's sample keeps the oldest goal pictures",
+        "del self._asked[next(iter(self._asked))]",
+        "self._asked.popitem()",
+    ),
+    Mutation(
+        "goals",
+        "a place ruled out for a goal is offered again",
+        "labels = np.setdiff1d(self.recogniser.live_states(), list(self._ruled_out.get(goal, ())))",
+        "labels = self.recogniser.live_states()",
     ),
     Mutation(
         "goals",
@@ -359,6 +377,24 @@ MUTATIONS = (
         "if self.recogniser.n_states else set()",
     ),
     # The facade
+    Mutation(
+        "memory",
+        "no matcher by default for goal pictures",
+        "place_matcher = AlignedNearestPlace(views=views) if pictured else None",
+        "place_matcher = None",
+    ),
+    Mutation(
+        "memory",
+        "a goal is never ruled out where its episode went on",
+        "self.goals.rule_out(self.goal_digests(next_observations), went_on)",
+        "pass",
+    ),
+    Mutation(
+        "memory",
+        "a goal's search is reused after the goal is placed elsewhere",
+        'return ("hops", goal, retry, goal_states.tobytes()), is_target',
+        'return ("hops", goal, retry), is_target',
+    ),
     Mutation(
         "memory",
         "is_success ignored",

@@ -81,18 +81,19 @@ def test_a_route_memory_finds_a_goal_photo_in_a_new_condition_through_its_matche
     )
     photos = campus.condition(1, strength=0.5)
     goal = campus.condition(7, strength=0.5)(np.array([3]))[0]  # place 3, pictured in a condition never seen
-    bare = RouteMemory(2, space, place_frame=frame)
+    bare = RouteMemory(2, space, place_frame=frame, place_matcher=None)
+    default = RouteMemory(2, space, place_frame=frame)  # its own matcher: the goal photo aligned with its views
     references, labels = references_of(campus, np.arange(N_PLACES), [1, 2], strength=0.5)
     matcher = fit_place_matcher(references, labels, learned=learned, seed=0)
     matched = RouteMemory(2, space, place_frame=frame, place_matcher=matcher)
     for _ in range(3):  # a line of places 0 - 1 - 2 - 3 - 4, driven forward (action 0), fresh photos each time
         places = [{"place": picture, "goal": goal} for picture in photos(np.arange(5))]
-        for memory in (bare, matched):
+        for memory in (bare, default, matched):
             for node in range(4):
                 memory.add(places[node], 0, places[node + 1], 0.0, False)
-    assert bare.n_states == matched.n_states == 5  # the memory recognised the five places on its own pictures
+    assert bare.n_states == default.n_states == matched.n_states == 5  # the five places, on the memory's own pictures
     assert bare.route_from(places[0]) == []  # the recogniser does not know the goal photo: no route
-    assert matched.route_from(places[0]) == [0, 0, 0]  # the matcher does
+    assert matched.route_from(places[0]) == default.route_from(places[0]) == [0, 0, 0]  # a matcher does
     seen = {**places[0], "goal": photos(np.array([3]))[0]}  # place 3 pictured as the agent saw it: no matcher needed
     assert bare.route_from(seen) == [0, 0, 0]
 
@@ -235,23 +236,65 @@ def test_bad_training_data_names_the_problem():
         PlaceEmbedding().transform(references)
 
 
-def test_aligned_matching_finds_goal_photos_of_another_domain_against_one_condition_of_references():
+def night_of(places: np.ndarray, views: int, seed: int = 0) -> np.ndarray:
+    """Photos of ``places`` in another light: every feature of every view rescaled and shifted alike (a darker,
+    otherwise coloured camera), plus noise."""
+    rng = np.random.default_rng(100 + seed)
+    width = places.shape[1] // views
+    scale, shift = rng.uniform(0.3, 3.0, size=width), rng.normal(scale=10.0, size=width)
+    blocks = places.reshape(len(places), views, width) * scale + shift
+    return (blocks.reshape(len(places), -1) + 0.05 * rng.normal(size=places.shape)).astype(np.float32)
+
+
+def test_aligned_matching_finds_a_goal_photo_in_other_light_from_the_photo_alone():
     rng = np.random.default_rng(0)
     places = rng.normal(size=(N_PLACES, D))
-    # The goal photos' domain: every feature rescaled and shifted (night: darker, another colour balance), plus noise
-    scale, shift = rng.uniform(0.3, 3.0, size=D), rng.normal(scale=10.0, size=D)
-    photos = places * scale + shift + 0.05 * rng.normal(size=places.shape)
+    night = night_of(places, views=4)
+    references, labels = places[10:].astype(np.float32), np.arange(10, N_PLACES)  # places 0-9 never visited
+    matcher = AlignedNearestPlace(views=4)
+    visited = np.arange(10, 30)
+    one_by_one = np.array([matcher.match(night[[place]], references, labels)[0] for place in visited])
+    np.testing.assert_array_equal(labels[one_by_one], visited)  # every one, from its own four views
+    raw = NearestPlace().match(night[visited], references, labels)
+    assert np.mean(labels[raw] == visited) <= 0.5  # without the alignment most are other places
+    assert matcher.other_condition(night, references).all()
+    assert matcher.other_condition(places[:10].astype(np.float32), references).sum() <= 1
+    # A place never visited, pictured as the agent pictures: the recogniser called it new, and no near tie is an answer
+    np.testing.assert_array_equal(matcher.match(places[:10].astype(np.float32), references, labels), -1)
+
+
+def test_a_photo_of_one_view_in_other_light_is_placed_once_other_photos_of_that_light_were_shown():
+    rng = np.random.default_rng(1)
+    places = rng.normal(size=(N_PLACES, 16))
+    night = night_of(places, views=1)
     references, labels = places.astype(np.float32), np.arange(N_PLACES)
-    held = np.arange(10)  # goals never shown: found by aligning the domains with the other goals' photos
-    shown = photos[10:].astype(np.float32)
-    aligned = AlignedNearestPlace(views=4).match(photos[held].astype(np.float32), references, labels, shown)
-    raw = NearestPlace().match(photos[held].astype(np.float32), references, labels)
-    assert np.mean(aligned == held) >= 0.9 > np.mean(raw == held) + 0.3
-    # Too few goal photos to estimate a domain: no alignment, the raw similarity
-    few = AlignedNearestPlace(views=4).match(photos[held].astype(np.float32), references, labels, shown[:3])
-    np.testing.assert_array_equal(
-        few, AlignedNearestPlace(views=4).match(photos[held].astype(np.float32), references, labels)
-    )
+    matcher = AlignedNearestPlace(views=1)
+    asked = np.arange(20)
+    alone = matcher.match(night[asked], references, labels)  # one view's features cannot say their light's moments
+    assert np.mean(alone == asked) <= 0.3
+    shown = np.concatenate([places[20:].astype(np.float32), night[20:]])  # goal photos asked before, in both lights
+    found = matcher.match(night[asked], references, labels, shown)  # the other light's photos estimate it
+    assert np.mean(found == asked) >= 0.9 and np.all((found == asked) | (found == -1))
+
+
+def test_a_near_tie_or_a_single_place_is_no_answer():
+    references = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], dtype=np.float32)
+    matcher = AlignedNearestPlace()
+    between = np.array([[1.0, 0.9, 0.0]], dtype=np.float32)
+    assert matcher.match(between, references, np.arange(3))[0] == -1
+    assert matcher.match(np.array([[1.0, 0.1, 0.0]], dtype=np.float32), references, np.arange(3))[0] == 0
+    # Two rows of one place are no rival of each other; one place alone has no margin to judge
+    assert matcher.match(np.array([[1.0, 0.1, 0.0]], dtype=np.float32), references, np.array([0, 0, 1]))[0] == 0
+    assert matcher.match(between, references[:1], np.arange(1))[0] == -1
+
+
+@pytest.mark.parametrize(
+    "settings, message",
+    [({"views": 0}, "views"), ({"own_ratio": 1.5}, "own_ratio"), ({"other_ratio": 0.0}, "other_ratio")],
+)
+def test_aligned_matching_names_a_bad_setting(settings: dict, message: str):
+    with pytest.raises(ValueError, match=message):
+        AlignedNearestPlace(**settings)
 
 
 def test_aligned_matching_names_a_picture_that_does_not_split_into_its_views():

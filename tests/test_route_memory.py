@@ -511,6 +511,62 @@ def test_a_goal_at_a_place_never_visited_has_no_route(goal_env: CampusNavGoalEnv
         assert memory.route_actions(asked)[0] == -1 and memory.goal_states(_first(asked)).size == 0, goal
 
 
+def test_goals_pictured_in_other_light_are_placed_by_the_memorys_own_matcher(goal_env: CampusNavGoalEnv) -> None:
+    memory = RouteMemory.for_env(goal_env)
+    bare = RouteMemory.for_env(goal_env, place_matcher=None)
+    for each in (memory, bare):
+        explore_fully(goal_env, each, goal=3, through_goal=True)
+    start = _first(goal_env.observations_at(np.array([0]), np.array([goal_env.headings_at(0)[0]]), 3))
+    for goal in range(goal_env.graph.n_nodes):  # each asked in turn: the matcher learns the light from the asked
+        there = goal_env.observations_at(np.array([goal]), np.array([goal_env.headings_at(goal)[0]]), goal)
+        asked = {**start, "desired_goal": 2.5 * there["desired_goal"][0] - 4.0}  # every feature brighter, shifted
+        assert memory.goal_states(asked).tolist() == [memory.states_of(there)[0]], goal
+        assert bare.goal_states(asked).size == 0  # the recogniser alone does not know the picture
+        if goal:
+            assert memory.route_actions(_batch(asked))[0] >= 0 > bare.route_actions(_batch(asked))[0]
+
+
+class FirstPlaceMatcher:
+    """Places every goal picture at the first state it may be at."""
+
+    def match(self, queries, references, labels, goal_pictures=None) -> np.ndarray:
+        return np.zeros(len(queries), dtype=np.int64)
+
+
+def test_a_goal_is_not_where_its_episode_went_on(goal_env: CampusNavGoalEnv) -> None:
+    memory = RouteMemory.for_env(goal_env, place_matcher=FirstPlaceMatcher())
+    explore_fully(goal_env, memory, goal=3, through_goal=True)
+    there = goal_env.observations_at(np.array([40]), np.array([goal_env.headings_at(40)[0]]), 40)
+    night = {key: np.asarray(value) for key, value in there.items()}
+    night["desired_goal"] = -night["desired_goal"]  # a picture the recogniser does not know
+    first = int(memory.goal_states(_first(night))[0])
+    nodes, headings = goal_env.graph.map.state_nodes, goal_env.graph.map.state_headings
+    at_first = next(s for s in range(nodes.size) if memory.states_of(goal_env.observations_at(
+        nodes[[s]], headings[[s]], 40))[0] == first)  # fmt: skip
+    # Driven into the place the goal was matched to, and the episode went on: the goal is elsewhere
+    into = {**goal_env.observations_at(nodes[[at_first]], headings[[at_first]], 40)}
+    into["desired_goal"] = night["desired_goal"]
+    memory.add_batch(into, np.array([0]), into, np.array([-0.01]), np.array([False]), np.array([False]))
+    assert int(memory.goal_states(_first(night))[0]) not in (first, -1)
+
+
+class SecondPictureMatcher:
+    """Places no goal picture until it has been shown two, then every one at the sixth state it may be at."""
+
+    def match(self, queries, references, labels, goal_pictures=None) -> np.ndarray:
+        return np.full(len(queries), 5 if len(goal_pictures) >= 2 else -1, dtype=np.int64)
+
+
+def test_a_goal_placed_later_is_routed_to_with_no_change_of_the_moves(goal_env: CampusNavGoalEnv) -> None:
+    memory = RouteMemory.for_env(goal_env, place_matcher=SecondPictureMatcher())
+    explore_fully(goal_env, memory, goal=3, through_goal=True)
+    start = _first(goal_env.observations_at(np.array([0]), np.array([goal_env.headings_at(0)[0]]), 3))
+    first, second = ({**start, "desired_goal": -start["desired_goal"] * k} for k in (1.0, 2.0))
+    assert memory.route_actions(_batch(first))[0] == -1  # placed nowhere yet: the search finds no way
+    memory.goal_states(second)  # a second picture the recogniser does not know: now the matcher places goals
+    assert memory.route_actions(_batch(first))[0] >= 0  # the search for "nowhere" is not reused
+
+
 def _first(batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return {key: value[0] for key, value in batch.items()}
 

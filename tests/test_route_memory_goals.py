@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sb3_dcqn.route_memory.goals import GoalIndex
+from sb3_dcqn.route_memory.goals import MAX_GOALS_ASKED, GoalIndex
 from sb3_dcqn.route_memory.places import PlaceRecogniser
 from sb3_dcqn.route_memory.planner import BoundedCache
 
@@ -91,3 +91,60 @@ def test_pose_states_of_a_goal_env_attach_goals_by_the_achieved_goal() -> None:
     asked = {"goal": np.array([[1.0, 1.0]])}
     assert goals.states(goals.digests(asked, 1)[0], asked, 0, 1).tolist() == [4]
     assert goals.conditioned
+
+
+class SampleMatcher:
+    """A place matcher that answers row 7 once it has been shown ``needed`` goal pictures, and keeps what it saw."""
+
+    def __init__(self, needed: int) -> None:
+        self.needed, self.seen = needed, np.zeros((0, VIEWS * WIDTH))
+
+    def match(self, queries, references, labels, goal_pictures=None) -> np.ndarray:
+        self.seen = goal_pictures
+        return np.full(len(queries), 7 if len(goal_pictures) >= self.needed else -1, dtype=np.int64)
+
+
+def test_a_goal_is_looked_up_again_once_more_pictures_of_unknown_goals_were_asked() -> None:
+    pictures = places(30)
+    matcher = SampleMatcher(needed=2)
+    goals = index(calibrated_recogniser(pictures[:20]), matcher)
+    first, second = {"goal": -pictures[[3]]}, {"goal": -pictures[[5]]}
+    key = goals.digests(first, 1)[0]
+    assert goals.states(key, first, 0, 1).size == 0  # one picture of that light: the matcher cannot place it yet
+    goals.states(goals.digests(second, 1)[0], second, 0, 1)
+    assert goals.states(key, first, 0, 1).tolist() == [7]  # the cached "nowhere" is not reused
+
+
+def test_the_matcher_is_shown_the_most_recent_goal_pictures_oldest_first() -> None:
+    pictures = places(20)
+    matcher = SampleMatcher(needed=1)
+    goals = index(calibrated_recogniser(pictures), matcher)
+    unknown = np.random.default_rng(2).normal(0.0, 30.0, (MAX_GOALS_ASKED + 5, VIEWS * WIDTH)).astype(np.float32)
+    for picture in [*unknown, unknown[-3]]:  # the last one asked before: it stays where it was
+        asked = {"goal": picture[None]}
+        goals.states(goals.digests(asked, 1)[0], asked, 0, 1)
+    np.testing.assert_array_equal(matcher.seen, unknown[-MAX_GOALS_ASKED:])
+
+
+class FirstRowMatcher:
+    """A place matcher that places every picture at its first reference (the lowest state not ruled out)."""
+
+    def match(self, queries, references, labels, goal_pictures=None) -> np.ndarray:
+        return np.zeros(len(queries), dtype=np.int64)
+
+
+def test_a_matched_place_where_the_goals_episode_went_on_is_ruled_out_and_the_matcher_asked_again() -> None:
+    pictures = places(30)
+    recogniser = calibrated_recogniser(pictures[:20])
+    goals = index(recogniser, FirstRowMatcher())
+    night = {"goal": -pictures[[3]]}
+    key = goals.digests(night, 1)[0]
+    assert goals.states(key, night, 0, 1).tolist() == [0] and goals.matched == {key: 0}
+    goals.rule_out([key, b"another goal"], np.array([5, 0]))  # its episode went on elsewhere; another goal's here
+    assert goals.states(key, night, 0, 1).tolist() == [0]
+    goals.rule_out([key], np.array([0]))  # it went on where the matcher placed the goal: the goal is not there
+    assert goals.states(key, night, 0, 1).tolist() == [1]
+    recogniser.merge(2, 1)  # the place it was matched to and another are one place...
+    goals.merge(2, 1)
+    goals.rule_out([key], np.array([2]))  # ...ruled out there: at neither
+    assert goals.states(key, night, 0, 1).tolist() == [3]

@@ -6,9 +6,12 @@ one goal for every observation). It is *at* a set of states:
 - the states a success reached under that goal (the env's ``info["is_success"]``): every env, pictures or not; goal
   vectors within ``goal_tolerance`` in every entry are one goal (as the env accepts them);
 - where the env declares that a goal key pictures a place (:mod:`sb3_dcqn.place_frame`), the state the recogniser
-  names for the goal's picture (``KNOWN`` only: a goal picture that is new or unsure has no place, and the critics
-  act). A picture the recogniser does not know may be handed to a :class:`PlaceMatcher` (the prototypes as
-  references), where one is given;
+  names for the goal's picture (``KNOWN``); a picture it does not know (new or unsure: pictured in other light, say)
+  is handed to a :class:`PlaceMatcher` where there is one (the memory's default: an
+  :class:`~sb3_dcqn.place_recognition.AlignedNearestPlace`), with the places' prototypes as references and the most
+  recent such pictures as its sample of their light; no answer: no place, and the critics act. A place the matcher
+  named where an episode for that goal then went on is ruled out for it (the env ends an episode at its goal), and
+  the matcher is asked again without it;
 - for pose states of an SB3 goal env without a declared frame, the states whose ``achieved_goal`` equals the goal's
   ``desired_goal`` (SB3's goal-env convention).
 """
@@ -26,7 +29,7 @@ from sb3_dcqn.route_memory.planner import BoundedCache
 __all__ = ["ACHIEVED_GOAL_KEY", "GoalIndex", "PlaceMatcher"]
 
 ACHIEVED_GOAL_KEY = "achieved_goal"
-MAX_GOALS_ASKED = 20_000  # distinct goal pictures kept for a place matcher (a sample of their conditions)
+MAX_GOALS_ASKED = 64  # the most recent distinct goal pictures kept for a place matcher (a sample of their conditions)
 
 
 class PlaceMatcher(Protocol):
@@ -82,7 +85,14 @@ class GoalIndex:
         self._reached: dict[bytes, set[int]] = {}
         self._vectors: dict[bytes, np.ndarray] = {}  # goal vectors reached (within the tolerance: one goal)
         self._achieved: dict[bytes, tuple[np.ndarray, set[int]]] = {}  # achieved_goal picture -> states at it
-        self._asked: dict[bytes, np.ndarray] = {}  # goal pictures asked about (a matcher's sample of their conditions)
+        self._asked: dict[bytes, np.ndarray] = {}  # goal pictures asked about, oldest first (the matcher's sample)
+        self._asked_count = 0  # pictures ever added to it: a matcher's answers may change with each
+        self._matched: dict[bytes, int] = {}  # goal -> the place the matcher answered for its picture
+        self._ruled_out: dict[bytes, set[int]] = {}  # goal -> places where an episode for it went on
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # Memories saved before the matcher's sample was counted and its answers could be ruled out load without them
+        self.__dict__.update({"_asked_count": 0, "_matched": {}, "_ruled_out": {}, **state})
 
     @property
     def conditioned(self) -> bool:
@@ -92,8 +102,9 @@ class GoalIndex:
     def nbytes(self) -> int:
         vectors = sum(v.nbytes for v in self._vectors.values()) + sum(v.nbytes for v in self._asked.values())
         achieved = sum(vector.nbytes + 8 * len(states) for vector, states in self._achieved.values())
-        links = sum(len(states) for states in self._reached.values())
-        return vectors + achieved + 8 * links + 16 * (len(self._reached) + len(self._achieved) + len(self._asked))
+        links = sum(len(states) for states in [*self._reached.values(), *self._ruled_out.values()])
+        keys = len(self._reached) + len(self._achieved) + len(self._asked) + len(self._matched) + len(self._ruled_out)
+        return vectors + achieved + 8 * links + 16 * keys
 
     # ------------------------------------------------------------------ asked goals
     def digests(self, observations: Any, batch: int) -> list[bytes]:
@@ -147,18 +158,23 @@ class GoalIndex:
                 self.version += 1
 
     def merge(self, keep: int, drop: int) -> None:
-        """Two states that are one place: goals at ``drop`` are at ``keep``."""
-        for states in [*self._reached.values(), *(states for _, states in self._achieved.values())]:
+        """Two states that are one place: goals at ``drop`` are at ``keep`` (and not at ``keep`` where they were ruled
+        out at ``drop``)."""
+        every = [*self._reached.values(), *(states for _, states in self._achieved.values()), *self._ruled_out.values()]
+        for states in every:
             if drop in states:
                 states.discard(drop)
                 states.add(keep)
                 self.version += 1
+        for goal, state in list(self._matched.items()):
+            if state == drop:
+                self._matched[goal] = keep
 
     # ------------------------------------------------------------------ where a goal is
     def states(self, goal: bytes, observations: Any, index: int, batch: int) -> np.ndarray:
         """The states where the goal of observation ``index`` of a batch is reached (empty: not in memory)."""
         key = ("goal", goal)
-        version = (self.version << 32) + self.recogniser.version
+        version = hash((self.version, self.recogniser.version, self._asked_count))
         cached = self.cache.get(key)
         if cached is not None and cached[0] == version:
             return cached[1]
@@ -166,29 +182,62 @@ class GoalIndex:
         row = None if rows is None else rows[index]
         found = set(self._reached.get(self._canonical(goal, row), ()))
         if self.picture_key is not None and isinstance(observations, Mapping):
-            found |= self._pictured(np.asarray(observations[self.picture_key])[index])
+            found |= self._pictured(goal, np.asarray(observations[self.picture_key])[index])
         if self.achieved_key is not None and row is not None:
             found |= self._achieved_states(row)
         states = np.array(sorted(found), dtype=np.int64)
         self.cache.put(key, version, states)
         return states
 
-    def _pictured(self, picture: np.ndarray) -> set[int]:
-        """The state a goal picture shows: the recogniser's known place, else the matcher's answer."""
-        row = np.asarray(picture, dtype=np.float32).reshape(1, -1)
-        rows = row if self.picture_rows is None else self.picture_rows(np.asarray(picture)[None])
+    def _pictured(self, goal: bytes, picture: np.ndarray) -> set[int]:
+        """The state a goal picture shows: the recogniser's known place, else the matcher's answer among the places
+        the goal was not ruled out at."""
+        rows = np.asarray(picture, dtype=np.float32).reshape(1, -1)
+        if self.picture_rows is not None:
+            rows = self.picture_rows(np.asarray(picture)[None])
+        self._matched.pop(goal, None)
         states, answers = self.recogniser.recognise(rows)
         if answers[0] == Answer.KNOWN:
             return {int(states[0])}
         if self.place_matcher is None or self.recogniser.n_states == 0:
             return set()
-        if len(self._asked) < MAX_GOALS_ASKED:
-            self._asked.setdefault(digest(row.tobytes()), row[0].copy())
-        labels = self.recogniser.live_states()
+        self._ask(rows[0])
+        labels = np.setdiff1d(self.recogniser.live_states(), list(self._ruled_out.get(goal, ())))
+        if labels.size == 0:
+            return set()
         references = np.stack([self.recogniser.prototype(int(state)) for state in labels])
         asked = np.stack(list(self._asked.values()))
-        matched = int(self.place_matcher.match(row, references, labels, asked)[0])
-        return set() if matched < 0 else {int(labels[matched])}
+        matched = int(self.place_matcher.match(rows, references, labels, asked)[0])
+        if matched < 0:
+            return set()
+        self._matched[goal] = int(labels[matched])
+        return {int(labels[matched])}
+
+    def rule_out(self, goals: Sequence[bytes], states: np.ndarray) -> None:
+        """
+        Each goal's episode went on at each state (no success there): a goal the matcher placed at that state is not
+        there (the env ends an episode at its goal), and the matcher is asked again without it.
+        """
+        for goal, state in zip(goals, states.tolist(), strict=True):
+            if state >= 0 and self._matched.get(goal) == state:
+                del self._matched[goal]
+                self._ruled_out.setdefault(goal, set()).add(int(state))
+                self.version += 1
+
+    @property
+    def matched(self) -> dict[bytes, int]:
+        """The place of each goal the matcher placed (and no place was ruled out since)."""
+        return self._matched
+
+    def _ask(self, picture: np.ndarray) -> None:
+        """Keep a goal picture the recogniser does not know among the most recent ones (the matcher's sample)."""
+        key = digest(picture.tobytes())
+        if key in self._asked:
+            return
+        self._asked[key] = picture.copy()
+        self._asked_count += 1
+        while len(self._asked) > MAX_GOALS_ASKED:
+            del self._asked[next(iter(self._asked))]
 
     def _achieved_states(self, row: np.ndarray) -> set[int]:
         entry = self._achieved.get(digest(row.tobytes()))

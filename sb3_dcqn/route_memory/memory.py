@@ -58,6 +58,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_dcqn.place_frame import PlaceFrame, place_frame_of
+from sb3_dcqn.place_recognition import AlignedNearestPlace
 from sb3_dcqn.route_memory.edges import CLOSED, ROUTES, EdgeStore, Outcome
 from sb3_dcqn.route_memory.explorer import UntriedExplorer, path_to
 from sb3_dcqn.route_memory.goals import ACHIEVED_GOAL_KEY, GoalIndex, PlaceMatcher
@@ -111,7 +112,10 @@ class RouteMemory:
     :param success_reward: Where the env gives no success flag, a terminated transition with a reward above this
         reached its goal (``None``, the default: only the env's word counts)
     :param max_states: The most states remembered (then new places get no state: moves into them lead outside)
-    :param place_matcher: For goal pictures the recogniser does not know (``None``: unknown goals have no route)
+    :param place_matcher: For goal pictures the recogniser does not know (pictured in other light, say): ``"auto"``
+        (the default), an :class:`~sb3_dcqn.place_recognition.AlignedNearestPlace` over the frame's views where the
+        env declares goal pictures of places recognised by similarity, none elsewhere; ``None``: such goals have no
+        route; or a :class:`PlaceMatcher`
     :param place_frame: The env's declared frame (:class:`~sb3_dcqn.place_frame.PlaceFrame`): states are places and
         moves slots; ``None``: states are poses
     :param retry_after: Transitions after a bump before a closed road may be tried again in training (doubling with
@@ -132,7 +136,7 @@ class RouteMemory:
         goal_keys: Sequence[str] | None = None,
         success_reward: float | None = None,
         max_states: int = 1_000_000,
-        place_matcher: PlaceMatcher | None = None,
+        place_matcher: PlaceMatcher | str | None = "auto",
         place_frame: PlaceFrame | None = None,
         retry_after: int = DEFAULT_RETRY_AFTER,
         max_cache_bytes: int = DEFAULT_CACHE_BYTES,
@@ -148,6 +152,8 @@ class RouteMemory:
             raise ValueError(f"goal_tolerance must be >= 0, got {goal_tolerance}")
         if recognition not in RECOGNITION_MODES:
             raise ValueError(f"recognition must be one of {RECOGNITION_MODES}, got {recognition!r}")
+        if isinstance(place_matcher, str) and place_matcher != "auto":
+            raise ValueError(f"place_matcher must be 'auto', None or a PlaceMatcher, got {place_matcher!r}")
         keys = default_goal_keys(observation_space) if goal_keys is None else tuple(goal_keys)
         _check_goal_keys(keys, observation_space)
         if place_frame is not None and place_frame.n_slots != n_actions:
@@ -173,6 +179,9 @@ class RouteMemory:
             min_calibration=min(8, calibration_window),
         )  # fmt: skip
         legacy = place_frame is None and ACHIEVED_GOAL_KEY in keys  # SB3's goal env without a frame: poses
+        if isinstance(place_matcher, str):  # "auto"
+            pictured = similar and place_frame is not None and place_frame.goal_key is not None
+            place_matcher = AlignedNearestPlace(views=views) if pictured else None
         self.goals = GoalIndex(
             asked_keys=[key for key in keys if key != ACHIEVED_GOAL_KEY],
             picture_key=place_frame.goal_key if place_frame is not None else None,
@@ -461,6 +470,9 @@ class RouteMemory:
         )
         if success.any():
             self.goals.add_reached(select_rows(next_observations, success), next_states[success])
+        if self.goals.matched:  # where an episode went on, its goal is not (a goal env ends its episodes there)
+            went_on = np.where(success | (next_answers != Answer.KNOWN), -1, next_states)
+            self.goals.rule_out(self.goal_digests(next_observations), went_on)
         if self.goals.achieved_key is not None:
             self.goals.add_achieved(observations, states)
             self.goals.add_achieved(next_observations, next_states)
@@ -548,23 +560,25 @@ class RouteMemory:
     def _goal_states(self, goal: bytes, batch: Any, index: int) -> np.ndarray:
         return self.goals.states(goal, batch, index, _batch_size(batch))
 
-    def _goal_targets(self, goal: bytes, batch: Any, index: int, retry: bool = False) -> Any:
-        """Which moves reach the goal of observation ``index`` (a function of rows)."""
+    def _goal_search(self, goal: bytes, batch: Any, index: int, retry: bool = False) -> tuple[tuple[Any, ...], Any]:
+        """The planner's key for the goal of observation ``index`` (its states in it: a search for where the goal
+        was is never reused once it is placed elsewhere) and which moves reach it (a function of rows)."""
+        goal_states = self._goal_states(goal, batch, index)
         arrived = np.zeros(self.edges.n_rows + 1, dtype=bool)
-        arrived[self._goal_states(goal, batch, index)] = True
+        arrived[goal_states] = True
 
         def is_target(rows: np.ndarray) -> np.ndarray:
             successors = self.edges.target[rows]
             return self.edges.moves(rows, retry) & arrived[np.where(successors >= 0, successors, -1)]
 
-        return is_target
+        return ("hops", goal, retry, goal_states.tobytes()), is_target
 
     # ------------------------------------------------------------------ routes
     def hops_to_goal(self, observation: Any) -> np.ndarray:
         """Hops from every state to one (unbatched) observation's goal over remembered moves (:data:`NO_ROUTE`)."""
         batch = batch_of_one(observation)
         goal = self.goal_digests(batch)[0]
-        return self.planner.cached_hops(("hops", goal, False), self._goal_targets(goal, batch, 0)).astype(np.int64)
+        return self.planner.cached_hops(*self._goal_search(goal, batch, 0)).astype(np.int64)
 
     def route_actions(
         self, observations: Any, staleness: int = 0, retry: bool = False, states: np.ndarray | None = None
@@ -591,8 +605,8 @@ class RouteMemory:
             by_goal.setdefault(goal, []).append(index)
         for goal, indices in by_goal.items():
             rows = np.array(indices)
-            is_target = self._goal_targets(goal, observations, indices[0], retry)
-            hops = self.planner.cached_hops(("hops", goal, retry), is_target, staleness, retry)
+            key, is_target = self._goal_search(goal, observations, indices[0], retry)
+            hops = self.planner.cached_hops(key, is_target, staleness, retry)
             slots[rows] = self.planner.first_slots(states[rows], hops, is_target, retry)
         if retry:  # passing by a closed road whose retry is due: try it (one bump per backoff, where still closed)
             slots = np.where((aged := self._retry_due_roads(states)) >= 0, aged, slots)
@@ -618,8 +632,8 @@ class RouteMemory:
         state = self.state_of(observation)
         if state < 0:
             return []
-        is_target = self._goal_targets(goal, batch, 0)
-        hops = self.planner.cached_hops(("hops", goal, False), is_target)
+        key, is_target = self._goal_search(goal, batch, 0)
+        hops = self.planner.cached_hops(key, is_target)
         frame = int(self._frames(batch)[0])
         actions: list[int] = []
         for _ in range(self.n_states if max_hops is None else max_hops):
