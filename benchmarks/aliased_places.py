@@ -13,7 +13,7 @@ Two counts per map, encoder and world:
 Worlds (``--worlds``, :data:`benchmarks.campusnav_runs.WORLDS`): fixed views, fresh noise on the views, K renders per
 view. Usage::
 
-    python benchmarks/aliased_places.py                       # campus (EfficientNet-Lite0, pixels), 1k cities, a town
+    python benchmarks/aliased_places.py                       # campus (both encoders), 1k cities, a town: every world
     python benchmarks/aliased_places.py --cities 1000 --map-seeds 31 --encoders pixels --worlds fixed "noise 0.05"
 """
 
@@ -138,8 +138,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--encoders", nargs="+", default=["efficientnet-lite0", PIXELS])
     parser.add_argument("--cities", nargs="*", type=int, default=[1000], help="sizes of generated cities (pixels)")
     parser.add_argument("--map-seeds", nargs="+", type=int, default=[31, 47, 59])
-    parser.add_argument("--worlds", nargs="+", default=["fixed", "noise 0.05", "variation 8"], choices=list(WORLDS))
-    parser.add_argument("--city-worlds", nargs="+", default=["fixed", "noise 0.05"], choices=list(WORLDS))
+    every_world = ["fixed", "noise 0.05", "variation 8"]
+    parser.add_argument("--worlds", nargs="+", default=every_world, choices=list(WORLDS))
+    parser.add_argument("--city-worlds", nargs="+", default=every_world, choices=list(WORLDS))
     parser.add_argument("--draws", type=int, default=3, help="pictures of each (intersection, heading) asked")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "aliased_places.md")
     args = parser.parse_args(argv)

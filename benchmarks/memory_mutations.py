@@ -358,9 +358,21 @@ MUTATIONS = (
     ),
     Mutation(
         "goals",
+        "the matcher is asked again at every new place",
+        "if standing and n_states < last[0] * REASK_GROWTH",
+        "if standing and n_states <= last[0]",
+    ),
+    Mutation(
+        "goals",
+        "the matcher is never asked again as places are added",
+        "if standing and n_states < last[0] * REASK_GROWTH",
+        "if standing",
+    ),
+    Mutation(
+        "goals",
         "a place ruled out for a goal is offered again",
-        "labels = np.setdiff1d(self.recogniser.live_states(), list(self._ruled_out.get(goal, ())))",
-        "labels = self.recogniser.live_states()",
+        "allowed = ~np.isin(labels, list(ruled_out))",
+        "allowed = np.ones(labels.size, dtype=bool)",
     ),
     Mutation(
         "goals",

@@ -148,3 +148,19 @@ def test_a_matched_place_where_the_goals_episode_went_on_is_ruled_out_and_the_ma
     goals.merge(2, 1)
     goals.rule_out([key], np.array([2]))  # ...ruled out there: at neither
     assert goals.states(key, night, 0, 1).tolist() == [3]
+
+
+def test_the_matcher_is_asked_again_once_the_places_grew_by_a_share_not_at_every_new_place() -> None:
+    pictures = places(110)
+    recogniser = calibrated_recogniser(pictures[:100])
+    matcher = CountingMatcher(answer=-1)
+    goals = index(recogniser, matcher)
+    night = {"goal": -pictures[[3]]}
+    key = goals.digests(night, 1)[0]
+    goals.states(key, night, 0, 1)
+    recogniser.recognise(pictures[100:101], add=True)  # one place more of a hundred: the answer stands
+    goals.states(key, night, 0, 1)
+    assert matcher.asked == 1
+    recogniser.recognise(pictures[101:103], add=True)  # 3% more: the goal's place may be among them
+    goals.states(key, night, 0, 1)
+    assert matcher.asked == 2

@@ -30,6 +30,7 @@ __all__ = ["ACHIEVED_GOAL_KEY", "GoalIndex", "PlaceMatcher"]
 
 ACHIEVED_GOAL_KEY = "achieved_goal"
 MAX_GOALS_ASKED = 64  # the most recent distinct goal pictures kept for a place matcher (a sample of their conditions)
+REASK_GROWTH = 1.02  # a goal's matcher answer stands until the places grew by this factor (or its inputs changed)
 
 
 class PlaceMatcher(Protocol):
@@ -89,10 +90,12 @@ class GoalIndex:
         self._asked_count = 0  # pictures ever added to it: a matcher's answers may change with each
         self._matched: dict[bytes, int] = {}  # goal -> the place the matcher answered for its picture
         self._ruled_out: dict[bytes, set[int]] = {}  # goal -> places where an episode for it went on
+        # goal -> (places, sample count, places ruled out, answer) when the matcher was last asked
+        self._matcher_answers: dict[bytes, tuple[int, int, int, int]] = {}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         # Memories saved before the matcher's sample was counted and its answers could be ruled out load without them
-        self.__dict__.update({"_asked_count": 0, "_matched": {}, "_ruled_out": {}, **state})
+        self.__dict__.update({"_asked_count": 0, "_matched": {}, "_ruled_out": {}, "_matcher_answers": {}, **state})
 
     @property
     def conditioned(self) -> bool:
@@ -202,16 +205,28 @@ class GoalIndex:
         if self.place_matcher is None or self.recogniser.n_states == 0:
             return set()
         self._ask(rows[0])
-        labels = np.setdiff1d(self.recogniser.live_states(), list(self._ruled_out.get(goal, ())))
-        if labels.size == 0:
+        # Asked again once the places grew by a share (a search over every place at each new one would cost the
+        # square of the map), the matcher's sample grew, or a place was ruled out for the goal
+        ruled_out = self._ruled_out.get(goal, set())
+        last = self._matcher_answers.get(goal)
+        n_states = self.recogniser.n_states
+        standing = last is not None and last[1:3] == (self._asked_count, len(ruled_out))
+        if standing and n_states < last[0] * REASK_GROWTH and (last[3] < 0 or self.recogniser.live(last[3])):
+            place = last[3]
+        else:
+            references, labels = self.recogniser.prototypes()
+            allowed = ~np.isin(labels, list(ruled_out))
+            references, labels = references[allowed], labels[allowed]
+            asked = np.stack(list(self._asked.values()))
+            row = int(self.place_matcher.match(rows, references, labels, asked)[0]) if labels.size else -1
+            place = int(labels[row]) if row >= 0 else -1
+            self._matcher_answers[goal] = (n_states, self._asked_count, len(ruled_out), place)
+            while len(self._matcher_answers) > MAX_GOALS_ASKED:
+                del self._matcher_answers[next(iter(self._matcher_answers))]
+        if place < 0:
             return set()
-        references = np.stack([self.recogniser.prototype(int(state)) for state in labels])
-        asked = np.stack(list(self._asked.values()))
-        matched = int(self.place_matcher.match(rows, references, labels, asked)[0])
-        if matched < 0:
-            return set()
-        self._matched[goal] = int(labels[matched])
-        return {int(labels[matched])}
+        self._matched[goal] = place
+        return {place}
 
     def rule_out(self, goals: Sequence[bytes], states: np.ndarray) -> None:
         """

@@ -566,6 +566,12 @@ class PlaceRecogniser:
         """The prototypes of a place (itself, unless others were merged into it)."""
         return np.array(self._members.get(state, [state]), dtype=np.int64)
 
+    def prototypes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every prototype as a row ``(n, dim)`` float32, and the place each is of (a merged place has several)."""
+        n = self.n_states
+        rows = self._prototypes[:, :n].transpose(1, 0, 2).reshape(n, -1)
+        return np.ascontiguousarray(rows), self._owner[:n].copy()
+
     def prototype(self, state: int) -> np.ndarray:
         """The mean picture of a state, ``(dim,)`` float32."""
         if not 0 <= state < self.n_states:
