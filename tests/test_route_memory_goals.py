@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sb3_dcqn.route_memory import goals as goals_module
 from sb3_dcqn.route_memory.goals import MAX_GOALS_ASKED, GoalIndex
 from sb3_dcqn.route_memory.places import PlaceRecogniser
 from sb3_dcqn.route_memory.planner import BoundedCache
@@ -164,3 +165,16 @@ def test_the_matcher_is_asked_again_once_the_places_grew_by_a_share_not_at_every
     recogniser.recognise(pictures[101:103], add=True)  # 3% more: the goal's place may be among them
     goals.states(key, night, 0, 1)
     assert matcher.asked == 2
+
+
+def test_the_places_ruled_out_are_kept_for_a_bounded_number_of_goals(monkeypatch) -> None:
+    monkeypatch.setattr(goals_module, "MAX_GOALS_PLACED", 2)
+    pictures = places(30)
+    goals = index(calibrated_recogniser(pictures[:20]), FirstRowMatcher())
+    asked = [{"goal": -pictures[[n]]} for n in range(3)]
+    keys = [goals.digests(goal, 1)[0] for goal in asked]
+    for key, goal in zip(keys, asked, strict=True):
+        assert goals.states(key, goal, 0, 1).tolist() == [0]
+        goals.rule_out([key], np.array([0]))
+    # The oldest goal's fact is forgotten (one more trip there at worst); the two newest are kept
+    assert [goals.states(key, goal, 0, 1).tolist() for key, goal in zip(keys, asked, strict=True)] == [[0], [1], [1]]

@@ -31,6 +31,7 @@ __all__ = ["ACHIEVED_GOAL_KEY", "GoalIndex", "PlaceMatcher"]
 ACHIEVED_GOAL_KEY = "achieved_goal"
 MAX_GOALS_ASKED = 64  # the most recent distinct goal pictures kept for a place matcher (a sample of their conditions)
 REASK_GROWTH = 1.02  # a goal's matcher answer stands until the places grew by this factor (or its inputs changed)
+MAX_GOALS_PLACED = 4_096  # goals whose matched and ruled-out places are kept (the oldest forgotten: one more trip)
 
 
 class PlaceMatcher(Protocol):
@@ -221,11 +222,11 @@ class GoalIndex:
             row = int(self.place_matcher.match(rows, references, labels, asked)[0]) if labels.size else -1
             place = int(labels[row]) if row >= 0 else -1
             self._matcher_answers[goal] = (n_states, self._asked_count, len(ruled_out), place)
-            while len(self._matcher_answers) > MAX_GOALS_ASKED:
-                del self._matcher_answers[next(iter(self._matcher_answers))]
+            _keep_newest(self._matcher_answers, MAX_GOALS_ASKED)
         if place < 0:
             return set()
         self._matched[goal] = place
+        _keep_newest(self._matched, MAX_GOALS_PLACED)
         return {place}
 
     def rule_out(self, goals: Sequence[bytes], states: np.ndarray) -> None:
@@ -237,6 +238,7 @@ class GoalIndex:
             if state >= 0 and self._matched.get(goal) == state:
                 del self._matched[goal]
                 self._ruled_out.setdefault(goal, set()).add(int(state))
+                _keep_newest(self._ruled_out, MAX_GOALS_PLACED)
                 self.version += 1
 
     @property
@@ -251,8 +253,7 @@ class GoalIndex:
             return
         self._asked[key] = picture.copy()
         self._asked_count += 1
-        while len(self._asked) > MAX_GOALS_ASKED:
-            del self._asked[next(iter(self._asked))]
+        _keep_newest(self._asked, MAX_GOALS_ASKED)
 
     def _achieved_states(self, row: np.ndarray) -> set[int]:
         entry = self._achieved.get(digest(row.tobytes()))
@@ -262,3 +263,9 @@ class GoalIndex:
             if vector.shape == row.shape and np.abs(vector - row).max() <= self.goal_tolerance:
                 return set(states)
         return set()
+
+
+def _keep_newest(entries: dict[Any, Any], limit: int) -> None:
+    """Drop the oldest entries (insertion order) beyond ``limit``."""
+    while len(entries) > limit:
+        del entries[next(iter(entries))]
