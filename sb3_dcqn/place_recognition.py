@@ -383,6 +383,10 @@ def fit_place_matcher(references: np.ndarray, labels: np.ndarray, *, learned: bo
     return matcher
 
 
+# The references' condition: per-feature mean and spread of their views, and the farthest a reference's mean view lies
+_Condition = tuple[np.ndarray, np.ndarray, float]
+
+
 class AlignedNearestPlace:
     """
     Goal photos taken in other conditions than the agent's own views (night, passing cars), matched against the
@@ -434,28 +438,41 @@ class AlignedNearestPlace:
 
     def other_condition(self, pictures: np.ndarray, references: np.ndarray) -> np.ndarray:
         """``(m,)`` whether each picture is of another condition than the references (see the class docstring)."""
-        reference_views = _views_of(references, self.views)
-        mean, spread = _moments(reference_views)
-        own_range = _condition_shift(reference_views, mean, spread).max()
-        return _condition_shift(_views_of(pictures, self.views), mean, spread) > own_range
+        return self._other(pictures, self._condition(references))
 
     def align(self, queries: np.ndarray, references: np.ndarray, goal_pictures: np.ndarray | None) -> np.ndarray:
         """The queries moved into the references' condition (those of the references' own condition as they are)."""
+        return self._aligned(queries, goal_pictures, self._condition(references))[0]
+
+    def _condition(self, references: np.ndarray) -> _Condition:
+        """The references' per-feature mean and spread, and the farthest any reference's mean view lies from it."""
+        views = _views_of(references, self.views)
+        mean, spread = _moments(views)
+        return mean, spread, float(_condition_shift(views, mean, spread).max())
+
+    def _other(self, pictures: np.ndarray, condition: _Condition) -> np.ndarray:
+        mean, spread, own_range = condition
+        return _condition_shift(_views_of(pictures, self.views), mean, spread) > own_range
+
+    def _aligned(
+        self, queries: np.ndarray, goal_pictures: np.ndarray | None, condition: _Condition
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The queries moved into the references' condition, and which of them were of another one."""
         queries = np.asarray(queries, dtype=np.float64)
-        other = self.other_condition(queries, references)
+        other = self._other(queries, condition)
         if not other.any():
-            return queries
+            return queries, other
         sample = np.zeros((0, queries.shape[1]))
         if goal_pictures is not None and len(goal_pictures) and self.max_goal_pictures:
             recent = np.asarray(goal_pictures, dtype=np.float64)[-self.max_goal_pictures :]
-            sample = recent[self.other_condition(recent, references)]
-        reference_mean, reference_spread = _moments(_views_of(references, self.views))
+            sample = recent[self._other(recent, condition)]
+        reference_mean, reference_spread, _ = condition
         aligned = queries.copy()
         for row in np.flatnonzero(other):
             mean, spread = _moments(_views_of(np.concatenate([queries[row : row + 1], sample]), self.views))
             views = (_views_of(queries[row : row + 1], self.views) - mean) / spread
             aligned[row] = (views * reference_spread + reference_mean).reshape(-1)
-        return aligned
+        return aligned, other
 
     def similarities(self, queries: np.ndarray, references: np.ndarray) -> np.ndarray:
         """``(m, n)`` mean cosine similarity over the view blocks."""
@@ -474,9 +491,9 @@ class AlignedNearestPlace:
             return np.full(len(queries), NOT_IN_MEMORY, dtype=np.int64)
         if goal_pictures is not None:
             goal_pictures = _check_matrix("goal_pictures", goal_pictures, references.shape[1])
-        other = self.other_condition(queries, references)
+        aligned, other = self._aligned(queries, goal_pictures, self._condition(references))
         # The distance of the pictures' unit view blocks (Lowe's ratio is of distances, not of 1 - similarities)
-        similarity = self.similarities(self.align(queries, references, goal_pictures), references)
+        similarity = self.similarities(aligned, references)
         distance = np.sqrt(np.maximum(1.0 - similarity, 0.0))
         rows = distance.argmin(axis=1).astype(np.int64)
         nearest = distance[np.arange(len(rows)), rows]
