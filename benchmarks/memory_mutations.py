@@ -213,7 +213,7 @@ MUTATIONS = (
     Mutation(
         "edges",
         "an alias is never cleared once its states show to be one place",
-        "for aliased in [other for other in self.aliased if other != state]:",
+        "for aliased in [other for other in self.aliased if other != but]:",
         "for aliased in []:",
     ),
     Mutation(
@@ -261,8 +261,8 @@ MUTATIONS = (
     Mutation(
         "edges",
         "one odd outcome marks an alias",
-        "frequent = [target for target, count in self._disputes[source].items() if count >= 2]",
-        "frequent = [target for target, count in self._disputes[source].items() if count >= 1]",
+        "frequent = sorted((target for target, count in counts.items() if count >= 2), key=lambda t: -counts[t])",
+        "frequent = sorted((target for target, count in counts.items() if count >= 1), key=lambda t: -counts[t])",
     ),
     Mutation(
         "edges",
@@ -353,8 +353,8 @@ MUTATIONS = (
     Mutation(
         "goals",
         "the matcher's sample keeps the oldest goal pictures",
-        "del self._asked[next(iter(self._asked))]",
-        "self._asked.popitem()",
+        "_keep_newest(self._asked, MAX_GOALS_ASKED)",
+        "self._asked = dict(list(self._asked.items())[:MAX_GOALS_ASKED])",
     ),
     Mutation(
         "goals",
@@ -467,6 +467,54 @@ MUTATIONS = (
         "evaluation recognises each picture without the graph's prior",
         "states = self.memory.states_of(batch, expected=self._bumps.expected_states(self.memory))",
         "states = self.memory.states_of(batch)",
+    ),
+    Mutation(
+        "places",
+        "look-alike siblings decided by the views they share",
+        "told = self._told_apart(candidates, unsorted, per_view[self.kth - 1], self.known if add else self.new)",
+        "told = None",
+    ),
+    Mutation(
+        "places",
+        "the graph's prior takes an expected sibling without a look",
+        "if 0 <= expected < self.n_states and expected not in self._siblings:",
+        "if 0 <= expected < self.n_states:",
+    ),
+    Mutation(
+        "places",
+        "a state split where no view tells its sides apart",
+        "        if not differ.any():\n            return -1",
+        "        if False:\n            return -1",
+    ),
+    Mutation(
+        "places",
+        "a split state keeps its exact pictures",
+        "self._exact = {key: owner for key, owner in self._exact.items() if owner != state}",
+        "pass",
+    ),
+    Mutation(
+        "memory",
+        "aliased states never split",
+        "self._split_aliases(disputed)",
+        "pass",
+    ),
+    Mutation(
+        "edges",
+        "a split's sibling starts with the state's moves",
+        "getattr(self, name)[sibling] = fill",
+        "getattr(self, name)[sibling] = getattr(self, name)[state]",
+    ),
+    Mutation(
+        "edges",
+        "the moved place's way back still leads to the split state",
+        "            self.target[moved, back] = sibling",
+        "            pass",
+    ),
+    Mutation(
+        "layer",
+        "an evaluation episode that went on where the memory placed its goal keeps its route there",
+        "            records[env].wrong_goal = True",
+        "            pass",
     ),
     Mutation(
         "explorer",

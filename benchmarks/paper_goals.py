@@ -86,9 +86,10 @@ def test_episodes(model: BaseAlgorithm, env: CampusNavEnv, goal: str, n_episodes
             obs, info = env.reset(options={"goal": goal})
         start, shortest, steps = info["node"], info["shortest_distance"], 0
         terminated = truncated = False
+        state = None  # what the model remembers within the episode (a route memory's prior and bump guard)
         while not (terminated or truncated):
-            action = model.predict(obs, deterministic=True)[0]
-            obs, _, terminated, truncated, info = env.step(int(action))
+            action, state = model.predict(obs, state=state, episode_start=np.array([steps == 0]), deterministic=True)
+            obs, _, terminated, truncated, info = env.step(int(np.asarray(action).reshape(-1)[0]))
             steps += 1
         episodes.append((start, bool(terminated), steps, shortest))
     success = np.array([e[1] for e in episodes])
@@ -148,9 +149,7 @@ def train_and_test(agent: str, seed: int, quick: bool, n_episodes: int, env_kwar
     start = time.perf_counter()
     for g, goal in enumerate(goals):
         tests[goal] = test_episodes(model, test_env, goal, n_episodes, seed=10_000 + 100 * seed + g)
-        report = evaluate_routes(
-            test_env, lambda obs: model.predict(obs, deterministic=True)[0], goals=[goal], max_steps=STEP_CAP
-        )
+        report = evaluate_routes(test_env, model, goals=[goal], max_steps=STEP_CAP)
         routes[goal] = route_summary(report)
     return {
         "agent": agent,

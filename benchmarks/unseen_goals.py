@@ -260,7 +260,7 @@ def appearance_change(model: Any, task: Task, entry: Any, goals: list[int]) -> d
     results = {}
     for name, settings in APPEARANCES.items():
         eval_env = campus_of(task.make_env(entry, goal_render_settings=_sized(settings, task)))
-        report = evaluate_routes(eval_env, lambda obs: model.predict(obs, deterministic=True)[0], goals=goals)
+        report = evaluate_routes(eval_env, model, goals=goals)
         results[name] = [report.success_rate, report.spl]
         print(f"appearance {name}: success {report.success_rate:.3f}, SPL {report.spl:.3f}", flush=True)
     return results

@@ -146,8 +146,8 @@ class RouteEvaluationCallback(_TrainingProgress):
     :param evaluate_at_end: Evaluate once more when training ends, unless the last evaluation is :attr:`current`
         (SB3 stores a step's transition after the callbacks have seen the step, and runs the gradient steps after the
         rollout: an evaluation made during the last step is of a model that changed since)
-    :param policy: Makes the policy evaluated from the model, anew at each evaluation (default: the model's greedy
-        ``predict``)
+    :param policy: Makes the policy evaluated from the model, anew at each evaluation (default: the model itself,
+        its greedy ``predict`` asked with episode starts and its state per route)
     :param critics_alone: Where the model's greedy ``predict`` plans over a route memory (a model with
         ``route_memory`` set, e.g. DCQN's), also evaluate its critics alone (``model.policy.predict``) on ``goals``:
         kept in each evaluation's ``critics`` and logged under ``eval/<log_name>/critics/...``
@@ -285,10 +285,8 @@ class RouteEvaluationCallback(_TrainingProgress):
         train_seconds = self.train_seconds
         model = self.model
 
-        def greedy(observations: Any) -> np.ndarray:
-            return model.predict(observations, deterministic=True)[0]
-
-        policy = greedy if self.policy is None else self.policy(model)
+        # The model itself: asked with episode starts and its state per route (the memory's prior, its bump guard)
+        policy: Policy = model if self.policy is None else self.policy(model)
         observed = self.observed_env
         if self.sample is None:
             sampling: dict[str, Any] = {}

@@ -19,6 +19,12 @@ without replacement from a finite set of pairs, and it pools the goals, which fi
 (a connected map: the same sample size is drawn for each). A report of every pair estimates nothing: its interval is
 its success rate itself.
 
+The policy is a function of a batch of observations, or an SB3-style predictor (a model: ``predict(observation,
+state, episode_start, deterministic)``), asked for its deterministic action with ``episode_start`` set at each route's
+first step and its ``state`` carried from step to step: a policy that remembers within an episode (the route memory
+layer's place each route's last move leads to, and the moves that bumped) keeps it per route. The state's arrays hold
+one row per route along their first axis (the rows of routes that end are dropped with them).
+
 The policy sees what the agent sees: the env may come wrapped, and the batch of observations the env builds
 (:meth:`~campusnav_env.env.CampusNavEnv.observations_at`) passes through the observation wrappers of its chain
 (:func:`~campusnav_env.wrappers.wrapped_observations`: a noise wrapper's noise, fresh for every visit), and on a varied
@@ -37,7 +43,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from statistics import NormalDist
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
@@ -45,7 +51,17 @@ import numpy as np
 from campusnav_env.env import CampusNavEnv
 from campusnav_env.wrappers import any_wrapper_varies, wrapped_observations
 
-Policy = Callable[[Any], np.ndarray]  # batched observations -> actions
+
+@runtime_checkable
+class Predictor(Protocol):
+    """An SB3-style model: its deterministic actions, with a state carried per route and episode starts."""
+
+    def predict(
+        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = False
+    ) -> tuple[np.ndarray, Any]: ...
+
+
+Policy = Callable[[Any], np.ndarray] | Predictor  # batched observations -> actions, or a model
 
 
 # Why a route ended (Route.ended): at the goal, stuck on a blocked move (a closed road or no road that way, tried again
@@ -223,7 +239,8 @@ def evaluate_routes(
         policy's observations pass through (see the module docstring); its episode state is not touched (on a varied
         world its rng is drawn from)
     :param policy: Maps a batch of observations to a batch of actions, e.g.
-        ``lambda obs: model.predict(obs, deterministic=True)[0]``
+        ``lambda obs: model.predict(obs, deterministic=True)[0]``; or the model itself (a :class:`Predictor`), asked for
+        its deterministic actions with episode starts and its state per route (see the module docstring)
     :param goals: Goals by name or node id (default: all of the env's goals; with ``CampusNavGoal`` any
         intersection); routes carry the goal's name
     :param max_steps: Step limit per route (default: the env's ``max_steps``)
@@ -294,6 +311,22 @@ def evaluate_routes(
     return report
 
 
+def _running_rows(state: Any, running: np.ndarray) -> Any:
+    """A predictor's state (``None`` or a tuple of arrays, one row per route) for the routes still running."""
+    if state is None:
+        return None
+    rows = []
+    for array in state:
+        array = np.asarray(array)
+        if array.ndim == 0 or array.shape[0] != running.size:
+            raise ValueError(
+                f"route evaluation keeps a predictor's state per route: each array of its state needs one row per "
+                f"route along its first axis ({running.size} routes), got shape {array.shape}"
+            )
+        rows.append(array[running])
+    return tuple(rows)
+
+
 def _mark_bytes(max_steps: int) -> int:
     """
     Bytes of a route's state marks: at least 8 bits per state the route can visit, so that a state it has not seen
@@ -342,13 +375,19 @@ def _run_batch(
     length = np.ones(n, dtype=np.int64)
     if path is not None:
         path[:, 0] = state_nodes[starts]
+    carried: Any = None  # a predictor's state, one row per running route
     for t in range(max_steps):
         if index.size == 0:
             break
         states = current[index]
         observations = env.observations_at(state_nodes[states], state_headings[states], goal)
         observations = wrapped_observations(observed, observations)
-        actions = np.asarray(policy(observations)).reshape(-1)
+        if isinstance(policy, Predictor):
+            starts_now = np.full(index.size, t == 0)
+            actions, carried = policy.predict(observations, state=carried, episode_start=starts_now, deterministic=True)
+        else:
+            actions = policy(observations)
+        actions = np.asarray(actions).reshape(-1)
         states, blocked = graph.move(states, actions)
         current[index] = states
         if path is not None:
@@ -369,6 +408,7 @@ def _run_batch(
             seen[index, t + 1] = states
             marks[index, byte] |= bit
         index = index[running]
+        carried = _running_rows(carried, running)
     success = ended == _GOAL
     steps = np.where(success, arrival, max_steps)  # a failed route counts the full budget
     start_nodes = state_nodes[starts]

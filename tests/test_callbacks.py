@@ -65,7 +65,9 @@ def shortest_path_policy(env: CampusNavEnv, *, frozen: bool = False) -> Callable
     frozen_hops, frozen_table = env.graph.state_hops_to(goal).copy(), env.graph.transition_table.copy()
     views = env._node_views
 
-    def predict(observations: dict[str, np.ndarray], deterministic: bool = True) -> tuple[np.ndarray, None]:
+    def predict(
+        observations: dict[str, np.ndarray], state: Any = None, episode_start: Any = None, deterministic: bool = True
+    ) -> tuple[np.ndarray, None]:
         hops = frozen_hops if frozen else env.graph.state_hops_to(goal)
         table = frozen_table if frozen else env.graph.transition_table
         nodes = [int(np.flatnonzero((views == v).all(axis=1))[0]) for v in observations["views"]]
@@ -195,7 +197,9 @@ def failing_at(env: CampusNavEnv, trap: int) -> Callable[..., tuple[np.ndarray, 
     table = env.graph.transition_table
     views = env._node_views
 
-    def predict(observations: dict[str, np.ndarray], deterministic: bool = True) -> tuple[np.ndarray, None]:
+    def predict(
+        observations: dict[str, np.ndarray], state: Any = None, episode_start: Any = None, deterministic: bool = True
+    ) -> tuple[np.ndarray, None]:
         nodes = np.array([int(np.flatnonzero((views == v).all(axis=1))[0]) for v in observations["views"]])
         states = nodes * 4 + np.argmax(observations["heading"], axis=1)
         stuck = np.argmax(table[states] < 0, axis=1)
@@ -245,7 +249,7 @@ def test_each_sampled_evaluation_draws_its_own_pairs(env_kwargs, tmp_path: Path)
     env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
     nav = env.envs[0].unwrapped
     model = explorer(env, tmp_path)
-    model.predict = lambda observations, deterministic=True: (np.full(len(observations["heading"]), 2), None)
+    model.predict = lambda observations, *_, **__: (np.full(len(observations["heading"]), 2), None)
     # Back and forth: never at the thresholds, so every evaluation stays a sample
     evaluation = RouteEvaluationCallback(eval_freq=50, sample=5, sample_seed=10, evaluate_at_end=False)
     model.learn(150, callback=evaluation)

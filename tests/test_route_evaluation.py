@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -74,6 +75,51 @@ def test_a_shortest_path_policy_scores_perfectly(env: CampusNavEnv) -> None:
     assert report.success_rate == report.spl == report.coverage == 1.0
     assert report.optimality_gap == 0.0
     assert report.mean_steps == report.mean_shortest
+
+
+class Remembering:
+    """A model (SB3's ``predict``) that carries, per route, the state its last move led to, and counts the routes
+    where that is not where the route now is (the evaluation mixed up the routes' states)."""
+
+    def __init__(self, env: CampusNavEnv) -> None:
+        self.env, self.act, self.mixed_up, self.starts = env, oracle(env), 0, []
+
+    def predict(
+        self,
+        observations: dict[str, np.ndarray],
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        nodes = nodes_of(self.env, observations)
+        states = nodes * 4 + np.argmax(observations["heading"], axis=1)
+        self.starts.append(np.asarray(episode_start).copy())
+        if state is not None:
+            self.mixed_up += int((state[0] != states)[~episode_start].sum())
+        actions = self.act(observations)
+        return actions, self.carried(states, actions)
+
+    def carried(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The state carried to the next step: one row per route, the state each route's move leads to."""
+        return (self.env.graph.move(states, actions)[0],)
+
+
+def test_a_model_is_asked_with_episode_starts_and_its_state_kept_per_route(env: CampusNavEnv) -> None:
+    model = Remembering(env)
+    report = evaluate_routes(env, model, chunk_size=64)  # routes end at every length: rows drop at every step
+    assert report.success_rate == report.spl == 1.0 and model.mixed_up == 0
+    firsts = [starts for starts in model.starts if starts.all()]
+    assert len(firsts) == -(-len(report.routes) // 64)  # each batch's first step, and only that one, starts episodes
+    assert not any(starts.any() for starts in model.starts if not starts.all())
+
+
+def test_a_model_state_without_a_row_per_route_is_named(env: CampusNavEnv) -> None:
+    class Pooled(Remembering):
+        def carried(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, ...]:
+            return (np.zeros(3),)  # one state for all routes
+
+    with pytest.raises(ValueError, match="one row per route along its first axis"):
+        evaluate_routes(env, Pooled(env), chunk_size=8)
 
 
 def test_a_policy_that_only_collides_fails_everywhere_quickly(env: CampusNavEnv) -> None:

@@ -291,6 +291,74 @@ def test_a_place_remembered_as_two_states_that_two_roads_lead_to_by_turns_become
     np.testing.assert_array_equal(lengths, distances)  # every route shortest, through the place as before
 
 
+def look_alike_pair(env: CampusNavEnv, goal: int) -> tuple[int, int]:
+    """Two intersections four hops apart or more (neither the goal nor next to it) with a road in one compass slot
+    that leads to two different places."""
+    slots, to_goal = env.graph.map.slots, env.node_distances(goal)
+    for first in range(env.graph.n_nodes):
+        apart = env.graph.hops_to(first)
+        for second in np.flatnonzero(apart >= 4).tolist():
+            leads = (slots[first] >= 0) & (slots[second] >= 0) & (slots[first] != slots[second])
+            if leads.any() and min(to_goal[first], to_goal[second]) >= 2:
+                return first, second
+    raise AssertionError("no two such intersections")
+
+
+def look_alike(env: CampusNavEnv, observations: dict[str, np.ndarray], nodes: np.ndarray, pair: tuple[int, int]) -> Any:
+    """The batch (changed in place) in a world where the pair's second intersection pictures its first in three of
+    its four compass views (all but the west): two look-alike places, told apart by one view."""
+    first, second = pair
+    shared = env.observation_at(first, env.headings_at(first)[0], env.goal_nodes[0])["views"].reshape(4, -1)[:3]
+    observations["views"].reshape(len(nodes), 4, -1)[np.asarray(nodes) == second, :3] = shared  # views in compass order
+    return observations
+
+
+def look_alike_transitions(env: CampusNavEnv, goal: int, pair: tuple[int, int], seed: int) -> tuple[Any, ...]:
+    """:func:`noisy_transitions` of every (state, action) but the goal's, in the world of :func:`look_alike`."""
+    n_states, n_actions = env.graph.transition_table.shape
+    states, actions = np.repeat(np.arange(n_states), n_actions), np.tile(np.arange(n_actions), n_states)
+    keep = env.graph.map.state_nodes[states] != goal
+    states, actions = states[keep], actions[keep]
+    obs, actions, following, rewards, arrived, _ = transitions(env, goal, states, actions)
+    nodes, (next_states, _) = env.graph.map.state_nodes, env.graph.move(states, actions)
+    look_alike(env, obs, nodes[states], pair)
+    look_alike(env, following, nodes[next_states], pair)
+    return with_noise(obs, seed), actions, with_noise(following, seed + 1), rewards, arrived, arrived
+
+
+def test_look_alike_places_remembered_as_one_state_split_in_two_once_a_road_leads_from_it_to_two_places(
+    plain_env: CampusNavEnv,
+) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    pair = look_alike_pair(plain_env, goal)
+
+    def state_of(node: int, heading: int) -> int:
+        observation = look_alike(
+            plain_env, _batch(plain_env.observation_at(node, heading, goal)), np.array([node]), pair
+        )
+        return int(memory.states_of(with_noise(observation, seed=node + heading))[0])
+
+    memory = RouteMemory.for_env(plain_env)
+    memory.add_batch(*look_alike_transitions(plain_env, goal, pair, seed=0))
+    # The second place's first picture was the first's state (three views of four alike); then the roads from that
+    # state led to two places at each heading: two places, told apart by their west views
+    assert memory.split == 1 and not memory.aliased and memory.merged == 0
+    memory.add_batch(*look_alike_transitions(plain_env, goal, pair, seed=10))  # what the split forgot, explored anew
+    assert memory.statistics()["states"] == plain_env.graph.n_nodes
+    first, second = ({state_of(node, heading) for heading in plain_env.headings_at(node)} for node in pair)
+    assert len(first) == len(second) == 1 and first != second and -1 not in first | second
+    nodes, headings = every_start(plain_env, goal)
+    lengths = [
+        len(
+            memory.route_from(
+                _first(look_alike(plain_env, _batch(plain_env.observation_at(*start, goal)), start[:1], pair))
+            )
+        )
+        for start in zip(nodes, headings, strict=True)
+    ]
+    np.testing.assert_array_equal(lengths, plain_env.node_distances(goal)[nodes])  # every route shortest, both places
+
+
 def test_one_try_per_road_and_per_empty_slot_routes_every_start_at_every_heading(plain_env: CampusNavEnv) -> None:
     _, goal = plain_env.resolve_goal("Dreese Lab")
     states, actions, roads = once_per_slot(plain_env, goal)
@@ -548,6 +616,17 @@ def test_a_goal_is_not_where_its_episode_went_on(goal_env: CampusNavGoalEnv) -> 
     into["desired_goal"] = night["desired_goal"]
     memory.add_batch(into, np.array([0]), into, np.array([-0.01]), np.array([False]), np.array([False]))
     assert int(memory.goal_states(_first(night))[0]) not in (first, -1)
+
+
+def test_routes_say_which_observations_are_at_a_place_the_memory_takes_for_their_goal(plain_env) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    memory = RouteMemory.for_env(plain_env)
+    explore_fully(plain_env, memory, goal, through_goal=True)
+    nodes, headings = plain_env.graph.map.state_nodes, plain_env.graph.map.state_headings
+    observations = plain_env.observations_at(nodes, headings, goal)
+    actions, arrived = memory.routes(observations)
+    np.testing.assert_array_equal(arrived, nodes == goal)  # the goal's place at every heading, nowhere else
+    np.testing.assert_array_equal(actions, memory.route_actions(observations))
 
 
 class SecondPictureMatcher:

@@ -141,6 +141,25 @@ def test_two_states_shown_to_be_one_place_are_handed_over_and_merge_into_one() -
     assert edges.twins == set() and edges.aliased == set()
 
 
+def test_an_aliased_state_split_in_two_keeps_one_end_of_its_slot_and_its_sibling_the_other() -> None:
+    edges = two_way()
+    edges.ensure(6)
+    for _ in range(2):  # east from "0" leads to 1 and to 2 by turns, twice each: two places remembered as one
+        edges.record(0, 1, following=1, arrival=1, dead=False)
+        edges.record(0, 0, following=4, arrival=0, dead=False)
+        edges.record(0, 1, following=2, arrival=1, dead=False)
+    assert edges.aliased == {0} and edges.alias_of(0, lambda a, b: False) == (1, 1, 2)  # the first seen first on a tie
+    assert (0, 1, 2) in edges.disputed  # for the caller, who knows the pictures
+    edges.split(0, slot=1, sibling=5, moved=2)
+    assert edges.aliased == set() and edges.alias_of(0, lambda a, b: False) is None
+    assert edges.outcome[0, 1] == Outcome.DRIVEN and edges.target[0, 1] == 1
+    assert edges.outcome[5, 1] == Outcome.DRIVEN and edges.target[5, 1] == 2
+    assert edges.target[1, 3] == 0 and edges.target[2, 3] == 5  # each way back leads to its own place
+    assert edges.outcome[0, 0] == Outcome.DRIVEN and edges.target[0, 0] == 4  # the state keeps its other moves
+    assert (edges.outcome[5, [0, 2, 3]] == Outcome.UNTRIED).all()  # the sibling's are to be explored
+    assert edges.moves(np.array([0, 5]))[:, 1].all()
+
+
 def test_dead_ends_and_moves_outside_the_memory_are_kept_apart_from_moves() -> None:
     edges = EdgeStore(2)
     edges.ensure(2)

@@ -485,6 +485,56 @@ def test_evaluation_hands_the_recogniser_the_place_each_envs_last_move_leads_to(
     assert len(expected_right) >= 5 and all(expected_right)  # every prior named where the agent then was
 
 
+def test_route_evaluation_of_the_model_hands_each_route_the_place_its_last_move_leads_to() -> None:
+    env = CampusNavEnv(**SMALL)
+    model = RouteMemoryDQN("MultiInputPolicy", env, learning_starts=100, exploration_fraction=1.0, seed=0, **NET)
+    model.learn(800)
+    memory, checked = model.memory, []
+    states_of = memory.states_of
+
+    def spy(observations: Any, *, add: bool = False, expected: np.ndarray | None = None) -> np.ndarray:
+        states = states_of(observations, add=add, expected=expected)
+        if expected is not None and (expected >= 0).any():
+            checked.append(bool((expected[expected >= 0] == states_of(observations)[expected >= 0]).all()))
+        return states
+
+    memory.states_of = spy
+    report = evaluate_routes(env, model, chunk_size=32)  # routes of every length: rows drop at every step
+    assert report.routes and len(checked) >= 10 and all(checked)  # each route's prior: where that route then was
+
+
+def test_an_episode_that_goes_on_where_the_memory_placed_its_goal_is_the_algorithms_until_it_ends() -> None:
+    env = CampusNavEnv(**SMALL)
+    model = RouteMemoryDQN("MultiInputPolicy", env, learning_starts=100, exploration_fraction=1.0, seed=0, **NET)
+    model.learn(800)
+    memory = model.memory
+    nodes, headings = env.graph.map.state_nodes, env.graph.map.state_headings
+    batch = env.observations_at(nodes, headings, env.goal_nodes[0])
+    routed = memory.route_actions(batch) >= 0
+    assert routed.sum() >= 10
+    critics = model.policy.predict(batch, deterministic=True)[0]
+    routes = memory.routes
+    wrong = np.zeros(nodes.size, dtype=bool)
+    wrong[np.flatnonzero(routed)[:5]] = True  # the memory takes these places for the goal: a wrong match, say
+
+    def believing(*args: Any, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+        actions, _ = routes(*args, **kwargs)
+        return actions, wrong.copy()
+
+    memory.routes = believing
+    first, state = model.predict(batch, episode_start=np.ones(nodes.size, dtype=bool), deterministic=True)
+    np.testing.assert_array_equal(first[wrong], critics[wrong])  # the episode went on there: the goal is elsewhere
+    was_wrong, wrong[:] = wrong.copy(), False  # next step: the same episodes, each at another place
+    elsewhere = np.roll(np.arange(nodes.size), 37)
+    moved = env.observations_at(nodes[elsewhere], headings[elsewhere], env.goal_nodes[0])
+    later, _ = model.predict(moved, state=state, episode_start=np.zeros(nodes.size, dtype=bool), deterministic=True)
+    critics_there = model.policy.predict(moved, deterministic=True)[0]
+    np.testing.assert_array_equal(later[was_wrong], critics_there[was_wrong])  # for the rest of the episode
+    assert (later[~was_wrong] != critics_there[~was_wrong]).any()  # the others: the memory's routes
+    again, _ = model.predict(batch, episode_start=np.ones(nodes.size, dtype=bool), deterministic=True)
+    np.testing.assert_array_equal(again[routed], memory.route_actions(batch)[routed])  # a new episode: the memory's
+
+
 def test_sb3s_evaluate_policy_passes_episode_starts_and_the_guard_keeps_each_env_apart() -> None:
     env = CampusNavEnv(visible_closures=True, **SMALL)
     model = RouteMemoryDQN("MultiInputPolicy", env, learning_starts=100, seed=0, **NET)

@@ -382,6 +382,38 @@ def test_two_places_merged_are_one_recognised_by_either_picture_and_the_merged_o
     assert copy.recognise(odd)[0].tolist() == [7] and copy.live_states().size == 41  # saved, merged; and the new one
 
 
+def test_look_alike_places_split_by_the_graph_are_told_apart_by_the_view_they_differ_in() -> None:
+    places = world(40)
+    recogniser = calibrated(places[:39])
+    look_alike = places[0].copy()  # place 0 but for its last view
+    look_alike.reshape(VIEWS, WIDTH)[3] = places[39].reshape(VIEWS, WIDTH)[3]
+    both = np.stack([places[0], look_alike])
+    first_look = visits(both, np.array([1]), seed=3)
+    assert recogniser.recognise(first_look, add=True)[0].tolist() == [0]  # three views of four alike: one place
+    for seed in range(2):  # the graph's evidence: pictures of each side (where a road from the state led)
+        recogniser.witness(0, "north to A", visits(both, np.array([0]), seed=10 + seed)[0])
+        recogniser.witness(0, "north to B", visits(both, np.array([1]), seed=20 + seed)[0])
+    sibling = recogniser.split(0, "north to A", "north to B")
+    assert sibling == 39 and recogniser.siblings(0) == {39} and recogniser.siblings(39) == {0}
+    for seed in range(5):  # fresh pictures, remembered or asked, with or without the prior: each side its own
+        for side, state in ((0, 0), (1, 39)):
+            picture = visits(both, np.array([side]), seed=30 + seed)
+            assert recogniser.recognise(picture)[0].tolist() == [state]
+            assert recogniser.recognise(picture, add=True, expected=np.array([0]))[0].tolist() == [state]
+    assert recogniser.recognise(first_look)[0].tolist() == [39]  # the state's exact pictures were forgotten
+    assert pickle.loads(pickle.dumps(recogniser)).recognise(first_look)[0].tolist() == [39]
+
+
+def test_a_state_whose_sides_picture_one_place_is_not_split() -> None:
+    places = world(40)
+    recogniser = calibrated(places)
+    for seed in range(2):
+        recogniser.witness(5, "east to A", visits(places, np.array([5]), seed=10 + seed)[0])
+        recogniser.witness(5, "east to B", visits(places, np.array([5]), seed=20 + seed)[0])
+    assert recogniser.split(5, "east to A", "east to B") == -1 and recogniser.n_states == 40  # nothing tells them apart
+    assert recogniser.split(6, "east to A", "east to B") == -1  # nothing witnessed
+
+
 def test_bad_pictures_are_named() -> None:
     with pytest.raises(ValueError, match="does not split into 3 equal views"):
         PlaceRecogniser(64, 3)

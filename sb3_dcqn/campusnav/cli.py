@@ -32,11 +32,8 @@ from sb3_dcqn.campusnav.settings import DEFAULT_ENV, campusnav_env_ids
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
 if TYPE_CHECKING:
-    import numpy as np
-
     from campusnav_env import CampusNavEnv
     from sb3_dcqn.campusnav.runs import Run
-    from sb3_dcqn.dcqn import DCQN
 
 __all__ = ["DESCRIPTION", "CommandError", "Interrupted", "build_parser", "campusnav_env_ids", "main", "run"]
 
@@ -167,13 +164,6 @@ def _cmd_readapt(request: Request) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------------------ evaluate, draw, roads
-def _greedy_policy(model: DCQN) -> Any:
-    def policy(observations: Any) -> np.ndarray:
-        return model.predict(observations, deterministic=True)[0]
-
-    return policy
-
-
 def _picture_line(picture: Path, asked: str | None) -> str:
     kept = "" if asked is None or Path(asked) == picture else f" ({asked} exists, kept; --force writes over it)"
     return f"{picture}{kept}"
@@ -207,7 +197,7 @@ def _cmd_evaluate(request: Request) -> dict[str, Any]:
     check_start(nav, request.start, goal)
     model = load_model(path, settings, nav, device=request.device)
     start = time.perf_counter()
-    report = evaluate_routes(nav, _greedy_policy(model))
+    report = evaluate_routes(nav, model)
     seconds = time.perf_counter() - start
     closed = ", ".join(f"{u}-{v}" for u, v in sorted(nav.closed_roads)) or "none"
     print(f"{path} on {settings.describe()}; roads closed: {closed}; {seconds:.2f} s\n")
@@ -292,7 +282,7 @@ def _cmd_draw(request: Request) -> dict[str, Any]:
     route, report = None, None
     if path is not None:
         model = load_model(path, settings, nav, device=request.device)
-        report = evaluate_routes(nav, _greedy_policy(model), goals=[goal])
+        report = evaluate_routes(nav, model, goals=[goal])
         route = pick_route(report.routes, goal=goal, start=request.start, heading=request.heading)
     image = route_picture(nav, goal, route, request.start, request.size, score=report, node_ids=request.node_ids)
     picture = write_figure(picture_path, image)

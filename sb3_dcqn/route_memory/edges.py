@@ -11,7 +11,8 @@ A slot that led to two different states, each at least twice, marks its state *a
 the same): routes never go through it. One odd outcome (a glitch) leaves it alone and the latest outcome wins, and so
 do two states that are one place remembered twice: the caller says they look alike, or another move has led to both
 of them too (a place whose pictures vary more than the recogniser's thresholds; two twin places behind two sources
-that each picture alike are far less likely).
+that each picture alike are far less likely). Each disputed outcome is listed in :attr:`EdgeStore.disputed` for the
+caller (who knows the pictures), and an aliased state the caller can tell apart is :meth:`EdgeStore.split` in two.
 
 A closed slot is a fact with an age: ``last_tried`` (the memory's clock, in transitions) and ``failures`` (bumps in a
 row) say when it may be tried again (:meth:`EdgeStore.retry_due`): ``retry_after`` transitions after the first bump,
@@ -88,6 +89,8 @@ class EdgeStore:
         self.aliased: set[int] = set()
         self.twins: set[tuple[int, int]] = set()  # pairs of states shown to be one place, for the caller to merge
         self._disputes: dict[tuple[int, int], dict[int, int]] = {}
+        # Disputed outcomes since the caller last took them: (state, slot, the state it led to)
+        self.disputed: list[tuple[int, int, int]] = []
         self.n_rows = 0
         self.outcome = np.zeros((0, n_slots), dtype=np.int8)
         self.target = np.zeros((0, n_slots), dtype=np.int32)
@@ -202,22 +205,72 @@ class EdgeStore:
         the state is aliased; a state aliased before is cleared where its states have since shown to be one place."""
         counts = self._disputes.setdefault((state, slot), {known: 1} if known >= 0 else {})
         counts[following] = counts.get(following, 0) + 1
-        for aliased in [other for other in self.aliased if other != state]:
-            if not any(self._splits(key, alike) for key in self._disputes if key[0] == aliased):
-                self.aliased.discard(aliased)
-                self.version += 1
+        self.disputed.append((state, slot, following))
+        self._settle(alike, but=state)
         if state not in self.aliased and self._splits((state, slot), alike):
             self.aliased.add(state)
             self.version += 1
 
+    def _settle(self, alike: Callable[[int, int], bool], but: int = -1) -> None:
+        """Aliased states (but ``but``) whose disputed moves have since shown their states to be one place (merged, or
+        alike) are aliased no more."""
+        for aliased in [other for other in self.aliased if other != but]:
+            if not any(self._splits(key, alike) for key in self._disputes if key[0] == aliased):
+                self.aliased.discard(aliased)
+                self.version += 1
+
     def _splits(self, source: tuple[int, int], alike: Callable[[int, int], bool]) -> bool:
         """Whether a disputed move led to two states, twice each, that are not one place remembered twice."""
-        frequent = [target for target, count in self._disputes[source].items() if count >= 2]
-        return any(
-            not alike(first, second) and not self._one_place(first, second, source)
-            for index, first in enumerate(frequent)
-            for second in frequent[index + 1 :]
-        )
+        return self._two_places(source, alike) is not None
+
+    def _two_places(self, source: tuple[int, int], alike: Callable[[int, int], bool]) -> tuple[int, int] | None:
+        """Two states a disputed move led to, twice each, that are not one place remembered twice (the most frequent
+        first), else ``None``."""
+        counts = self._disputes[source]
+        frequent = sorted((target for target, count in counts.items() if count >= 2), key=lambda t: -counts[t])
+        for index, first in enumerate(frequent):
+            for second in frequent[index + 1 :]:
+                if not alike(first, second) and not self._one_place(first, second, source):
+                    return first, second
+        return None
+
+    def alias_of(self, state: int, alike: Callable[[int, int], bool]) -> tuple[int, int, int] | None:
+        """Why an aliased state is aliased: a slot of it and two states that slot led to, twice each (the slot's more
+        frequent first); ``None`` for a state not aliased."""
+        if state not in self.aliased:
+            return None
+        for key in [key for key in self._disputes if key[0] == state]:
+            places = self._two_places(key, alike)
+            if places is not None:
+                return key[1], places[0], places[1]
+        return None
+
+    def split(self, state: int, slot: int, sibling: int, moved: int) -> None:
+        """
+        An aliased ``state`` found to be two places: the one where ``slot`` led to ``moved`` is ``sibling`` (a new
+        state). The slot leads to ``moved`` from the sibling and to its other place from ``state``, and ``moved``'s
+        way back leads to the sibling. The state keeps its other moves (most were made from its more frequent side; a
+        wrong one is disputed when driven again); the sibling's other slots are untried, to be explored. Moves into
+        ``state`` stay until driven again (the caller recognises their end anew).
+        """
+        self.ensure(max(state, sibling, moved) + 1)
+        counts = self._disputes.pop((state, slot), {})
+        kept = max((target for target in counts if target != moved), key=lambda t: counts[t], default=-1)
+        latest, arrival = int(self.target[state, slot]), int(self.arrival[state, slot])  # the frame at the latest end
+        for name, fill in _FILL.items():
+            getattr(self, name)[sibling] = fill
+        self.outcome[state, slot] = Outcome.DRIVEN if kept >= 0 else Outcome.UNTRIED
+        self.target[state, slot] = kept
+        self.arrival[state, slot] = arrival if latest == kept else -1
+        self.outcome[sibling, slot], self.target[sibling, slot] = Outcome.DRIVEN, moved
+        self.arrival[sibling, slot] = arrival if latest == moved else -1
+        self.last_tried[[state, sibling], slot] = self.clock
+        back = self.back_slot(sibling, slot)
+        if back is not None and self.target[moved, back] == state:
+            self.target[moved, back] = sibling
+        self.aliased.discard(state)
+        self.version += 1
+        self.lost_move_version = self.version
 
     def _one_place(self, first: int, second: int, source: tuple[int, int]) -> bool:
         """Whether another move has led to both states too: one place remembered as two (its pictures vary more than
@@ -310,6 +363,7 @@ class EdgeStore:
 
     def __setstate__(self, state: dict) -> None:
         state.setdefault("twins", set())  # saved before states were merged
+        state.setdefault("disputed", [])  # saved before states were split
         state.setdefault("one_place_twice", False)
         self.__dict__.update(state)
         self._grow(max(1024, 2 * self.n_rows))

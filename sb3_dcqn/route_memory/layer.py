@@ -352,7 +352,10 @@ class RouteMemoryLayer:
         evaluation = not rollout and episode_start is not None
         if evaluation:  # each env's last place and move say where it should be now (the graph's prior)
             starts = np.asarray(episode_start, dtype=bool).reshape(-1)
-            if self._bumps is None or self._bumps.n_envs != starts.size:
+            guard = _BumpGuard.of(state)
+            if guard is not None and guard.n_envs == starts.size:
+                self._bumps, state = guard, None  # the caller's (one record per env), not the algorithm's state
+            elif self._bumps is None or self._bumps.n_envs != starts.size:
                 self._bumps = _BumpGuard(starts.size)
             self._bumps.start(starts)
             states = self.memory.states_of(batch, expected=self._bumps.expected_states(self.memory))
@@ -366,7 +369,9 @@ class RouteMemoryLayer:
             actions = self.memory.route_actions(batch, staleness, retry=rollout, states=states)
             actions = np.where(untried >= 0, untried, actions)
         else:
-            actions = self.memory.route_actions(batch, staleness, retry=rollout, states=states)
+            actions, arrived = self.memory.routes(batch, staleness, retry=rollout, states=states)
+            if evaluation:
+                actions = self._beyond_a_wrong_goal(arrived, actions)
         if rollout and states is not None:
             assert self._explorer is not None
             # A trip to the untried, once begun (epsilon's draw), is driven to its end: one step of it between route
@@ -376,7 +381,20 @@ class RouteMemoryLayer:
         actions, state = self._greedy_where(actions < 0, actions, batch, state, episode_start)
         if evaluation:
             actions = self._without_repeated_bumps(batch, actions, states)
+            assert self._bumps is not None
+            state = self._bumps.state() if state is None else state
         return (actions if batched else actions[0]), state
+
+    def _beyond_a_wrong_goal(self, arrived: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """``actions`` with -1 (the algorithm acts) for the rest of an episode that went on at the place the memory
+        took for its goal (``arrived``: a goal picture matched to a wrong place, say): evaluation does not learn, so
+        the memory's route would lead there again (training rules the place out instead)."""
+        assert self._bumps is not None
+        records = self._bumps.envs
+        for env in np.flatnonzero(arrived):
+            records[env].wrong_goal = True
+        lost = np.array([record.wrong_goal for record in records], dtype=bool)
+        return np.where(lost, -1, actions)
 
     def _without_repeated_bumps(self, batch: Any, actions: np.ndarray, states: np.ndarray) -> np.ndarray:
         """``actions`` with a move that just left its env where it was replaced by the best other action (``states``:
@@ -473,43 +491,83 @@ class _BumpGuard:
     not know it (a deterministic world shows the same one after a bump), less its heading where the frame is declared
     (the place's views are in compass order, its slots compass slots).
 
+    The guard is the evaluation's ``state`` of ``predict`` (one object per env, a row each: a caller that drops the
+    rows of finished episodes, as route evaluation does, drops theirs); a caller that passes no state back has the
+    model's own guard, kept between calls.
+
     :param n_envs: Number of envs
+    :param envs: The envs' records, as :meth:`state` gave them (instead of ``n_envs`` fresh ones)
     """
 
-    def __init__(self, n_envs: int) -> None:
-        self.n_envs = n_envs
-        self._last: list[tuple[Hashable, int] | None] = [None] * n_envs
-        self._banned: list[set[tuple[Hashable, int]]] = [set() for _ in range(n_envs)]
+    def __init__(self, n_envs: int = 0, envs: np.ndarray | None = None) -> None:
+        self.envs = envs if envs is not None else _records(n_envs)
+
+    @property
+    def n_envs(self) -> int:
+        return len(self.envs)
+
+    @staticmethod
+    def of(state: Any) -> _BumpGuard | None:
+        """The guard a ``predict`` state holds (``None``: it holds none)."""
+        if isinstance(state, tuple) and len(state) == 1 and isinstance(state[0], np.ndarray):
+            records = state[0]
+            if records.dtype == object and records.size and isinstance(records.flat[0], _EnvMoves):
+                return _BumpGuard(envs=records.reshape(-1))
+        return None
+
+    def state(self) -> tuple[np.ndarray]:
+        """The guard as ``predict``'s state: one record per env."""
+        return (self.envs,)
 
     def start(self, episode_start: np.ndarray) -> None:
         """Envs that start an episode remember nothing."""
         for env in np.flatnonzero(episode_start):
-            self._last[env] = None
-            self._banned[env].clear()
+            self.envs[env] = _EnvMoves()
 
     def observe(self, places: list[Hashable]) -> None:
         """An env still at the place of its last move bumped: that move is banned at that place."""
-        for env, last in enumerate(self._last):
-            if last is not None and last[0] == places[env]:
-                self._banned[env].add(last)
+        for record, place in zip(self.envs, places, strict=True):
+            if record.last is not None and record.last[0] == place:
+                record.banned.add(record.last)
 
     def banned_slots(self, places: list[Hashable], n_slots: int) -> np.ndarray:
         """``(envs, slots)``: the banned slots at each env's place."""
         banned = np.zeros((self.n_envs, n_slots), dtype=bool)
-        for env, moves in enumerate(self._banned):
-            for place, slot in moves:
+        for env, record in enumerate(self.envs):
+            for place, slot in record.banned:
                 banned[env, slot] |= place == places[env]
         return banned
 
     def remember(self, places: list[Hashable], slots: np.ndarray) -> None:
         """Each env's move now."""
-        self._last = [(place, int(slot)) for place, slot in zip(places, slots.tolist(), strict=True)]
+        for record, place, slot in zip(self.envs, places, slots.tolist(), strict=True):
+            record.last = (place, int(slot))
 
     def expected_states(self, memory: RouteMemory) -> np.ndarray:
         """Per env, the state its last move should have led to by the memory (-1: none, or a new episode)."""
-        known = [last if last is not None and isinstance(last[0], int) else (-1, -1) for last in self._last]
+        lasts = [record.last for record in self.envs]
+        known = [last if last is not None and isinstance(last[0], int) else (-1, -1) for last in lasts]
         states, slots = np.array(known, dtype=np.int64).reshape(-1, 2).T
         return memory.expected_states(states, slots)
+
+
+class _EnvMoves:
+    """One env's episode for the bump guard: its last (place, slot), the moves that bumped, and whether it went on at
+    the place the memory took for its goal."""
+
+    __slots__ = ("banned", "last", "wrong_goal")
+
+    def __init__(self) -> None:
+        self.last: tuple[Hashable, int] | None = None
+        self.banned: set[tuple[Hashable, int]] = set()
+        self.wrong_goal = False
+
+
+def _records(n_envs: int) -> np.ndarray:
+    records = np.empty(n_envs, dtype=object)
+    for env in range(n_envs):
+        records[env] = _EnvMoves()
+    return records
 
 
 def _guard_places(batch: Any, states: np.ndarray, frame_key: str | None = None) -> list[Hashable]:

@@ -198,6 +198,7 @@ class RouteMemory:
         self.stepped_aside = False
         self.aside_reason = ""
         self.merged = 0  # pairs of states merged into one place
+        self.split = 0  # states split into two places
         self._guard: deque[np.ndarray] = deque()  # per recorded batch: (transitions, new states, unsure pictures)
         self._guard_totals = np.zeros(3, dtype=np.int64)
 
@@ -291,6 +292,7 @@ class RouteMemory:
         return {
             "states": float(self.recogniser.live_states().size),
             "merged": float(self.merged),
+            "split": float(self.split),
             "tried": float(self.n_tried),
             "aliased": float(len(self.aliased)),
             "new_states_per_transition": new / transitions if transitions else 0.0,
@@ -480,17 +482,51 @@ class RouteMemory:
         dead = terminated & ~success & (not self.goals.conditioned)
         arrivals = self._frames(next_observations)
         unsure = (answers == Answer.UNSURE) | (next_answers == Answer.UNSURE)
-        for state, slot, following, arrival, is_dead, skip in zip(
+        disputed: set[int] = set()
+        for index, (state, slot, following, arrival, is_dead, skip) in enumerate(zip(
             states.tolist(), slots.tolist(), next_states.tolist(), arrivals.tolist(), dead.tolist(), unsure.tolist(),
             strict=True,
-        ):  # fmt: skip
+        )):  # fmt: skip
             if skip or state < 0:  # an unsure picture: nothing is recorded (the clock still counts)
                 self.edges.clock += 1
                 continue
             self.edges.ensure(self.n_states)
             self.edges.record(state, slot, following, arrival, is_dead, self.recogniser.alike)
+            if self.edges.disputed:
+                disputed |= self._witness_disputes(observations, next_observations, index, state)
         self._count(actions.size, self.n_states - before, int(unsure.sum()))
         self._merge_twins()
+        self._split_aliases(disputed)
+
+    def _witness_disputes(self, observations: Any, next_observations: Any, index: int, state: int) -> set[int]:
+        """Show the recogniser the picture of each state whose move was just disputed, labelled by where the move led
+        (a move's start, or its end where the way back was disputed); returns those states."""
+        witnessed = set()
+        for disputed, slot, led_to in self.edges.disputed if self.recogniser.similar else ():
+            picture = self._pictures(select_rows(observations if disputed == state else next_observations, [index]))
+            self.recogniser.witness(disputed, (slot, led_to), picture[0])
+            witnessed.add(disputed)
+        self.edges.disputed.clear()
+        return witnessed
+
+    def _split_aliases(self, states: set[int]) -> None:
+        """
+        Aliased states (among ``states``) whose two sides (the pictures witnessed each time the slot that led to two
+        places led to one or the other) differ in a view by ``new`` or more were two look-alike intersections
+        remembered as one: each becomes a place of its own. Sides alike in every view leave the state aliased (its
+        slot's two places may be one place remembered twice, or a picture of one taken for the other: no evidence
+        to merge them on).
+        """
+        for state in sorted(states & self.edges.aliased):
+            alias = self.edges.alias_of(state, self.recogniser.alike)
+            if alias is None:
+                continue
+            slot, kept, moved = alias
+            sibling = self.recogniser.split(state, (slot, kept), (slot, moved))
+            if sibling >= 0:
+                self.edges.split(state, slot, sibling, moved)
+                self.cache.clear()
+                self.split += 1
 
     def _merge_twins(self) -> None:
         """States the moves showed to be one place (:attr:`EdgeStore.twins`) become one: the older keeps it."""
@@ -595,10 +631,18 @@ class RouteMemory:
             it (training's rollouts: a reopened road is found again; evaluation never drives a road seen closed)
         :param states: The observations' states where the caller has recognised them (:meth:`states_of`)
         """
+        return self.routes(observations, staleness, retry, states)[0]
+
+    def routes(
+        self, observations: Any, staleness: int = 0, retry: bool = False, states: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`route_actions`, and whether each observation's state is one where the memory places its goal (an
+        episode that goes on there says the goal is elsewhere)."""
         states = self.states_of(observations) if states is None else np.asarray(states, dtype=np.int64)
         slots = np.full(states.size, -1, dtype=np.int64)
+        arrived = np.zeros(states.size, dtype=bool)
         if self.stepped_aside or self.n_states == 0:
-            return slots
+            return slots, arrived
         self.edges.ensure(self.n_states)
         by_goal: dict[bytes, list[int]] = {}
         for index, goal in enumerate(self.goal_digests(observations)):
@@ -608,9 +652,11 @@ class RouteMemory:
             key, is_target = self._goal_search(goal, observations, indices[0], retry)
             hops = self.planner.cached_hops(key, is_target, staleness, retry)
             slots[rows] = self.planner.first_slots(states[rows], hops, is_target, retry)
+            goal_states = self._goal_states(goal, observations, indices[0])
+            arrived[rows] = np.isin(states[rows], goal_states) & (states[rows] >= 0)
         if retry:  # passing by a closed road whose retry is due: try it (one bump per backoff, where still closed)
             slots = np.where((aged := self._retry_due_roads(states)) >= 0, aged, slots)
-        return self.slot_actions(observations, slots)
+        return self.slot_actions(observations, slots), arrived
 
     def _retry_due_roads(self, states: np.ndarray) -> np.ndarray:
         """Per state, the lowest closed slot whose road led somewhere and whose retry is due (-1: none)."""
@@ -707,6 +753,7 @@ class RouteMemory:
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         state.setdefault("merged", 0)  # saved before states were merged
+        state.setdefault("split", 0)  # saved before states were split
         if "edges" not in state:  # saved by an earlier release: its facts carried over, recognised bit for bit
             from sb3_dcqn.route_memory.legacy import load_earlier_memory
 

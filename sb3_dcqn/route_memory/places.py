@@ -33,6 +33,13 @@ that now leads elsewhere).
 places lead to both by turns), the place keeps both prototypes: either kind of picture is the place, and the other
 state is never answered again.
 
+**Places split.** Where the graph shows one state to be two places (a move from it led to two places by turns: two
+look-alike intersections that share all views but one), the caller has shown the recogniser the pictures of each
+side (:meth:`PlaceRecogniser.witness`) and :meth:`PlaceRecogniser.split` gives the second place a state of its own
+where the two sides' mean pictures differ clearly in a view. The two are *siblings*: a picture near both (the views
+they share) is answered by the view that tells them apart, where one is clearly nearer there (the ratio), else it is
+unsure; and the graph's prior never settles a sibling without that look (it was the prior that kept them one).
+
 **Calibration on the agent's own pictures.** The thresholds come from the pictures the memory is shown, not from a
 setting: the latest distinct pictures (a window) and the count of exact repeats among them. The distance between two
 pictures of the window is either that of two visits of one place (small: noise, light) or of two places (large), so the
@@ -82,6 +89,7 @@ GENUINE_QUANTILE = 90.0
 IMPOSTOR_QUANTILE = 10.0
 CALIBRATION_SAMPLE = 256  # pictures of the window whose every pair is measured (32,640 pairs)
 MIN_GROUP = 3  # pairs on each side of the split, at least
+MAX_WITNESSED_STATES = 256  # states whose sides' pictures are kept for a split (the oldest forgotten)
 _EXACT_FLOOR = 1e-4  # an exact repeat's distance, relative to the median distance between places (for logarithms)
 _IDENTICAL_VIEW = 1e-9  # a view's squared distance below this share of its squared norms: the same view, float error
 
@@ -155,6 +163,9 @@ class PlaceRecogniser:
         self._exact: dict[bytes, int] = {}  # a picture's digest: the prototype it was recognised by
         self._owner = np.zeros(0, dtype=np.int64)  # per prototype: its place (itself, until merged into another)
         self._members: dict[int, list[int]] = {}  # a place with several prototypes (merged): all of them
+        self._siblings: dict[int, set[int]] = {}  # places split from one state: each one's look-alikes
+        # Per state, per side (the caller's label: where a move from it led), the sum and count of its pictures
+        self._witnessed: OrderedDict[int, dict[object, tuple[np.ndarray, int]]] = OrderedDict()
         self._recent: OrderedDict[bytes, int] = OrderedDict()  # pictures recognised lately (past the digest cap)
         self._digests_of = np.zeros(0, dtype=np.int8)  # per state: exact pictures remembered
         self._prototypes = np.zeros((views, 0, max(dim, 1) // views), dtype=np.float32)  # (view, state, features)
@@ -355,7 +366,7 @@ class PlaceRecogniser:
         if self.n_states == 0:
             return self._new(row, key, add), Answer.NEW
         assert self.known is not None
-        if 0 <= expected < self.n_states:
+        if 0 <= expected < self.n_states and expected not in self._siblings:  # a sibling is told apart by search
             members = self.members(expected)
             distances = self._exact_distances(row, members)
             if distances.min() <= self.known:
@@ -369,12 +380,17 @@ class PlaceRecogniser:
         assert self.known is not None and self.new is not None
         candidates = np.arange(self.n_states) if pool is None else pool
         # Each candidate's per-view distances, sorted: read by every rule below (the k-th is the place distance)
-        per_view = np.sort(self._per_view_distances(row, candidates), axis=0)
+        unsorted = self._per_view_distances(row, candidates)
+        per_view = np.sort(unsorted, axis=0)
         nearest, first, second = self._two_nearest(candidates, per_view[self.kth - 1])
+        told = self._told_apart(candidates, unsorted, per_view[self.kth - 1], self.known if add else self.new)
+        if told is not None:  # look-alike siblings: the view that tells them apart decides, not the views they share
+            if told >= 0:
+                return self._known(row, key, told, add), Answer.KNOWN
         # Within "known" of one place and clearly nearer it than any other (no second within "new", or Lowe's ratio)
-        if first <= self.known and (second >= self.new or first <= RATIO * second):
+        elif first <= self.known and (second >= self.new or first <= RATIO * second):
             return self._known(row, key, nearest, add), Answer.KNOWN
-        if not add:
+        elif not add:
             # A query (nothing is remembered) takes the clearly nearest place short of "new", or the one place the
             # picture matches but for two odd views: a wrong answer costs a step, not a place merged with another
             if first < self.new and first <= RATIO * second:
@@ -398,6 +414,35 @@ class PlaceRecogniser:
         if first >= self.new and (not add or self._unlike_every_place(row, pool, per_view)):  # a query adds none
             return self._new(row, key, add), Answer.NEW
         return -1, Answer.UNSURE
+
+    def _told_apart(
+        self, candidates: np.ndarray, per_view: np.ndarray, distances: np.ndarray, reach: float
+    ) -> int | None:
+        """
+        Where the two nearest places (place distances within ``new``) are look-alike siblings (split by the graph:
+        their prototypes share all views but one, which is ``new`` apart or more), the one clearly nearer (the ratio)
+        in that view and within ``reach``, else -1; ``None`` where they are no such pair.
+        """
+        assert self.new is not None
+        nearest = int(np.argmin(distances))
+        owner = int(self._owner[candidates[nearest]])
+        if owner not in self._siblings or distances[nearest] >= self.new:
+            return None
+        others = np.flatnonzero(self._owner[candidates] != owner)
+        if not others.size:
+            return None
+        first, second = nearest, int(others[np.argmin(distances[others])])
+        if distances[second] >= self.new or int(self._owner[candidates[second]]) not in self._siblings[owner]:
+            return None
+        apart = self._prototypes[:, candidates[first]] - self._prototypes[:, candidates[second]]
+        apart_views = np.sqrt((apart.astype(np.float64) ** 2).sum(axis=1))
+        view = int(np.argmax(apart_views))
+        if np.sort(apart_views)[self.kth - 1] >= self.new or apart_views[view] < self.new:
+            return None
+        near, far = sorted((first, second), key=lambda index: per_view[view, index])
+        if per_view[view, near] <= RATIO * per_view[view, far] and distances[near] <= reach:
+            return int(candidates[near])
+        return -1
 
     def _unlike_every_place(self, row: np.ndarray, pool: np.ndarray | None, pool_per_view: np.ndarray) -> bool:
         """
@@ -477,6 +522,12 @@ class PlaceRecogniser:
     def _new(self, row: np.ndarray, key: bytes, add: bool) -> int:
         if not add or self.n_states >= self.max_states:
             return -1
+        state = self._add_state(row)
+        self._remember_digest(key, state)
+        return state
+
+    def _add_state(self, row: np.ndarray) -> int:
+        """A new state pictured by ``row`` (its first picture)."""
         state = self.n_states
         if state == len(self._counts):
             self._grow(max(64, 2 * state))
@@ -487,7 +538,6 @@ class PlaceRecogniser:
         self._owner[state] = state
         self.n_states += 1
         self.version += 1
-        self._remember_digest(key, state)
         return state
 
     def _known(self, row: np.ndarray, key: bytes, state: int, add: bool) -> int:
@@ -552,7 +602,76 @@ class PlaceRecogniser:
         self._owner[members] = keep
         self._members[keep] = members
         self._members.pop(drop, None)
+        self._witnessed.pop(drop, None)
+        family = (self._siblings.pop(drop, set()) | self._siblings.get(keep, set()) | {keep}) - {drop}
+        for member in family:  # the place keeps the look-alikes of both
+            self._siblings[member] = family - {member}
+        if len(family) == 1:
+            self._siblings.pop(keep, None)
         self.version += 1
+
+    def witness(self, state: int, side: object, row: np.ndarray) -> None:
+        """
+        A picture of ``state`` taken where a move from it led to ``side`` (the caller's label, say the slot and the
+        state it led to): the sides' mean pictures are what :meth:`split` tells apart. Kept for the
+        ``MAX_WITNESSED_STATES`` states witnessed last.
+        """
+        if not self.similar or not self.live(state):
+            return
+        sides = self._witnessed.setdefault(state, {})
+        self._witnessed.move_to_end(state)
+        total, count = sides.get(side, (np.zeros(self.dim, dtype=np.float64), 0))
+        sides[side] = (total + self._as_rows(np.asarray(row)[None])[0], count + 1)
+        while len(self._witnessed) > MAX_WITNESSED_STATES:
+            self._witnessed.popitem(last=False)
+
+    def split(self, state: int, kept: object, other: object) -> int:
+        """
+        One state found to be two places (the caller's evidence: the graph): the pictures witnessed on side ``other``
+        become a new state, a sibling of ``state``, which keeps side ``kept``'s (their means are the two prototypes;
+        the state's exact pictures are forgotten, as they may be of either). Returns the new state, or -1 where the
+        two sides' mean pictures differ in no view by ``new`` or more (nothing to tell them apart by) or no state is
+        left.
+        """
+        apart = self.sides_apart(state, kept, other)
+        if apart is None or self.n_states >= self.max_states:
+            return -1
+        differ = apart >= self.new
+        if not differ.any():
+            return -1
+        kept_mean, other_mean = (self._side_mean(state, side) for side in (kept, other))
+        # The views the two share keep the state's prototype (the mean of many visits); those that tell them apart
+        # are each side's own
+        prototype = self._prototypes[:, state].copy()
+        prototype[differ] = other_mean[differ]
+        sibling = self._add_state(prototype.reshape(-1))
+        self._prototypes[differ, state] = kept_mean[differ]
+        self._sketch(state)
+        self._exact = {key: owner for key, owner in self._exact.items() if owner != state}
+        self._recent = OrderedDict((key, owner) for key, owner in self._recent.items() if owner != state)
+        self._digests_of[state] = 0
+        family = self._siblings.get(state, set()) | {state, sibling}
+        for member in family:
+            self._siblings[member] = family - {member}
+        del self._witnessed[state]
+        return sibling
+
+    def sides_apart(self, state: int, first: object, second: object) -> np.ndarray | None:
+        """Per view, the distance between the mean pictures witnessed on two sides of a state (``None``: a side not
+        witnessed, or no thresholds yet)."""
+        sides = self._witnessed.get(state, {})
+        if first not in sides or second not in sides or self.new is None:
+            return None
+        return np.sqrt(((self._side_mean(state, first) - self._side_mean(state, second)) ** 2).sum(axis=1))
+
+    def _side_mean(self, state: int, side: object) -> np.ndarray:
+        """``(views, features)``: the mean picture witnessed on one side of a state."""
+        total, count = self._witnessed[state][side]
+        return (total / count).reshape(self.views, -1)
+
+    def siblings(self, state: int) -> set[int]:
+        """The places split from the same state as ``state`` (look-alikes the graph told apart)."""
+        return set(self._siblings.get(state, ()))
 
     def live(self, state: int) -> bool:
         """Whether a state is a place (not merged into another)."""
@@ -599,4 +718,6 @@ class PlaceRecogniser:
         if "_owner" not in state:  # saved before places could merge: each prototype its own place
             state["_owner"] = np.arange(len(state["_counts"]), dtype=np.int64)
             state["_members"] = {}
+        state.setdefault("_siblings", {})  # saved before places could split
+        state.setdefault("_witnessed", OrderedDict())
         self.__dict__.update(state)
