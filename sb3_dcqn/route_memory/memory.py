@@ -22,7 +22,9 @@ driven road also records its way back (inferred), and a bump on a driven road cl
 at once. Pictures that vary between visits (light, cars, noise) are recognised by similarity; where they do not
 separate places at all, the memory says so once and steps aside (:attr:`RouteMemory.stepped_aside`). Two states
 that moves from two places lead to by turns are one place remembered twice (its pictures vary more than the
-thresholds): they are merged into one (:attr:`RouteMemory.merged` counts them), moves and goals included. **Poses, where
+thresholds): they are merged into one (:attr:`RouteMemory.merged` counts them), moves and goals included; one state
+whose slot led to two places by turns, pictured otherwise in a view on each side, is two look-alike places: it is
+split in two (:attr:`RouteMemory.split` counts them; see the recogniser's siblings). **Poses, where
 the env declares nothing**: a state is the exact observation without its goal keys (no similarity: an observation
 that carries a heading or a position is compared bit for bit), and slots are the actions.
 
