@@ -376,13 +376,15 @@ def _run_batch(
     if path is not None:
         path[:, 0] = state_nodes[starts]
     carried: Any = None  # a predictor's state, one row per running route
+    predictor = isinstance(policy, Predictor)
     for t in range(max_steps):
         if index.size == 0:
             break
         states = current[index]
         observations = env.observations_at(state_nodes[states], state_headings[states], goal)
         observations = wrapped_observations(observed, observations)
-        if isinstance(policy, Predictor):
+        if predictor:
+            assert isinstance(policy, Predictor)
             starts_now = np.full(index.size, t == 0)
             actions, carried = policy.predict(observations, state=carried, episode_start=starts_now, deterministic=True)
         else:

@@ -601,7 +601,10 @@ class RouteMemory:
     def _goal_search(self, goal: bytes, batch: Any, index: int, retry: bool = False) -> tuple[tuple[Any, ...], Any]:
         """The planner's key for the goal of observation ``index`` (its states in it: a search for where the goal
         was is never reused once it is placed elsewhere) and which moves reach it (a function of rows)."""
-        goal_states = self._goal_states(goal, batch, index)
+        return self._search_to(goal, self._goal_states(goal, batch, index), retry)
+
+    def _search_to(self, goal: bytes, goal_states: np.ndarray, retry: bool = False) -> tuple[tuple[Any, ...], Any]:
+        """:meth:`_goal_search` for a goal whose states are known."""
         arrived = np.zeros(self.edges.n_rows + 1, dtype=bool)
         arrived[goal_states] = True
 
@@ -651,10 +654,10 @@ class RouteMemory:
             by_goal.setdefault(goal, []).append(index)
         for goal, indices in by_goal.items():
             rows = np.array(indices)
-            key, is_target = self._goal_search(goal, observations, indices[0], retry)
+            goal_states = self._goal_states(goal, observations, indices[0])
+            key, is_target = self._search_to(goal, goal_states, retry)
             hops = self.planner.cached_hops(key, is_target, staleness, retry)
             slots[rows] = self.planner.first_slots(states[rows], hops, is_target, retry)
-            goal_states = self._goal_states(goal, observations, indices[0])
             arrived[rows] = np.isin(states[rows], goal_states) & (states[rows] >= 0)
         if retry:  # passing by a closed road whose retry is due: try it (one bump per backoff, where still closed)
             slots = np.where((aged := self._retry_due_roads(states)) >= 0, aged, slots)

@@ -424,6 +424,8 @@ class PlaceRecogniser:
         in that view and within ``reach``, else -1; ``None`` where they are no such pair.
         """
         assert self.new is not None
+        if not self._siblings:  # nothing split yet: the common case costs nothing
+            return None
         nearest = int(np.argmin(distances))
         owner = int(self._owner[candidates[nearest]])
         if owner not in self._siblings or distances[nearest] >= self.new:
@@ -603,11 +605,8 @@ class PlaceRecogniser:
         self._members[keep] = members
         self._members.pop(drop, None)
         self._witnessed.pop(drop, None)
-        family = (self._siblings.pop(drop, set()) | self._siblings.get(keep, set()) | {keep}) - {drop}
-        for member in family:  # the place keeps the look-alikes of both
-            self._siblings[member] = family - {member}
-        if len(family) == 1:
-            self._siblings.pop(keep, None)
+        # The place keeps the look-alikes of both
+        self._make_siblings((self._siblings.pop(drop, set()) | self._siblings.get(keep, set()) | {keep}) - {drop})
         self.version += 1
 
     def witness(self, state: int, side: object, row: np.ndarray) -> None:
@@ -650,11 +649,16 @@ class PlaceRecogniser:
         self._exact = {key: owner for key, owner in self._exact.items() if owner != state}
         self._recent = OrderedDict((key, owner) for key, owner in self._recent.items() if owner != state)
         self._digests_of[state] = 0
-        family = self._siblings.get(state, set()) | {state, sibling}
-        for member in family:
-            self._siblings[member] = family - {member}
+        self._make_siblings(self._siblings.get(state, set()) | {state, sibling})
         del self._witnessed[state]
         return sibling
+
+    def _make_siblings(self, family: set[int]) -> None:
+        """Each place of ``family`` has the others for siblings (a family of one has none)."""
+        for member in family:
+            self._siblings[member] = family - {member}
+            if not self._siblings[member]:
+                del self._siblings[member]
 
     def sides_apart(self, state: int, first: object, second: object) -> np.ndarray | None:
         """Per view, the distance between the mean pictures witnessed on two sides of a state (``None``: a side not
