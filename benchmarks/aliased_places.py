@@ -7,8 +7,11 @@ Two counts per map, encoder and world:
 - **in the memory**, after the memory explored the map (its explorer, every transition remembered) in that world:
   states that hold pictures of two intersections or more (**merged wrongly**), intersections spread over two states
   or more (**split**), and pictures of explored intersections it answers unsure of (**unsure**), over every
-  (intersection, heading) pair, pictured ``--draws`` times in a world whose pictures vary; and the states the memory
-  found aliased itself (a slot that led to two places).
+  (intersection, heading) pair, pictured ``--draws`` times in a world whose pictures vary; the states the memory
+  found aliased itself (a slot that led to two places); and its **wrong moves**: remembered moves (a state's slot that
+  led to another state) whose end is not the intersection that road leads to, each state read as the intersection
+  most of its pictures show (a picture taken for another place when a move was remembered: routes through it are
+  wrong though no state holds two places).
 
 Worlds (``--worlds``, :data:`benchmarks.campusnav_runs.WORLDS`): fixed views, fresh noise on the views, K renders per
 view. Usage::
@@ -20,6 +23,7 @@ view. Usage::
 from __future__ import annotations
 
 import argparse
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +38,7 @@ from campusnav_env.maps.examples import example_path
 from campusnav_env.rendering.street_view import RenderSettings
 from campusnav_env.wrappers import GaussianObservationNoise
 from sb3_dcqn.route_memory import RouteMemory, UntriedExplorer, batch_of_one
+from sb3_dcqn.route_memory.edges import ROUTES
 
 TOLERANCE = 1e-4
 PIXELS = "pixels"
@@ -94,7 +99,7 @@ def memory_counts(env: Any, nav: CampusNavEnv, seed: int, draws: int) -> dict[st
     memory = RouteMemory.for_env(env)
     steps = explore(env, memory, seed, EXPLORE_STEPS_PER_NODE * nav.graph.n_nodes)
     states_of_node: dict[int, set[int]] = {}
-    nodes_of_state: dict[int, set[int]] = {}
+    nodes_of_state: dict[int, Counter[int]] = {}
     unsure = asked = 0
     nodes, headings = nav.graph.map.state_nodes, nav.graph.map.state_headings
     goal = nav.goal_nodes[0]
@@ -108,7 +113,7 @@ def memory_counts(env: Any, nav: CampusNavEnv, seed: int, draws: int) -> dict[st
                 unsure += 1
             else:
                 states_of_node.setdefault(node, set()).add(state)
-                nodes_of_state.setdefault(state, set()).add(node)
+                nodes_of_state.setdefault(state, Counter())[node] += 1
             asked += 1
     return {
         "explore_steps": steps,
@@ -117,8 +122,28 @@ def memory_counts(env: Any, nav: CampusNavEnv, seed: int, draws: int) -> dict[st
         "split": sum(len(members) > 1 for members in states_of_node.values()),
         "unsure": unsure / asked,
         "aliased": len(memory.aliased),
+        "wrong_moves": wrong_moves(
+            memory, nav, {state: nodes.most_common(1)[0][0] for state, nodes in nodes_of_state.items()}
+        ),
         "stepped_aside": memory.stepped_aside,
     }
+
+
+def wrong_moves(memory: RouteMemory, nav: CampusNavEnv, node_of: dict[int, int]) -> int:
+    """Remembered moves between states read as intersections (``node_of``) whose end is not where the road leads
+    (slots are compass directions: the env declares its heading as the memory's frame)."""
+    table, state_of, state_nodes = nav.graph.transition_table, nav.graph.map.state_of, nav.graph.map.state_nodes
+    outcome, target = memory.edges.outcome, memory.edges.target
+    wrong = 0
+    for state, node in node_of.items():
+        heading = int(np.flatnonzero(state_of[node] >= 0)[0])  # any heading: the slot fixes the action
+        for slot in range(memory.n_actions):
+            following = int(target[state, slot])
+            if outcome[state, slot] not in ROUTES or following in (-1, state) or following not in node_of:
+                continue
+            leads = int(table[state_of[node, heading], (slot - heading) % memory.n_actions])
+            wrong += int(leads < 0 or int(state_nodes[leads]) != node_of[following])
+    return wrong
 
 
 def count(world: str, map_seed: int, size: int, encoder: str, world_name: str, draws: int) -> dict[str, Any]:
@@ -158,13 +183,15 @@ def main(argv: list[str] | None = None) -> None:
         [
             r["map"], str(r["map_seed"]), f"{r['size']:,}", r["encoder"], r["world"], str(r["equal"]), str(r["close"]),
             f"{r['states']:,}", str(r["merged"]), str(r["split"]), f"{r['unsure']:.3f}", str(r["aliased"]),
+            str(r["wrong_moves"]),
             f"{r['explore_steps']:,}" + (" (stepped aside)" if r["stepped_aside"] else ""),
         ]
         for r in records
     ]  # fmt: skip
     header = [
         "map", "map seed", "intersections", "features", "world", "pairs equal", f"pairs within {TOLERANCE:g}",
-        "memory states", "merged wrongly", "split", "unsure share", "aliased (found)", "exploration steps",
+        "memory states", "merged wrongly", "split", "unsure share", "aliased (found)", "wrong moves",
+        "exploration steps",
     ]  # fmt: skip
     lines = [
         "# Aliased places",

@@ -493,6 +493,18 @@ MUTATIONS = (
         "pass",
     ),
     Mutation(
+        "places",
+        "a picture being remembered takes a query's lenient answer",
+        "asked = None if add else self._queried.get(key)",
+        "asked = self._queried.get(key)",
+    ),
+    Mutation(
+        "places",
+        "a query's answer outlives the places added after it",
+        "if asked is not None and asked[1] == self.version:",
+        "if asked is not None:",
+    ),
+    Mutation(
         "memory",
         "aliased states never split",
         "self._split_aliases(disputed)",
@@ -508,6 +520,18 @@ MUTATIONS = (
         "edges",
         "the moved place's way back still leads to the split state",
         "            self.target[moved, back] = sibling",
+        "            pass",
+    ),
+    Mutation(
+        "edges",
+        "moves into a split state keep their end",
+        "self.outcome[rows, slots], self.target[rows, slots], self.arrival[rows, slots] = Outcome.UNTRIED, -1, -1",
+        "pass",
+    ),
+    Mutation(
+        "edges",
+        "a split forgets the kept end's way back too",
+        "            into[kept] = False",
         "            pass",
     ),
     Mutation(

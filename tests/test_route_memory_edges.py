@@ -144,6 +144,7 @@ def test_two_states_shown_to_be_one_place_are_handed_over_and_merge_into_one() -
 def test_an_aliased_state_split_in_two_keeps_one_end_of_its_slot_and_its_sibling_the_other() -> None:
     edges = two_way()
     edges.ensure(6)
+    edges.record(3, 0, following=0, arrival=0, dead=False)  # north from 3 to "0": which of the two, nobody knows
     for _ in range(2):  # east from "0" leads to 1 and to 2 by turns, twice each: two places remembered as one
         edges.record(0, 1, following=1, arrival=1, dead=False)
         edges.record(0, 0, following=4, arrival=0, dead=False)
@@ -157,6 +158,10 @@ def test_an_aliased_state_split_in_two_keeps_one_end_of_its_slot_and_its_sibling
     assert edges.target[1, 3] == 0 and edges.target[2, 3] == 5  # each way back leads to its own place
     assert edges.outcome[0, 0] == Outcome.DRIVEN and edges.target[0, 0] == 4  # the state keeps its other moves
     assert (edges.outcome[5, [0, 2, 3]] == Outcome.UNTRIED).all()  # the sibling's are to be explored
+    # Moves into the state from elsewhere (3's drive, 4's inferred way back) may have ended at either: explored again
+    assert (
+        edges.outcome[3, 0] == edges.outcome[4, 2] == Outcome.UNTRIED and edges.target[3, 0] == edges.target[4, 2] == -1
+    )
     assert edges.moves(np.array([0, 5]))[:, 1].all()
 
 

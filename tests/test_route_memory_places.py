@@ -204,8 +204,19 @@ def test_a_query_takes_the_clearly_nearest_place_short_of_new_that_remembering_w
     between = mixture(recogniser, places, 0, 1, np.sqrt(recogniser.known * recogniser.new))  # in place 0's band
     states, answers = recogniser.recognise(between)
     assert states.tolist() == [0] and answers.tolist() == [Answer.KNOWN]
-    again = between + np.float32(1e-3)
-    assert recogniser.recognise(again, add=True)[1].tolist() == [Answer.UNSURE] and recogniser.n_states == 40
+    # The very picture the query answered (a rollout's step asks, then remembers it): the query's answer is not taken
+    assert recogniser.recognise(between, add=True)[1].tolist() == [Answer.UNSURE] and recogniser.n_states == 40
+    assert recogniser.recognise(between)[0].tolist() == [0]  # asked again, the query's own answer
+
+
+def test_a_query_is_answered_anew_once_a_place_was_added() -> None:
+    places = world(40)
+    recogniser = calibrated(places)
+    neighbour = shifted(recogniser, places[5], 1.05)  # a place not remembered yet, just beyond "new" of place 5
+    picture = (0.1 * places[5] + 0.9 * neighbour)[None]
+    assert recogniser.recognise(picture)[0].tolist() == [5]  # the clearly nearest place short of "new", for now
+    assert recogniser.recognise(neighbour[None], add=True)[0].tolist() == [40]
+    assert recogniser.recognise(picture)[0].tolist() == [40]
 
 
 def test_a_picture_as_near_to_two_places_as_their_repeat_visits_is_unsure() -> None:

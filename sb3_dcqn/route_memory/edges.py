@@ -250,8 +250,8 @@ class EdgeStore:
         An aliased ``state`` found to be two places: the one where ``slot`` led to ``moved`` is ``sibling`` (a new
         state). The slot leads to ``moved`` from the sibling and to its other place from ``state``, and ``moved``'s
         way back leads to the sibling. The state keeps its other moves (most were made from its more frequent side; a
-        wrong one is disputed when driven again); the sibling's other slots are untried, to be explored. Moves into
-        ``state`` stay until driven again (the caller recognises their end anew).
+        wrong one is disputed when driven again); the sibling's other slots are untried, to be explored, and so are the
+        other moves into ``state`` (their end may have been either place).
         """
         self.ensure(max(state, sibling, moved) + 1)
         counts = self._disputes.pop((state, slot), {})
@@ -268,6 +268,13 @@ class EdgeStore:
         back = self.back_slot(sibling, slot)
         if back is not None and self.target[moved, back] == state:
             self.target[moved, back] = sibling
+        # Any other move into the state may have ended at either place (each was recognised as one): untried again,
+        # but the way back from the slot's end that stays the state's
+        into = self.target[: self.n_rows] == state
+        if kept >= 0:
+            into[kept] = False
+        rows, slots = np.nonzero(into & np.isin(self.outcome[: self.n_rows], ROUTES))
+        self.outcome[rows, slots], self.target[rows, slots], self.arrival[rows, slots] = Outcome.UNTRIED, -1, -1
         self.aliased.discard(state)
         self.version += 1
         self.lost_move_version = self.version

@@ -20,7 +20,9 @@ place pictured with two odd views, cars before two cameras, is no new place; any
 answer is checked against every state (the screen below may miss the place) up to ``VERIFY_ALL_STATES`` states.
 **A query** (a picture recognised without remembering it: evaluation, a rollout's choice of action) also takes the
 clearly nearest place short of ``new``, and the one place the picture matches but for two views: a wrong answer
-there costs a step, not a place merged with another, and the algorithm's own guess would cost as much.
+there costs a step, not a place merged with another, and the algorithm's own guess would cost as much. A query's
+answer is kept apart: never taken when the same picture is remembered (a rollout asks, then remembers it), nor once
+a place was added or merged.
 
 **The graph's prior.** The caller may name the place it expects (where a remembered place and slot led before:
 localisation on the graph, as PlaceNav's filter). An expected place within ``known`` is taken without searching;
@@ -167,6 +169,9 @@ class PlaceRecogniser:
         # Per state, per side (the caller's label: where a move from it led), the sum and count of its pictures
         self._witnessed: OrderedDict[int, dict[object, tuple[np.ndarray, int]]] = OrderedDict()
         self._recent: OrderedDict[bytes, int] = OrderedDict()  # pictures recognised lately (past the digest cap)
+        # A query's answers lately, with the version they were given at: a query is lenient (a wrong answer costs a
+        # step), so its answer is never taken for a picture being remembered, nor once a place was added or merged
+        self._queried: OrderedDict[bytes, tuple[int, int]] = OrderedDict()
         self._digests_of = np.zeros(0, dtype=np.int8)  # per state: exact pictures remembered
         self._prototypes = np.zeros((views, 0, max(dim, 1) // views), dtype=np.float32)  # (view, state, features)
         # The screen: each prototype projected to SKETCH_DIM numbers by one seeded Gaussian matrix
@@ -203,7 +208,7 @@ class PlaceRecogniser:
     def nbytes(self) -> int:
         """Bytes of the prototypes, counts, digests and the calibration window."""
         picture = (self.dim + SKETCH_DIM + 1) * 4 if self.similar else 0
-        states = self.n_states * (picture + 4 + 1) + 16 * (len(self._exact) + len(self._recent))
+        states = self.n_states * (picture + 4 + 1) + 16 * (len(self._exact) + len(self._recent) + len(self._queried))
         return states + self._window_rows.nbytes + 16 * len(self._window_digests)
 
     # ------------------------------------------------------------------ calibration
@@ -359,6 +364,9 @@ class PlaceRecogniser:
         found = self._exact.get(key, self._recent.get(key))
         if found is not None:
             return int(self._owner[found]), Answer.KNOWN
+        asked = None if add else self._queried.get(key)
+        if asked is not None and asked[1] == self.version:
+            return int(self._owner[asked[0]]), Answer.KNOWN
         if not self.similar:
             return self._new(row, key, add), Answer.NEW
         if not self.separable:
@@ -546,7 +554,7 @@ class PlaceRecogniser:
         """A picture of prototype ``state``: with ``add`` its views move the prototype (all but a view that differs
         wholly). Returns its place."""
         if not add:
-            self._remember_recent(key, state)
+            self._remember_query(key, state)
             return int(self._owner[state])
         self._remember_digest(key, state)
         blocks = row.reshape(self.views, -1)
@@ -576,6 +584,12 @@ class PlaceRecogniser:
         self._recent[key] = state
         if len(self._recent) > RECENT_PICTURES:
             self._recent.popitem(last=False)
+
+    def _remember_query(self, key: bytes, state: int) -> None:
+        """A query's answer, found at once when the same picture is asked again (a rollout's step, then the next)."""
+        self._queried[key] = (state, self.version)
+        if len(self._queried) > RECENT_PICTURES:
+            self._queried.popitem(last=False)
 
     def _grow(self, capacity: int) -> None:
         old = len(self._counts)
@@ -724,4 +738,5 @@ class PlaceRecogniser:
             state["_members"] = {}
         state.setdefault("_siblings", {})  # saved before places could split
         state.setdefault("_witnessed", OrderedDict())
+        state.setdefault("_queried", OrderedDict())  # saved when queries and remembering shared one cache
         self.__dict__.update(state)
