@@ -18,6 +18,9 @@ view. Usage::
 
     python benchmarks/aliased_places.py                       # campus (both encoders), 1k cities, a town: every world
     python benchmarks/aliased_places.py --cities 1000 --map-seeds 31 --encoders pixels --worlds fixed "noise 0.05"
+    # the city CampusNavCity-v0 builds (map seed 0) with the shipped features:
+    python benchmarks/aliased_places.py --worlds --map-seeds 0 --city-encoders efficientnet-lite0 \
+        --out benchmarks/results/aliased_places_efficientnet_city.md
 """
 
 from __future__ import annotations
@@ -161,10 +164,11 @@ def count(world: str, map_seed: int, size: int, encoder: str, world_name: str, d
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
     parser.add_argument("--encoders", nargs="+", default=["efficientnet-lite0", PIXELS])
-    parser.add_argument("--cities", nargs="*", type=int, default=[1000], help="sizes of generated cities (pixels)")
+    parser.add_argument("--cities", nargs="*", type=int, default=[1000], help="sizes of generated cities")
+    parser.add_argument("--city-encoders", nargs="+", default=[PIXELS], help="the cities' features (raw pixels: fast)")
     parser.add_argument("--map-seeds", nargs="+", type=int, default=[31, 47, 59])
     every_world = ["fixed", "noise 0.05", "variation 8"]
-    parser.add_argument("--worlds", nargs="+", default=every_world, choices=list(WORLDS))
+    parser.add_argument("--worlds", nargs="*", default=every_world, choices=list(WORLDS))
     parser.add_argument("--city-worlds", nargs="+", default=every_world, choices=list(WORLDS))
     parser.add_argument("--draws", type=int, default=3, help="pictures of each (intersection, heading) asked")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "aliased_places.md")
@@ -174,9 +178,10 @@ def main(argv: list[str] | None = None) -> None:
     ]
     records += [count("town", 0, 15, PIXELS, world, args.draws) for world in args.worlds]
     records += [
-        count("city", seed, size, PIXELS, world, args.draws)
+        count("city", seed, size, encoder, world, args.draws)
         for size in args.cities
         for seed in args.map_seeds
+        for encoder in args.city_encoders
         for world in args.city_worlds
     ]
     rows = [
