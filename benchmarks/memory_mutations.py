@@ -511,18 +511,6 @@ MUTATIONS = (
         "pass",
     ),
     Mutation(
-        "memory",
-        "a state no move leads into is never merged into the place that took its pictures",
-        "            self._merge_orphans()",
-        "            pass",
-    ),
-    Mutation(
-        "places",
-        "a look-alike sibling taken for a place remembered twice",
-        "others = (owners != state) & ~np.isin(owners, list(self._siblings.get(state, ())))",
-        "others = owners != state",
-    ),
-    Mutation(
         "edges",
         "a split's sibling starts with the state's moves",
         "getattr(self, name)[sibling] = fill",

@@ -291,43 +291,6 @@ def test_a_place_remembered_as_two_states_that_two_roads_lead_to_by_turns_become
     np.testing.assert_array_equal(lengths, distances)  # every route shortest, through the place as before
 
 
-def test_a_state_no_move_leads_into_whose_picture_another_place_takes_is_merged_into_it(plain_env) -> None:
-    _, goal = plain_env.resolve_goal("Dreese Lab")
-    memory = RouteMemory.for_env(plain_env)
-    explore_fully(plain_env, memory, goal, sigma=NOISE)
-    recogniser = memory.recogniser
-    node = next(
-        node for node in range(plain_env.graph.n_nodes) if node != goal and plain_env.node_distances(goal)[node] > 1
-    )
-    heading = plain_env.headings_at(node)[0]
-    here = with_noise(_batch(plain_env.observation_at(node, heading, goal)), seed=1)
-    place = int(memory.states_of(here)[0])
-    # A picture of the place a little past "new" of it (the first of a stranger light, say): a second state for it
-    direction = np.random.default_rng(2).normal(0.0, 1.0, (1, 4, here["views"].size // 4))
-    direction /= np.linalg.norm(direction, axis=2, keepdims=True)
-    odd = {**here, "views": (here["views"] + 1.2 * recogniser.new * direction.reshape(here["views"].shape))}
-    odd["views"] = odd["views"].astype(np.float32)
-    twin = int(memory.states_of(odd, add=True)[0])
-    assert twin == plain_env.graph.n_nodes and twin != place
-    # Driven from (the road's far end was driven before: nothing is inferred into it), no move leads into it
-    ahead = int(plain_env.graph.move(np.array([plain_env.graph.map.state_of[node, heading]]), np.array([0]))[0][0])
-    far = _batch(plain_env.observation_at(int(plain_env.graph.map.state_nodes[ahead]), heading, goal))
-    memory.add(_first(odd), 0, _first(with_noise(far, seed=3)), plain_env.step_penalty, False)
-    # Visits come to vary as much as that picture did: the thresholds follow, and the two states picture one place
-    nodes, headings = every_start(plain_env, goal)
-    spread = 1.5 * 1.2 * recogniser.new / np.sqrt(2 * here["views"].size // 4)
-    for seed in range(4):
-        recogniser.show(
-            with_noise(plain_env.observations_at(nodes, headings, goal), seed, spread)["views"].reshape(len(nodes), -1)
-        )
-    recogniser.calibrate()
-    assert recogniser.twin_of(twin) == place
-    assert memory.merged == 0
-    explore_fully(plain_env, memory, goal, sigma=spread)  # training goes on: the memory looks for orphans now and then
-    assert memory.merged >= 1 and not recogniser.live(twin)
-    assert memory.states_of(odd)[0] == memory.states_of(here)[0] == place  # either picture: the one place
-
-
 def look_alike_pair(env: CampusNavEnv, goal: int) -> tuple[int, int]:
     """Two intersections four hops apart or more (neither the goal nor next to it) with a road in one compass slot
     that leads to two different places."""

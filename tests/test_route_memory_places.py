@@ -252,21 +252,6 @@ def test_pictures_that_do_not_separate_places_say_so() -> None:
     assert answers.tolist() == [Answer.UNSURE] and recogniser.n_states == 0
 
 
-def test_a_place_remembered_twice_is_found_as_its_twin_once_visits_vary_that_much() -> None:
-    places = world(40)
-    recogniser = calibrated(places)
-    odd = shifted(recogniser, places[5], 1.2)  # a picture of place 5 past "new": a second state for it
-    assert recogniser.recognise(odd[None], add=True)[0].tolist() == [40]
-    assert recogniser.twin_of(40) == -1  # as far as the thresholds go, another place
-    # Later visits vary far more (other light, cars): the thresholds follow, and the two states lie within "known"
-    order = np.tile(np.arange(40), 12)
-    recogniser.show(visits(places, order, seed=9, noise=1.0))
-    recogniser.calibrate()
-    assert recogniser.distances(recogniser.prototype(40))[5] <= recogniser.known
-    assert recogniser.twin_of(40) == 5 and recogniser.twin_of(5) == 40
-    assert recogniser.twin_of(7) == -1  # a place alone
-
-
 def test_a_prototype_averages_the_noise_of_the_visits() -> None:
     places = world(40)
     recogniser = calibrated(places, repeats=8)
@@ -421,7 +406,6 @@ def test_look_alike_places_split_by_the_graph_are_told_apart_by_the_view_they_di
         recogniser.witness(0, "north to B", visits(both, np.array([1]), seed=20 + seed)[0])
     sibling = recogniser.split(0, "north to A", "north to B")
     assert sibling == 39 and recogniser.siblings(0) == {39} and recogniser.siblings(39) == {0}
-    assert recogniser.twin_of(39) == recogniser.twin_of(0) == -1  # look-alikes the graph told apart: never twins
     for seed in range(5):  # fresh pictures, remembered or asked, with or without the prior: each side its own
         for side, state in ((0, 0), (1, 39)):
             picture = visits(both, np.array([side]), seed=30 + seed)

@@ -93,7 +93,6 @@ RECOGNITION_MODES = ("auto", "similar", "exact")
 GUARD_WINDOW = 1_000  # transitions over which the guard counts new states and unsure pictures
 GROWTH_GUARD = 0.75  # new states per transition past which recognition is failing
 UNSURE_GUARD = 0.5  # share of unsure pictures past which recognition is failing
-ORPHAN_CHECK_EVERY = 64  # transitions between two looks for states no move leads into any more
 
 
 def default_goal_keys(observation_space: spaces.Space | None) -> tuple[str, ...]:
@@ -202,7 +201,6 @@ class RouteMemory:
         self.aside_reason = ""
         self.merged = 0  # pairs of states merged into one place
         self.split = 0  # states split into two places
-        self._orphans_checked = 0  # the clock at the last look for orphaned states
         self._guard: deque[np.ndarray] = deque()  # per recorded batch: (transitions, new states, unsure pictures)
         self._guard_totals = np.zeros(3, dtype=np.int64)
 
@@ -501,8 +499,6 @@ class RouteMemory:
         self._count(actions.size, self.n_states - before, int(unsure.sum()))
         self._merge_twins()
         self._split_aliases(disputed)
-        if self.edges.clock >= self._orphans_checked + ORPHAN_CHECK_EVERY:
-            self._merge_orphans()
 
     def _witness_disputes(self, observations: Any, next_observations: Any, index: int, state: int) -> set[int]:
         """Show the recogniser the picture of each state whose move was just disputed, labelled by where the move led
@@ -545,28 +541,6 @@ class RouteMemory:
             self.goals.merge(keep, drop)
             self.cache.clear()
             self.merged += 1
-
-    def _merge_orphans(self) -> None:
-        """
-        A state that was driven from but that no remembered move leads into any more, whose picture another place now
-        takes (within ``known``: :meth:`PlaceRecogniser.twin_of`), is that place remembered twice: the moves into it
-        were re-pointed as the other state's pictures took over (or untried by a split). It is merged into that place
-        (its untried slots would otherwise draw the explorer to a state it can never reach).
-        """
-        self._orphans_checked = self.edges.clock
-        if not self.recogniser.similar or self.n_states < 2:
-            return
-        n = self.n_states
-        self.edges.ensure(n)
-        outcome, target = self.edges.outcome[:n], self.edges.target[:n]
-        inbound = np.bincount(target[np.isin(outcome, ROUTES) & (target >= 0)], minlength=n)
-        driven = (outcome == Outcome.DRIVEN).any(axis=1)
-        live = self.recogniser.live_states()
-        for state in live[(inbound[live] == 0) & driven[live]].tolist():
-            twin = self.recogniser.twin_of(state)
-            if twin >= 0:
-                self.edges.twins.add((min(state, twin), max(state, twin)))
-        self._merge_twins()
 
     def expected_states(self, states: np.ndarray, slots: np.ndarray) -> np.ndarray:
         """Where each (state, slot) should lead, by the memory (-1: unknown): the prior that localises on the graph."""
@@ -785,7 +759,6 @@ class RouteMemory:
     def __setstate__(self, state: dict[str, Any]) -> None:
         state.setdefault("merged", 0)  # saved before states were merged
         state.setdefault("split", 0)  # saved before states were split
-        state.setdefault("_orphans_checked", 0)  # saved before orphaned states were merged
         if "edges" not in state:  # saved by an earlier release: its facts carried over, recognised bit for bit
             from sb3_dcqn.route_memory.legacy import load_earlier_memory
 

@@ -487,23 +487,6 @@ class PlaceRecogniser:
             for member in self.members(first).tolist()
         )
 
-    def twin_of(self, state: int) -> int:
-        """The nearest other place (never a sibling) with a prototype within ``known`` of one of ``state``'s: the same
-        place remembered twice, as far as the pictures tell; -1 where there is none (or no thresholds yet)."""
-        if not self.similar or self.known is None or not self.live(state):
-            return -1
-        owners = self._owner[: self.n_states]
-        others = (owners != state) & ~np.isin(owners, list(self._siblings.get(state, ())))
-        if not others.any():
-            return -1
-        candidates = np.flatnonzero(others)
-        nearest = np.full(candidates.size, np.inf)
-        for member in self.members(state).tolist():
-            row = self._prototypes[:, member].reshape(-1)
-            nearest = np.minimum(nearest, self._exact_distances(row, candidates))
-        best = int(nearest.argmin())
-        return int(owners[candidates[best]]) if nearest[best] <= self.known else -1
-
     def distances(self, row: np.ndarray) -> np.ndarray:
         """The place distance of one picture to every state."""
         return self._exact_distances(self._as_rows(np.asarray(row)[None])[0], np.arange(self.n_states))
