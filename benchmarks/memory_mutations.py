@@ -525,14 +525,14 @@ MUTATIONS = (
     Mutation(
         "edges",
         "moves into a split state keep their end",
-        "self.outcome[rows, slots], self.target[rows, slots], self.arrival[rows, slots] = Outcome.UNTRIED, -1, -1",
-        "pass",
+        "        self.forget_moves_into(state, but_from=kept)",
+        "        pass",
     ),
     Mutation(
         "edges",
         "a split forgets the kept end's way back too",
-        "            into[kept] = False",
-        "            pass",
+        "self.forget_moves_into(state, but_from=kept)",
+        "self.forget_moves_into(state)",
     ),
     Mutation(
         "layer",

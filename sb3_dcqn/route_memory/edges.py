@@ -82,7 +82,7 @@ class EdgeStore:
         self.retry_after = int(retry_after)
         self.forget_moves_into_on_bump = forget_moves_into_on_bump
         self.one_place_twice = one_place_twice
-        self.forgotten = 0  # moves made untried again by forget_moves_into
+        self.forgotten = 0  # moves made untried again by a bump (forget_moves_into)
         self.clock = 0  # transitions recorded
         self.version = 0  # counts changes of moves
         self.lost_move_version = 0  # the last change that removed a move: routes computed before it are stale
@@ -270,11 +270,7 @@ class EdgeStore:
             self.target[moved, back] = sibling
         # Any other move into the state may have ended at either place (each was recognised as one): untried again,
         # but the way back from the slot's end that stays the state's
-        into = self.target[: self.n_rows] == state
-        if kept >= 0:
-            into[kept] = False
-        rows, slots = np.nonzero(into & np.isin(self.outcome[: self.n_rows], ROUTES))
-        self.outcome[rows, slots], self.target[rows, slots], self.arrival[rows, slots] = Outcome.UNTRIED, -1, -1
+        self.forget_moves_into(state, but_from=kept)
         self.aliased.discard(state)
         self.version += 1
         self.lost_move_version = self.version
@@ -320,16 +316,21 @@ class EdgeStore:
         self.version += 1
         self.lost_move_version = self.version
 
-    def forget_moves_into(self, lost: int) -> int:
+    def forget_moves_into(self, lost: int, but_from: int = -1) -> int:
         """
-        Every remembered move into ``lost`` becomes untried again; returns how many. With pose states, where the state
-        after a move tells which road was taken (the place and the heading away from it), they are the same road seen
-        from the other headings, so one bump closes it for all of them.
+        Every remembered move into ``lost`` (but those from state ``but_from``) becomes untried again, its end
+        forgotten; returns how many. With pose states, where the state after a move tells which road was taken (the
+        place and the heading away from it), they are the same road seen from the other headings, so one bump closes
+        it for all of them; a split state's moves in may have ended at either of its places.
         """
         rows = slice(0, self.n_rows)
         into = (self.target[rows] == lost) & np.isin(self.outcome[rows], ROUTES)
+        if but_from >= 0:
+            into[but_from] = False
         if into.any():
             self.outcome[rows][into] = Outcome.UNTRIED
+            self.target[rows][into] = -1
+            self.arrival[rows][into] = -1
             self.version += 1
             self.lost_move_version = self.version
         return int(into.sum())

@@ -170,7 +170,8 @@ class PlaceRecogniser:
         self._witnessed: OrderedDict[int, dict[object, tuple[np.ndarray, int]]] = OrderedDict()
         self._recent: OrderedDict[bytes, int] = OrderedDict()  # pictures recognised lately (past the digest cap)
         # A query's answers lately, with the version they were given at: a query is lenient (a wrong answer costs a
-        # step), so its answer is never taken for a picture being remembered, nor once a place was added or merged
+        # step), so its answer is never taken for a picture being remembered, nor once a place was added or merged or
+        # the thresholds recalibrated
         self._queried: OrderedDict[bytes, tuple[int, int]] = OrderedDict()
         self._digests_of = np.zeros(0, dtype=np.int8)  # per state: exact pictures remembered
         self._prototypes = np.zeros((views, 0, max(dim, 1) // views), dtype=np.float32)  # (view, state, features)
@@ -581,15 +582,11 @@ class PlaceRecogniser:
 
     def _remember_recent(self, key: bytes, state: int) -> None:
         """A picture met again within a few steps (an observation is the next one's start) is found at once."""
-        self._recent[key] = state
-        if len(self._recent) > RECENT_PICTURES:
-            self._recent.popitem(last=False)
+        _keep_latest(self._recent, key, state)
 
     def _remember_query(self, key: bytes, state: int) -> None:
         """A query's answer, found at once when the same picture is asked again (a rollout's step, then the next)."""
-        self._queried[key] = (state, self.version)
-        if len(self._queried) > RECENT_PICTURES:
-            self._queried.popitem(last=False)
+        _keep_latest(self._queried, key, (state, self.version))
 
     def _grow(self, capacity: int) -> None:
         old = len(self._counts)
@@ -740,3 +737,10 @@ class PlaceRecogniser:
         state.setdefault("_witnessed", OrderedDict())
         state.setdefault("_queried", OrderedDict())  # saved when queries and remembering shared one cache
         self.__dict__.update(state)
+
+
+def _keep_latest(cache: OrderedDict, key: bytes, value: object) -> None:
+    """``cache[key] = value``, the oldest entry dropped past ``RECENT_PICTURES``."""
+    cache[key] = value
+    if len(cache) > RECENT_PICTURES:
+        cache.popitem(last=False)
