@@ -208,7 +208,7 @@ def test_the_store_grows_and_pickles_its_used_rows() -> None:
     edges.record(4999, 1, following=0, arrival=-1, dead=False)
     copy = pickle.loads(pickle.dumps(edges))
     assert copy.n_rows == 5000 and copy.target[4999, 1] == 0 and len(copy.outcome) >= 5000
-    assert copy.nbytes() == edges.nbytes() == 5000 * 2 * 15
+    assert copy.nbytes() == edges.nbytes() == 5000 * 2 * 16
 
 
 def test_bad_settings_are_named() -> None:

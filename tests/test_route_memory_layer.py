@@ -372,7 +372,7 @@ def test_one_bump_at_one_heading_revises_the_roads_copies_driven_at_another_head
 
 
 @pytest.mark.parametrize("wearer", [RouteMemoryDQN], ids=["DQN-memory"])
-def test_a_model_whose_memory_stepped_aside_acts_and_revises_as_its_algorithm(wearer: type) -> None:
+def test_a_model_whose_memory_stepped_aside_acts_as_its_algorithm_and_leaves_its_data_alone(wearer: type) -> None:
     env = gym.make("FrozenLake-v1", is_slippery=False)
     model = wearer("MlpPolicy", env, learning_starts=10, seed=0, **NET)
     model.learn(100)
@@ -381,7 +381,29 @@ def test_a_model_whose_memory_stepped_aside_acts_and_revises_as_its_algorithm(we
     np.testing.assert_array_equal(
         model.predict(batch, deterministic=True)[0], model.policy.predict(batch, deterministic=True)[0]
     )
-    assert model._place_keys(np.array([0]), np.array([1]), np.array([4])) is None  # revision by the bytes
+    keys = model._place_keys(np.array([0]), np.array([1]), np.array([4]))
+    assert keys.moves.tolist() == [-1]  # no revision (not even by the bytes): the critics' data as they came
+
+
+def test_on_observations_that_never_repeat_the_memory_steps_aside_early_says_so_and_biases_nothing(
+    recwarn: pytest.WarningsRecorder,
+) -> None:
+    model = RouteMemoryDQN("MlpPolicy", "CartPole-v1", learning_starts=400, seed=0, **NET)
+    taken: list[int] = []
+    sample = model._sample_action
+
+    def recorded(*args: Any, **kwargs: Any) -> tuple[np.ndarray, np.ndarray]:
+        actions = sample(*args, **kwargs)
+        taken.extend(np.asarray(actions[0]).reshape(-1).tolist())
+        return actions
+
+    model._sample_action = recorded
+    model.learn(400)  # the warm-up: the memory's exploration, until it steps aside
+    said = [str(warning.message) for warning in recwarn if "route memory" in str(warning.message)]
+    assert len(said) == 1 and "states never repeat" in said[0]  # once, early: after 100 transitions, not 1,000
+    assert model.memory.stepped_aside and model.memory.n_states <= 110
+    # Where it knows nothing, its choice is the uniform one: no push to slot 0 at every new observation
+    assert 0.35 < np.mean(np.array(taken) == 0) < 0.65
 
 
 def test_the_memorys_statistics_are_logged_under_memory_at_each_rollout_end() -> None:

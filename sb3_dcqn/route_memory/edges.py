@@ -14,6 +14,17 @@ of them too (a place whose pictures vary more than the recogniser's thresholds; 
 that each picture alike are far less likely). Each disputed outcome is listed in :attr:`EdgeStore.disputed` for the
 caller (who knows the pictures), and an aliased state the caller can tell apart is :meth:`EdgeStore.split` in two.
 
+**Stochastic moves.** Where states are poses (exact observations of an env that declares no place frame, with no
+roads between places: ``count_outcomes``), a slot that led to two ends by turns is no alias of two places that look
+alike: the world itself is random there (a slippery floor). Such a store keeps **outcome counts** per
+``(state, slot)`` (where it ended: a state, or :data:`DEAD` for an end of the episode without success) and the number
+of times the end changed from one try to the next. A deterministic world
+with closures changes a move's end once per closure or reopening; a move whose end changed :data:`STOCHASTIC_CHANGES`
+times or more is **stochastic** (:attr:`EdgeStore.stochastic`): its outcomes are never disputed (no alias), a stay
+there closes nothing, and its remembered target is its most frequent end elsewhere (the explorer's way along it). Once
+one move is stochastic the world is, and the counts of every move are the model the planner solves
+(:meth:`EdgeStore.outcome_model`).
+
 A closed slot is a fact with an age: ``last_tried`` (the memory's clock, in transitions) and ``failures`` (bumps in a
 row) say when it may be tried again (:meth:`EdgeStore.retry_due`): ``retry_after`` transitions after the first bump,
 twice that after the second, and so on (a slot that never had a road is tried ever more rarely).
@@ -26,9 +37,14 @@ from enum import IntEnum
 
 import numpy as np
 
-__all__ = ["CLOSED", "ROUTES", "EdgeStore", "Outcome"]
+__all__ = ["CLOSED", "DEAD", "ROUTES", "STOCHASTIC_CHANGES", "EdgeStore", "Outcome"]
 
 MAX_BACKOFF = 16  # a closed slot is retried after at most retry_after * 2**16 transitions
+# Changes of a move's end from one try to the next past which the move is the world's chance, not a closure: a closure
+# changes it once, its reopening once more, a road closed again a third time is rare; a fair three-way slip changes
+# it at two tries in three
+STOCHASTIC_CHANGES = 3
+DEAD = -2  # an outcome count's end: the episode ended without success (FrozenLake's hole)
 
 
 class Outcome(IntEnum):
@@ -45,8 +61,15 @@ class Outcome(IntEnum):
 
 ROUTES = (Outcome.DRIVEN, Outcome.INFERRED)
 CLOSED = (Outcome.BLOCKED, Outcome.INFERRED_BLOCKED)
-_FILL = {"outcome": Outcome.UNTRIED, "target": -1, "arrival": -1, "last_tried": 0, "failures": 0}
-_DTYPES = {"outcome": np.int8, "target": np.int32, "arrival": np.int8, "last_tried": np.int64, "failures": np.int8}
+_FILL = {"outcome": Outcome.UNTRIED, "target": -1, "arrival": -1, "last_tried": 0, "failures": 0, "stochastic": False}
+_DTYPES = {
+    "outcome": np.int8,
+    "target": np.int32,
+    "arrival": np.int8,
+    "last_tried": np.int64,
+    "failures": np.int8,
+    "stochastic": np.bool_,
+}
 
 
 def _never_alike(_a: int, _b: int) -> bool:
@@ -65,6 +88,8 @@ class EdgeStore:
         used to be makes every other move into that state untried again
     :param one_place_twice: Whether two states can be one place remembered twice (places recognised by similarity;
         not states that are exact observations, where two states a move leads to by turns are a stochastic world's)
+    :param count_outcomes: Count each move's ends and plan the moves found stochastic on their counts (pose states;
+        see the module docstring); else a slot that led to two states by turns is an alias
     """
 
     def __init__(
@@ -74,6 +99,7 @@ class EdgeStore:
         retry_after: int = 50,
         forget_moves_into_on_bump: bool = False,
         one_place_twice: bool = True,
+        count_outcomes: bool = False,
     ) -> None:
         if n_slots < 1 or retry_after < 1:
             raise ValueError(f"n_slots and retry_after must be at least 1, got {n_slots}, {retry_after}")
@@ -82,6 +108,7 @@ class EdgeStore:
         self.retry_after = int(retry_after)
         self.forget_moves_into_on_bump = forget_moves_into_on_bump
         self.one_place_twice = one_place_twice
+        self.count_outcomes = count_outcomes
         self.forgotten = 0  # moves made untried again by a bump (forget_moves_into)
         self.clock = 0  # transitions recorded
         self.version = 0  # counts changes of moves
@@ -91,12 +118,19 @@ class EdgeStore:
         self._disputes: dict[tuple[int, int], dict[int, int]] = {}
         # Disputed outcomes since the caller last took them: (state, slot, the state it led to)
         self.disputed: list[tuple[int, int, int]] = []
+        # Exact states only: per (state, slot), how often it ended where (a state, or DEAD), its last end, and how many
+        # times its end changed from one try to the next
+        self.counts: dict[tuple[int, int], dict[int, int]] = {}
+        self._last_end: dict[tuple[int, int], int] = {}
+        self._changes: dict[tuple[int, int], int] = {}
+        self.n_stochastic = 0
         self.n_rows = 0
         self.outcome = np.zeros((0, n_slots), dtype=np.int8)
         self.target = np.zeros((0, n_slots), dtype=np.int32)
         self.arrival = np.zeros((0, n_slots), dtype=np.int8)  # the frame on arrival (-1 unknown)
         self.last_tried = np.zeros((0, n_slots), dtype=np.int64)
         self.failures = np.zeros((0, n_slots), dtype=np.int8)
+        self.stochastic = np.zeros((0, n_slots), dtype=np.bool_)  # moves planned on their outcome counts
         self._grow(1024)
 
     def ensure(self, states: int) -> None:
@@ -113,8 +147,9 @@ class EdgeStore:
             setattr(self, name, grown)
 
     def nbytes(self) -> int:
-        """Bytes per used row: int32 target, int64 last try, three int8 codes."""
-        return self.n_rows * self.n_slots * (4 + 8 + 3)
+        """Bytes per used row (int32 target, int64 last try, three int8 codes, a flag), and about 64 per counted end."""
+        counted = sum(len(ends) for ends in self.counts.values())
+        return self.n_rows * self.n_slots * (4 + 8 + 3 + 1) + 64 * counted
 
     # ------------------------------------------------------------------ recording
     def record(
@@ -133,6 +168,8 @@ class EdgeStore:
         """
         self.clock += 1
         self.last_tried[state, slot] = self.clock
+        if self.count_outcomes and self._count(state, slot, DEAD if dead else following):
+            return
         if following < 0:
             if self.outcome[state, slot] == Outcome.UNTRIED:
                 self._set(state, slot, Outcome.OUTSIDE)
@@ -142,6 +179,63 @@ class EdgeStore:
             self._bump(state, slot)
         else:
             self._drive(state, slot, following, arrival, alike)
+
+    def _count(self, state: int, slot: int, end: int) -> bool:
+        """Count one end of a move (exact states); returns whether the move is stochastic (then it is recorded here:
+        its most frequent end elsewhere is its target, and nothing is disputed, closed or inferred)."""
+        key = (state, slot)
+        ends = self.counts.setdefault(key, {})
+        ends[end] = ends.get(end, 0) + 1
+        last = self._last_end.get(key)
+        if last is not None and last != end:
+            self._changes[key] = self._changes.get(key, 0) + 1
+        self._last_end[key] = end
+        if not self.stochastic[state, slot]:
+            if self._changes.get(key, 0) < STOCHASTIC_CHANGES:
+                return False
+            self.stochastic[state, slot] = True
+            self.n_stochastic += 1
+            if self._disputes.pop(key, None) is not None:  # its two ends were chance, not two places
+                self._settle(_never_alike)
+            self.version += 1
+        elsewhere = {target: count for target, count in ends.items() if target not in (state, DEAD, -1)}
+        if elsewhere:
+            self._set(state, slot, Outcome.DRIVEN, max(elsewhere, key=lambda target: elsewhere[target]))
+        elif DEAD in ends:
+            self._set(state, slot, Outcome.DEAD_END)
+        else:
+            self._set(state, slot, Outcome.BLOCKED)
+        return True
+
+    def explains(self, state: int, slot: int, end: int) -> bool:
+        """Whether a stochastic move has ended at ``end`` before (a state, or :data:`DEAD`)."""
+        return bool(self.stochastic[state, slot]) and end in self.counts.get((state, slot), {})
+
+    def outcome_model(self, retry: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """
+        Every move as an empirical model: one row per (move, end) with its probability. Once any move is stochastic
+        the world is, and every counted move is its counts (a stay or a dead end included: a move tried once is its one
+        end so far); a move not counted (an inferred way back, or every move of a store that counts nothing) is its
+        one end, where :meth:`moves` routes along it. Never out of an aliased state.
+
+        :return: int64 states, slots, ends (a state, or :data:`DEAD`) and float64 probabilities
+        """
+        n = self.n_rows
+        counted = np.zeros((n, self.n_slots), dtype=bool)
+        chance = []
+        if self.n_stochastic:
+            for (state, slot), ends in self.counts.items():
+                counted[state, slot] = True
+                if state in self.aliased:
+                    continue
+                total = sum(ends.values())
+                chance += [(state, slot, end, count / total) for end, count in ends.items() if end != -1]
+        states, slots = np.nonzero(self.moves(np.arange(n), retry) & ~counted)
+        parts = [(states, slots, self.target[states, slots].astype(np.int64), np.ones(states.size))]
+        if chance:  # -1, outside the memory, has no value: left out
+            columns = np.array(chance, dtype=np.float64).T
+            parts.append((*(columns[:3].astype(np.int64)), columns[3]))
+        return tuple(np.concatenate([part[index] for part in parts]) for index in range(4))  # type: ignore[return-value]
 
     def _set(
         self, state: int, slot: int, outcome: Outcome, target: int | None = None, arrival: int | None = None
@@ -275,6 +369,16 @@ class EdgeStore:
         self.version += 1
         self.lost_move_version = self.version
 
+    def forget_disputes(self) -> None:
+        """Forget every disputed move, alias and twin (evidence gathered from pictures that were not recognised
+        reliably: while the memory stood aside); a move that still leads to two places by turns is disputed anew."""
+        if self._disputes or self.aliased or self.twins:
+            self.version += 1
+        self._disputes.clear()
+        self.aliased.clear()
+        self.twins.clear()
+        self.disputed.clear()
+
     def _one_place(self, first: int, second: int, source: tuple[int, int]) -> bool:
         """Whether another move has led to both states too: one place remembered as two (its pictures vary more than
         the recogniser's thresholds), not two places that ``source``'s state pictures alike. Such pairs are kept in
@@ -324,7 +428,7 @@ class EdgeStore:
         it for all of them; a split state's moves in may have ended at either of its places.
         """
         rows = slice(0, self.n_rows)
-        into = (self.target[rows] == lost) & np.isin(self.outcome[rows], ROUTES)
+        into = (self.target[rows] == lost) & np.isin(self.outcome[rows], ROUTES) & ~self.stochastic[rows]
         if but_from >= 0:
             into[but_from] = False
         if into.any():
@@ -373,5 +477,11 @@ class EdgeStore:
         state.setdefault("twins", set())  # saved before states were merged
         state.setdefault("disputed", [])  # saved before states were split
         state.setdefault("one_place_twice", False)
+        for name in ("counts", "_last_end", "_changes"):  # saved before outcomes were counted
+            state.setdefault(name, {})
+        state.setdefault("n_stochastic", 0)
+        state.setdefault("count_outcomes", False)
+        if "stochastic" not in state:
+            state["stochastic"] = np.zeros_like(state["outcome"], dtype=np.bool_)
         self.__dict__.update(state)
         self._grow(max(1024, 2 * self.n_rows))

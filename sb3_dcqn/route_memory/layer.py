@@ -170,6 +170,8 @@ class RouteMemoryLayer:
         self._bumps: _BumpGuard | None = None
         self._success_reward: float | None = None
         self._explores = self._explores_first = False
+        self._acted = np.zeros(2, dtype=np.int64)  # rollout actions since the last log: the memory's, all
+        self._said: set[bool] = set()  # which of standing aside (True) and speaking again (False) was said
         super().__init__(*args, **kwargs)
 
     def __repr__(self) -> str:
@@ -182,8 +184,9 @@ class RouteMemoryLayer:
 
     @property
     def _memory_speaks(self) -> bool:
-        """Whether the memory answers (it exists, and has not stepped aside for places it cannot recognise)."""
-        return self.memory is not None and not getattr(self.memory, "stepped_aside", False)
+        """Whether the memory answers (it exists, has not stepped aside for places it cannot recognise, and does not
+        stand aside for predictions that fail: :attr:`RouteMemory.speaks`)."""
+        return self.memory is not None and self.memory.speaks
 
     # ------------------------------------------------------------------------------------------------ setting up
     def _setup_model(self) -> None:
@@ -257,14 +260,20 @@ class RouteMemoryLayer:
         ]
         return np.array(said, dtype=bool) & terminated
 
-    def _place_keys(self, observations: Any, actions: np.ndarray, next_observations: Any) -> PlaceKeys | None:
-        """The transitions' places and slots in the memory, for revision by place (``None``: it stepped aside)."""
-        if not self._memory_speaks:
-            return None
+    def _place_keys(self, observations: Any, actions: np.ndarray, next_observations: Any) -> PlaceKeys:
+        """The transitions' places and slots in the memory, for revision by place: none (every move -1, neither revising
+        nor revised) where the memory does not speak (the critics' data as they are) or where a move is stochastic
+        (the world has not shown itself deterministic there: a new outcome contradicts no stored one)."""
         assert self.memory is not None
+        size = np.asarray(actions).size
+        if not self._memory_speaks:
+            unknown = np.full(size, -1, dtype=np.int64)
+            return PlaceKeys(unknown, unknown.copy(), np.zeros(size, dtype=bool))
         places, arrivals = self.memory.states_of(observations), self.memory.states_of(next_observations)
         n_slots = int(self.action_space.n)  # type: ignore[attr-defined]
-        moves = np.where(places >= 0, places * n_slots + self._slots(observations, actions), -1)
+        slots = self._slots(observations, actions)
+        revisable = self.memory.deterministic(places, slots)
+        moves = np.where(revisable, places * n_slots + slots, -1)
         return PlaceKeys(moves, arrivals, (places == arrivals) & (places >= 0))
 
     def _slots(self, observations: Any, actions: np.ndarray) -> np.ndarray:
@@ -310,6 +319,7 @@ class RouteMemoryLayer:
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
+        self._acted[1] += n_envs
         if self.explores_untried and self._memory_speaks and self.num_timesteps < learning_starts:  # type: ignore[attr-defined]
             action = self._explore(self._last_obs, None, None)  # type: ignore[attr-defined]  # the warm-up explores too
             return action, action
@@ -322,6 +332,7 @@ class RouteMemoryLayer:
         batched, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
         states = self.memory.states_of(batch)
         actions = self._explorer.actions_at(states, batch)
+        self._acted[0] += int((actions >= 0).sum())
         actions = self._uniform_where(actions)  # epsilon's own draw where the memory knows no way to the untried
         return actions if batched else actions[0]
 
@@ -378,6 +389,8 @@ class RouteMemoryLayer:
             # steps back to the goal would never reach the untried pair (temporally extended exploration)
             driving = self._explorer.driving(states)
             actions = self._explore_where((actions < 0) | driving, actions, batch, states)
+        if rollout:
+            self._acted[0] += int((actions >= 0).sum())
         actions, state = self._greedy_where(actions < 0, actions, batch, state, episode_start)
         if evaluation:
             actions = self._without_repeated_bumps(batch, actions, states)
@@ -406,7 +419,10 @@ class RouteMemoryLayer:
         n_slots = int(self.action_space.n)  # type: ignore[attr-defined]
         frames = self._slots(batch, np.zeros_like(actions))  # the slot of action 0: the frame (0 where none)
         slot_of_action = (frames[:, None] + np.arange(n_slots)[None, :]) % n_slots
-        banned = np.take_along_axis(self._bumps.banned_slots(places, n_slots), slot_of_action, axis=1)
+        banned = self._bumps.banned_slots(places, n_slots)
+        known = states >= 0
+        banned[known] &= ~self.memory.edges.stochastic[states[known]]  # a stay there is chance, not a closure
+        banned = np.take_along_axis(banned, slot_of_action, axis=1)
         hit = banned[np.arange(actions.size), actions] & ~banned.all(axis=1)
         if hit.any():
             values = self._action_values(select_rows(batch, hit))
@@ -448,7 +464,21 @@ class RouteMemoryLayer:
         if self.memory is not None:
             for name, value in getattr(self.memory, "statistics", dict)().items():
                 self.logger.record(f"memory/{name}", value)  # type: ignore[attr-defined]
+            memory_actions, actions = self._acted.tolist()
+            # The share of the rollout's actions the memory chose (routes, exploration), the rest the algorithm's
+            self.logger.record("memory/action_share", memory_actions / actions if actions else 0.0)  # type: ignore[attr-defined]
+            self._acted[:] = 0
+            self._say(getattr(self.memory, "notices", []))
         return rollout
+
+    def _say(self, notices: list[tuple[bool, str]]) -> None:
+        """Print the memory's notices (standing aside, speaking again) at ``verbose >= 1``, the first of each kind
+        only (``verbose >= 2``: every one); they are taken either way."""
+        for aside, words in notices:
+            if self.verbose >= 2 or (self.verbose >= 1 and aside not in self._said):  # type: ignore[attr-defined]
+                print(words)
+            self._said.add(aside)
+        notices.clear()
 
     def learn(
         self,
@@ -478,6 +508,8 @@ class RouteMemoryLayer:
             "_success_reward",
             "_explores",
             "_explores_first",
+            "_acted",
+            "_said",
         ]  # rebuilt from route_memory on load
         return [*super()._excluded_save_params(), *excluded]  # type: ignore[misc]
 

@@ -61,7 +61,8 @@ from gymnasium import spaces
 
 from sb3_dcqn.place_frame import PlaceFrame, place_frame_of
 from sb3_dcqn.place_recognition import AlignedNearestPlace
-from sb3_dcqn.route_memory.edges import CLOSED, ROUTES, EdgeStore, Outcome
+from sb3_dcqn.route_memory.edges import CLOSED, DEAD, ROUTES, EdgeStore, Outcome
+from sb3_dcqn.route_memory.evidence import PredictionRecord
 from sb3_dcqn.route_memory.explorer import UntriedExplorer, path_to
 from sb3_dcqn.route_memory.goals import ACHIEVED_GOAL_KEY, GoalIndex, PlaceMatcher
 from sb3_dcqn.route_memory.places import Answer, PlaceRecogniser
@@ -92,6 +93,9 @@ DEFAULT_CACHE_BYTES = 64 * 2**20
 RECOGNITION_MODES = ("auto", "similar", "exact")
 GUARD_WINDOW = 1_000  # transitions over which the guard counts new states and unsure pictures
 GROWTH_GUARD = 0.75  # new states per transition past which recognition is failing
+# Transitions after which a memory none of whose pictures came twice steps aside (CartPole: every observation new):
+# a memory of places the agent never sees again only biases its exploration
+NEVER_AGAIN_WINDOW = 100
 UNSURE_GUARD = 0.5  # share of unsure pictures past which recognition is failing
 
 
@@ -174,6 +178,7 @@ class RouteMemory:
             retry_after,
             forget_moves_into_on_bump=place_frame is None,
             one_place_twice=similar,
+            count_outcomes=place_frame is None,  # poses: a move that ends in two places by turns is the world's chance
         )
         self.planner = Planner(self.edges, self.cache)
         self.recogniser = PlaceRecogniser(
@@ -199,6 +204,9 @@ class RouteMemory:
         self._exhausted_version = -1
         self.stepped_aside = False
         self.aside_reason = ""
+        self.predictions = PredictionRecord()  # its moves' predictions, scored: where they fail it stands aside
+        # What it has to say, for the caller to print: (whether it stands aside (else speaks again), the words)
+        self.notices: list[tuple[bool, str]] = []
         self.merged = 0  # pairs of states merged into one place
         self.split = 0  # states split into two places
         self._guard: deque[np.ndarray] = deque()  # per recorded batch: (transitions, new states, unsure pictures)
@@ -231,6 +239,12 @@ class RouteMemory:
 
     def __len__(self) -> int:
         return self.n_states
+
+    @property
+    def speaks(self) -> bool:
+        """Whether the memory routes and explores: it has not stepped aside for good (places not recognised), and
+        does not stand aside now (its predictions fail: :mod:`~sb3_dcqn.route_memory.evidence`)."""
+        return not self.stepped_aside and not self.predictions.standing_aside
 
     @property
     def outcome(self) -> np.ndarray:
@@ -302,6 +316,9 @@ class RouteMemory:
             "known_below": float("nan") if recogniser.known is None else recogniser.known,
             "new_above": float("nan") if recogniser.new is None else recogniser.new,
             "stepped_aside": float(self.stepped_aside),
+            "prediction_accuracy": self.predictions.accuracy,
+            "standing_aside": float(self.predictions.standing_aside),
+            "stochastic_moves": float(self.edges.n_stochastic),
         }
 
     # ------------------------------------------------------------------ pictures of places
@@ -485,10 +502,16 @@ class RouteMemory:
         arrivals = self._frames(next_observations)
         unsure = (answers == Answer.UNSURE) | (next_answers == Answer.UNSURE)
         disputed: set[int] = set()
+        hits: list[bool] = []  # the moves' predictions, each scored before its move is recorded
         for index, (state, slot, following, arrival, is_dead, skip) in enumerate(zip(
             states.tolist(), slots.tolist(), next_states.tolist(), arrivals.tolist(), dead.tolist(), unsure.tolist(),
             strict=True,
         )):  # fmt: skip
+            if state >= 0:
+                self.edges.ensure(self.n_states)
+                hit = self._came_true(state, slot, DEAD if is_dead else following, next_answers[index] != Answer.UNSURE)
+                if hit is not None:
+                    hits.append(hit)
             if skip or state < 0:  # an unsure picture: nothing is recorded (the clock still counts)
                 self.edges.clock += 1
                 continue
@@ -497,6 +520,9 @@ class RouteMemory:
             if self.edges.disputed:
                 disputed |= self._witness_disputes(observations, next_observations, index, state)
         self._count(actions.size, self.n_states - before, int(unsure.sum()))
+        self._judge(hits)
+        if self.predictions.standing_aside:
+            return  # its evidence does not hold: it changes no place on it (merging, splitting)
         self._merge_twins()
         self._split_aliases(disputed)
 
@@ -555,6 +581,41 @@ class RouteMemory:
         expected[known] = np.where(np.isin(outcomes, ROUTES), targets, np.where(np.isin(outcomes, CLOSED), rows, -1))
         return expected
 
+    def deterministic(self, states: np.ndarray, slots: np.ndarray) -> np.ndarray:
+        """Which moves (``states`` and their ``slots``) are of known states and not stochastic (their outcome so far
+        one end at a time, as a deterministic world's with closures)."""
+        states = np.asarray(states, dtype=np.int64).reshape(-1)
+        slots = np.asarray(slots, dtype=np.int64).reshape(-1)
+        known = (states >= 0) & (states < self.edges.n_rows) & (slots >= 0)
+        known[known] = ~self.edges.stochastic[states[known], slots[known]]
+        return known
+
+    def _came_true(self, state: int, slot: int, end: int, sure: bool) -> bool | None:
+        """Whether a remembered move predicted where it led (``end``: a state, or :data:`DEAD` for an end without
+        success; ``sure``: the picture there was recognised): its target, the state itself for a closed road, one of
+        its ends before for a stochastic move; ``None`` where it predicts nothing (untried, a dead end, outside)."""
+        edges = self.edges
+        if edges.stochastic[state, slot]:
+            return sure and edges.explains(state, slot, end)
+        outcome = edges.outcome[state, slot]
+        predicted = int(edges.target[state, slot]) if outcome in ROUTES else state if outcome in CLOSED else -1
+        if predicted < 0:
+            return None
+        return sure and end == predicted
+
+    def _judge(self, hits: list[bool]) -> None:
+        """Score the predictions just made, and say so where the memory now stands aside or speaks again."""
+        record = self.predictions
+        if hits and record.score(np.array(hits, dtype=bool)):
+            held = f"{record.accuracy:.0%} of the last {len(record)}"
+            if record.standing_aside:
+                self.cache.clear()
+                words = f"stands aside (its moves' predictions held for {held}): the algorithm acts alone, on data "
+                self.notices.append((True, f"route memory: {words}the memory leaves as they are"))
+            else:
+                self.edges.forget_disputes()  # gathered while its pictures were not told apart: no evidence
+                self.notices.append((False, f"route memory: speaks again (its moves' predictions hold for {held})"))
+
     # ------------------------------------------------------------------ the guard
     def _count(self, transitions: int, new: int, unsure: int) -> None:
         """The guard's counts over about the last ``GUARD_WINDOW`` transitions."""
@@ -571,6 +632,10 @@ class RouteMemory:
             self._step_aside(
                 f"its pictures do not separate places (the nearest other picture is as far for a repeat visit as for "
                 f"another place, over {recogniser.window} distinct pictures)"
+            )
+        elif NEVER_AGAIN_WINDOW <= transitions < GUARD_WINDOW and new >= transitions:
+            self._step_aside(
+                f"none of the first {transitions} transitions met a state seen before: states never repeat"
             )
         elif transitions >= GUARD_WINDOW and new > GROWTH_GUARD * transitions:
             self._step_aside(f"{new} new states in the last {transitions} transitions: places are not recognised")
@@ -646,7 +711,7 @@ class RouteMemory:
         states = self.states_of(observations) if states is None else np.asarray(states, dtype=np.int64)
         slots = np.full(states.size, -1, dtype=np.int64)
         arrived = np.zeros(states.size, dtype=bool)
-        if self.stepped_aside or self.n_states == 0:
+        if not self.speaks or self.n_states == 0:
             return slots, arrived
         self.edges.ensure(self.n_states)
         by_goal: dict[bytes, list[int]] = {}
@@ -656,8 +721,12 @@ class RouteMemory:
             rows = np.array(indices)
             goal_states = self._goal_states(goal, observations, indices[0])
             key, is_target = self._search_to(goal, goal_states, retry)
-            hops = self.planner.cached_hops(key, is_target, staleness, retry)
-            slots[rows] = self.planner.first_slots(states[rows], hops, is_target, retry)
+            if self.edges.n_stochastic:  # a slippery world: the surest route, not the fewest hops
+                values = self.planner.cached_values(key, goal_states, staleness, retry)
+                slots[rows] = self.planner.best_slots(states[rows], values)
+            else:
+                hops = self.planner.cached_hops(key, is_target, staleness, retry)
+                slots[rows] = self.planner.first_slots(states[rows], hops, is_target, retry)
             arrived[rows] = np.isin(states[rows], goal_states) & (states[rows] >= 0)
         if retry:  # passing by a closed road whose retry is due: try it (one bump per backoff, where still closed)
             slots = np.where((aged := self._retry_due_roads(states)) >= 0, aged, slots)
@@ -702,6 +771,13 @@ class RouteMemory:
         """The slots never tried from ``state`` (inferred ones are known, not untried)."""
         return np.flatnonzero(self.edges.outcome[state] == Outcome.UNTRIED)
 
+    def _untried_in_turn(self, state: int) -> list[int]:
+        """The untried slots of a state in the order the explorer tries them: the lowest first, but at a state of which
+        nothing is known yet, every slot untried, in a uniform order (the memory knows nothing there to prefer one
+        by: its choice is epsilon's, not a bias towards slot 0 at every new observation, as CartPole's would be)."""
+        slots = self.untried_slots(state)
+        return (np.random.permutation(slots) if slots.size == self.n_actions else slots).tolist()
+
     def frontier(self) -> np.ndarray:
         """The states with at least one untried slot."""
         self.edges.ensure(self.n_states)
@@ -715,7 +791,7 @@ class RouteMemory:
 
         :return: the actions, -1 where a state is unknown or nothing untried can be reached
         """
-        if self.stepped_aside or self.n_states == 0:
+        if not self.speaks or self.n_states == 0:
             return np.full(_batch_size(observations), -1, dtype=np.int64)
         self.edges.ensure(self.n_states)
         hops = self.planner.cached_hops(("explore",), self.edges.untried)
@@ -738,7 +814,7 @@ class RouteMemory:
         if self._exhausted_version != self.edges.version:
             self._exhausted, self._exhausted_version = set(), self.edges.version
         if state not in self._exhausted:
-            path = path_to(self.edges, state, lambda here: self.untried_slots(here).tolist(), exclude)
+            path = path_to(self.edges, state, self._untried_in_turn, exclude)
             if path is not None:
                 return path
             if not exclude:
@@ -759,6 +835,8 @@ class RouteMemory:
     def __setstate__(self, state: dict[str, Any]) -> None:
         state.setdefault("merged", 0)  # saved before states were merged
         state.setdefault("split", 0)  # saved before states were split
+        state.setdefault("predictions", PredictionRecord())  # saved before predictions were scored
+        state.setdefault("notices", [])
         if "edges" not in state:  # saved by an earlier release: its facts carried over, recognised bit for bit
             from sb3_dcqn.route_memory.legacy import load_earlier_memory
 

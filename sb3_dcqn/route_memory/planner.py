@@ -5,6 +5,12 @@ Python loop; each level reads only the moves into its states, so a search reads 
 in one cache bounded in bytes (:class:`BoundedCache`, least recently used first out; a result larger than the whole
 bound is not kept), shared with the goal index's answers, so that :meth:`Planner.cache_nbytes` is everything the
 memory keeps beside its facts.
+
+**Where some moves are stochastic** (:attr:`~sb3_dcqn.route_memory.edges.EdgeStore.stochastic`: a slippery world),
+fewest hops is no longer the best route: :meth:`Planner.values_to` solves the empirical model by value iteration
+(the discounted chance of reaching the goal by each move, then the best moves; R-max's and Dyna-Q's model of observed
+counts), and :meth:`Planner.best_slots` takes the move of highest value. A deterministic graph is its one-outcome
+case: with every move certain, the best move is the first of a fewest-hops route.
 """
 
 from __future__ import annotations
@@ -17,9 +23,14 @@ import numpy as np
 
 from sb3_dcqn.route_memory.edges import EdgeStore
 
-__all__ = ["NO_ROUTE", "BoundedCache", "Planner"]
+__all__ = ["MAX_SWEEPS", "NO_ROUTE", "PLAN_DISCOUNT", "BoundedCache", "Planner"]
 
 NO_ROUTE = -1  # hops of a state with no remembered route
+# Value iteration's discount: a surer route beats a shorter one (0.99^20 = 0.82 is worth a 20-hop detour round a 20%
+# risk), and of two equally sure routes the shorter wins
+PLAN_DISCOUNT = 0.99
+MAX_SWEEPS = 2_000  # value iteration's bound (a sweep reads every counted move once); it stops at convergence first
+_CONVERGED = 1e-9
 _NEVER = np.iinfo(np.int64).max
 TargetTest = Callable[[np.ndarray], np.ndarray]  # rows -> (rows, slots) bool: which moves reach the target
 
@@ -143,4 +154,59 @@ class Planner:
         cost = np.where(is_target(rows), 1, np.where(moves, via + 1, _NEVER))
         best = cost.argmin(axis=1)
         slots[known] = np.where(cost[np.arange(rows.size), best] != _NEVER, best, -1)
+        return slots
+
+    def values_to(self, goal_states: np.ndarray, retry: bool = False) -> np.ndarray:
+        """
+        Value iteration on the empirical model (:meth:`~sb3_dcqn.route_memory.edges.EdgeStore.outcome_model`): per
+        ``(state, slot)``, the discounted chance (:data:`PLAN_DISCOUNT`) of reaching one of ``goal_states`` by that
+        move and the best moves after it. Arriving at a goal state pays 1 and ends; a dead end pays 0 and ends.
+
+        :return: ``(n_states, n_slots)`` float64 values, ``-inf`` where a slot is no move (untried, closed, a dead end)
+        """
+        n, n_slots = self.edges.n_rows, self.edges.n_slots
+        states, slots, ends, probabilities = self.edges.outcome_model(retry)
+        goal = np.zeros(n + 1, dtype=bool)  # the extra row: DEAD and outside, no goal
+        goal[np.asarray(goal_states, dtype=np.int64)] = True
+        ends = np.where(ends >= 0, ends, n)
+        pays = probabilities * goal[ends]
+        goes_on = probabilities * PLAN_DISCOUNT * (~goal[ends] & (ends < n))
+        flat = states * n_slots + slots
+        is_move = np.zeros(n * n_slots, dtype=bool)
+        is_move[flat] = True
+        values = np.zeros(n + 1)
+        q = np.full(n * n_slots, -np.inf)
+        for _ in range(MAX_SWEEPS):
+            q[is_move] = np.bincount(flat, weights=pays + goes_on * values[ends], minlength=n * n_slots)[is_move]
+            best = np.maximum(q.reshape(n, n_slots).max(axis=1, initial=0.0), 0.0)
+            converged = np.abs(best - values[:n]).max(initial=0.0) < _CONVERGED
+            values[:n] = best
+            if converged:
+                break
+        return q.reshape(n, n_slots)
+
+    def cached_values(
+        self, key: Hashable, goal_states: np.ndarray, staleness: int = 0, retry: bool = False
+    ) -> np.ndarray:
+        """:meth:`values_to` for a named goal, kept as :meth:`cached_hops` keeps its searches."""
+        key = ("values", key)
+        entry = self.cache.get(key)
+        version = self.edges.version
+        if entry is not None and entry[0] >= self.edges.lost_move_version and version - entry[0] <= staleness:
+            return entry[1]
+        values = self.values_to(goal_states, retry)
+        self.cache.put(key, version, values)
+        return values
+
+    @staticmethod
+    def best_slots(states: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """The slot of highest value of each state (the lowest on ties; -1: unknown state, or no move with a chance of
+        the goal)."""
+        states = np.asarray(states, dtype=np.int64).reshape(-1)
+        slots = np.full(states.size, -1, dtype=np.int64)
+        known = (states >= 0) & (states < len(values))
+        if known.any():
+            rows = values[states[known]]
+            best = rows.argmax(axis=1)
+            slots[known] = np.where(rows[np.arange(best.size), best] > 0, best, -1)
         return slots
