@@ -31,7 +31,15 @@ from sb3_dcqn.replay import (
     RevisionDictReplayBuffer,
 )
 from sb3_dcqn.route_memory import algorithm_name, with_route_memory
-from sb3_dcqn.zoo_entry import ZOO_ENV_KEYS, EntryError, ZooEntry, check_params, load_zoo_entry, read_entry
+from sb3_dcqn.zoo_entry import (
+    ZOO_ENV_KEYS,
+    EntryError,
+    ZooEntry,
+    check_params,
+    load_zoo_entry,
+    read_entry,
+    read_params,
+)
 from sb3_dcqn.zoo_files import default_hyperparams_path
 
 GOAL_ENV = "CampusNavGoal-v0"
@@ -138,6 +146,25 @@ def test_params_overrides_replace_the_entrys_settings_before_they_are_read(tmp_p
     with pytest.raises(EntryError, match=r"^-params learning_rate: expected a linear schedule") as raised:
         load_zoo_entry(conf, "CartPole-v1", {"learning_rate": "lin_fast"})
     assert raised.value.from_params and (raised.value.file, raised.value.entry) == (conf, "CartPole-v1")
+
+
+@pytest.mark.parametrize("zoo_installed", [True, False], ids=["with rl_zoo3", "without rl_zoo3"])
+def test_params_read_the_same_with_and_without_rl_zoo3(monkeypatch: pytest.MonkeyPatch, zoo_installed: bool) -> None:
+    # -params' one reading (Python as the zoo reads it, else YAML) needs no rl_zoo3: dcqn-campusnav reads them alike
+    items = ["learning_rate:lin_1e-3", "train_freq:[2, step]", "policy_kwargs:dict(net_arch=[8])", "gamma:0.9"]
+    with contextlib.nullcontext() if zoo_installed else without_rl_zoo3(monkeypatch):
+        params = read_params(items)
+        entry = entry_of(policy="MlpPolicy", **params)
+    assert params == {
+        "learning_rate": "lin_1e-3",
+        "train_freq": [2, "step"],
+        "policy_kwargs": {"net_arch": [8]},
+        "gamma": 0.9,
+    }
+    assert entry.hyperparams["learning_rate"](0.5) == pytest.approx(5e-4) and entry.hyperparams["train_freq"] == (
+        2,
+        "step",
+    )
 
 
 def test_an_env_without_its_own_entry_reads_the_default_entry_as_the_zoo_does(tmp_path: Path) -> None:
