@@ -12,11 +12,11 @@ as in the zoo's own CLI (``train`` when the first argument is an option)::
     dcqn-zoo plot_train -a dcqn -e CartPole-v1 -f logs/ -w 20 -o curve.png   # -o FILE: ours, saved with Agg
 
 The plot commands need seaborn and scipy (in our ``zoo`` extra); ``record_video`` an env with ``rgb_array`` rendering.
-Before the zoo's ``train`` runs (as it is: none of its methods replaced), the entry it will read is read and checked
-through the schema ``dcqn-campusnav`` reads it with (:mod:`sb3_dcqn.zoo_entry`; see :func:`_prepare_train`).
-rl_zoo3 2.9 problems worked around: ``enjoy`` imports ``requests`` undeclared; ``record_video`` ignores the
-``env_kwargs`` saved in ``config.yml``; ``train``'s evaluation envs lack the entry's ``env_kwargs``; ``-n -5`` trains
-the entry's budget; tracebacks for bad input.
+The zoo's commands run as they are (none of their functions replaced): ``dcqn-zoo`` only reads and checks what they
+will read first (the entry, through :mod:`sb3_dcqn.zoo_entry`, as ``dcqn-campusnav`` reads it; ``-params`` as
+:func:`~sb3_dcqn.zoo_entry.read_params` reads it; the trained agent, by the zoo's ``get_model_path``) and adds
+arguments for three gaps of rl_zoo3 2.9: ``train``'s evaluation envs and ``record_video`` lack the entry's
+``env_kwargs``; ``-n -5`` trains the entry's budget. ``enjoy``'s undeclared import of ``requests`` gets a stand-in.
 
 Registers no env (:mod:`sb3_dcqn.campusnav.zoo` registers CampusNav's; ``--gym-packages`` others'); needs the zoo extra.
 """
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import importlib
 import io
 import math
@@ -220,17 +221,19 @@ def _with_default_threads(
 
 def _prepare(command: str, args: list[str], options: argparse.Namespace) -> tuple[Callable[[], None], list[str]]:
     """The function that runs ``command`` (it parses ``sys.argv``) and the arguments to give it."""
+    help_asked = any(arg in _HELP_FLAGS for arg in args)
     if command == "train":
         return _prepare_train(args, options)
-    if command in ("enjoy", "record_video") and not any(arg in _HELP_FLAGS for arg in args):
-        found = _found_model(command, args)
     if command == "enjoy":
         _allow_enjoy_without_requests()
         from rl_zoo3 import enjoy
 
+        if not help_asked:
+            _found_model(command, args)
         return enjoy.enjoy, args
     if command == "record_video":
-        return _record_video, args if any(arg in _HELP_FLAGS for arg in args) else _with_saved_env_kwargs(args, found)
+        runner = functools.partial(runpy.run_module, "rl_zoo3.record_video", run_name="__main__")  # a script
+        return runner, args if help_asked else _with_saved_env_kwargs(args, _found_model(command, args))
     if command == "plot_train":
         output, args = _pop_plot_output(args)
         if output is not None:
@@ -465,34 +468,25 @@ def _allow_enjoy_without_requests() -> None:
         sys.modules["rl_zoo3.load_from_hub"] = stand_in
 
 
-def _record_video() -> None:
-    """Run ``rl_zoo3.record_video`` (a script: its code is under ``if __name__ == "__main__"``)."""
-    runpy.run_module("rl_zoo3.record_video", run_name="__main__")
-
-
 def _with_saved_env_kwargs(args: list[str], stats_path: str) -> list[str]:
     """
-    ``record_video``'s ``args`` with the ``env_kwargs`` saved in the run's ``config.yml`` as ``--env-kwargs``:
-    rl_zoo3 2.9's ``record_video`` ignores them (CampusNav's ``view_dim``: the model's observation space would not
-    match the env's), which ``enjoy`` applies. Those of ``args.yml`` and of the command line still win.
+    ``record_video``'s ``args`` with the ``env_kwargs`` saved in the run's ``config.yml`` (those of the command line
+    winning) as ``--env-kwargs``: rl_zoo3 2.9's ``record_video`` ignores them (CampusNav's ``view_dim``: the model's
+    observation space would not match the env's), which ``enjoy`` applies.
     """
     from rl_zoo3.utils import StoreDict, get_saved_hyperparams
 
-    saved = dict(get_saved_hyperparams(stats_path)[0].get("env_kwargs") or {})
-    args_file = Path(stats_path) / "args.yml"
-    if args_file.is_file():
-        import yaml
-
-        saved.update(yaml.load(args_file.read_text(), Loader=yaml.UnsafeLoader).get("env_kwargs") or {})
     parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
     parser.add_argument("--env")  # known here, so that it is not read as --env-kwargs abbreviated
     parser.add_argument("--env-kwargs", nargs="+", action=StoreDict)
     options, rest = parser.parse_known_args(args)
-    env_kwargs = {**saved, **(options.env_kwargs or {})}
-    if not env_kwargs:
-        return args
+    env_kwargs = {**(get_saved_hyperparams(stats_path)[0].get("env_kwargs") or {}), **(options.env_kwargs or {})}
     env = [] if options.env is None else ["--env", options.env]
-    return [*rest, *env, "--env-kwargs", *(f"{key}:{value!r}" for key, value in env_kwargs.items())]
+    return (
+        [*rest, *env, "--env-kwargs", *(f"{key}:{value!r}" for key, value in env_kwargs.items())]
+        if env_kwargs
+        else args
+    )
 
 
 def _pop_plot_output(args: list[str]) -> tuple[str | None, list[str]]:
