@@ -39,8 +39,10 @@ from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any, NoReturn
 
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
 from sb3_dcqn.dcqn import DCQN
-from sb3_dcqn.route_memory.layer import algorithm_class_for
+from sb3_dcqn.route_memory.layer import algorithm_class_for, saved_algorithm_class
 from sb3_dcqn.zoo_entry import EntryError, ZooEntry, load_zoo_entry, read_params
 from sb3_dcqn.zoo_files import EVALUATED_KEYS, default_hyperparams_path, hyperparams_namespace
 
@@ -373,9 +375,11 @@ def _found_model(command: str, args: list[str]) -> str:
     """
     The run folder of the trained agent ``enjoy`` or ``record_video`` will load, found by the zoo's own
     ``get_model_path`` with their options before they run: a log folder or model that is not there is one line (the
-    zoo's ``enjoy`` would try to download it from the Hugging Face Hub, ``record_video`` raise).
+    zoo's ``enjoy`` would try to download it from the Hugging Face Hub, ``record_video`` raise). A model saved
+    wearing the route memory is loaded by the class that wears it (the zoo loads ``ALGOS[algo]``; the bare class
+    would drop the memory).
     """
-    from rl_zoo3.utils import EnvironmentName, get_model_path
+    from rl_zoo3.utils import ALGOS, EnvironmentName, get_model_path
 
     parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
     for *flags, default in (("--algo", "ppo"), ("--env", "CartPole-v1"), ("-f", "--folder", "rl-trained-agents")):
@@ -400,6 +404,9 @@ def _found_model(command: str, args: list[str]) -> str:
         _refuse(command, str(error))
     except (AssertionError, ValueError) as error:
         _refuse(command, f"{error} (-f names the log folder of the trained agents)")
+    bare = getattr(ALGOS.get(options.algo), "bare_class", ALGOS.get(options.algo))
+    if isinstance(bare, type) and issubclass(bare, OffPolicyAlgorithm):
+        ALGOS[options.algo] = saved_algorithm_class(found[1], bare)
     return os.path.join(found[2], str(EnvironmentName(options.env)))
 
 

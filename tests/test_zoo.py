@@ -356,6 +356,21 @@ def test_enjoy_plays_the_goal_env_agent(goal_run: Path) -> None:
     assert f"Loading logs/dcqn/{GOAL_ENV}_1/{GOAL_ENV}.zip" in result.stdout
 
 
+def test_enjoy_loads_a_model_that_wears_the_memory_as_the_class_that_wears_it(
+    goal_run: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The shipped goal entry asks for the route memory: DCQN.load would drop it and play the critics alone
+    from rl_zoo3 import enjoy
+    from rl_zoo3.utils import ALGOS
+
+    from sb3_dcqn.route_memory import with_route_memory
+
+    loaded: list[type] = []
+    monkeypatch.setattr(enjoy, "enjoy", lambda: loaded.append(ALGOS["dcqn"]))
+    main(["enjoy", "--algo", "dcqn", "--env", GOAL_ENV, "-f", str(goal_run / "logs"), "-n", "20", "--no-render"])
+    assert loaded == [with_route_memory(DCQN)]
+
+
 # ------------------------------------------------------------------------------------------------ bad input
 # Bad input is one line on stderr, exit 2, before any folder exists; a failed run leaves no empty folders
 FAILING_CALLBACK = """
