@@ -76,8 +76,11 @@ def floor_steps(
 
 
 def row_uses_memory(row: str) -> bool:
-    """Whether a row's DCQN keeps the route memory (its floor is then the floor over places)."""
-    return row == "shipped" or bool(ROWS[row].overrides.get("route_memory"))
+    """Whether a row's DCQN keeps the route memory (its floor is then the floor over places): the layer's reading of
+    the setting, not its truthiness (``{}``, the memory's defaults, keeps one)."""
+    from sb3_dcqn.route_memory.layer import memory_settings
+
+    return row == "shipped" or memory_settings(ROWS[row].overrides.get("route_memory")) is not None
 
 
 def ablation_table(runs: list[dict[str, Any]], floor_runs: Path = FLOOR_RUNS) -> list[str]:

@@ -148,9 +148,10 @@ class RouteEvaluationCallback(_TrainingProgress):
         rollout: an evaluation made during the last step is of a model that changed since)
     :param policy: Makes the policy evaluated from the model, anew at each evaluation (default: the model itself,
         its greedy ``predict`` asked with episode starts and its state per route)
-    :param critics_alone: Where the model's greedy ``predict`` plans over a route memory (a model with
-        ``route_memory`` set, e.g. DCQN's), also evaluate its critics alone (``model.policy.predict``) on ``goals``:
-        kept in each evaluation's ``critics`` and logged under ``eval/<log_name>/critics/...``
+    :param critics_alone: Where the model's greedy ``predict`` plans over a route memory (a model whose
+        ``wears_route_memory`` is true: sb3_dcqn's ``with_route_memory`` classes with the memory on), also evaluate
+        its critics alone (``model.policy.predict``) on ``goals``: kept in each evaluation's ``critics`` and logged
+        under ``eval/<log_name>/critics/...``
     :param sample: Evaluate only this many (start, heading) pairs per goal, drawn anew at each evaluation (seed
         ``sample_seed`` plus the number of evaluations so far, so that a lucky draw is not kept), e.g. on a city whose
         every pair takes minutes. A sample at both thresholds is confirmed at once by an evaluation of every pair of
@@ -303,7 +304,9 @@ class RouteEvaluationCallback(_TrainingProgress):
             for name, goals in self.other_goals.items()
         }
         critics = None
-        if self.critics_alone and self.policy is None and getattr(model, "route_memory", False):
+        # The model says whether it wears a memory (sb3_dcqn's layer: wears_route_memory), never its setting's
+        # truthiness: route_memory={} wears one. Duck typing: this package imports nothing from sb3_dcqn
+        if self.critics_alone and self.policy is None and getattr(model, "wears_route_memory", False):
 
             def critics_policy(observations: Any) -> np.ndarray:
                 return model.policy.predict(observations, deterministic=True)[0]

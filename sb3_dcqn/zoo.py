@@ -12,11 +12,11 @@ as in the zoo's own CLI (``train`` when the first argument is an option)::
     dcqn-zoo plot_train -a dcqn -e CartPole-v1 -f logs/ -w 20 -o curve.png   # -o FILE: ours, saved with Agg
 
 The plot commands need seaborn and scipy (in our ``zoo`` extra); ``record_video`` an env with ``rgb_array`` rendering.
-Before the zoo's ``train`` runs (as it is: none of its methods replaced), the entry it will read is read and checked
-through the schema ``dcqn-campusnav`` reads it with (:mod:`sb3_dcqn.zoo_entry`; see :func:`_prepare_train`).
-rl_zoo3 2.9 problems worked around: ``enjoy`` imports ``requests`` undeclared; ``record_video`` ignores the
-``env_kwargs`` saved in ``config.yml``; ``train``'s evaluation envs lack the entry's ``env_kwargs``; ``-n -5`` trains
-the entry's budget; tracebacks for bad input.
+The zoo's commands run as they are (none of their functions replaced): ``dcqn-zoo`` only reads and checks what they
+will read first (the entry, through :mod:`sb3_dcqn.zoo_entry`, as ``dcqn-campusnav`` reads it; ``-params`` as
+:func:`~sb3_dcqn.zoo_entry.read_params` reads it; the trained agent, by the zoo's ``get_model_path``) and adds
+arguments for three gaps of rl_zoo3 2.9: ``train``'s evaluation envs and ``record_video`` lack the entry's
+``env_kwargs``; ``-n -5`` trains the entry's budget. ``enjoy``'s undeclared import of ``requests`` gets a stand-in.
 
 Registers no env (:mod:`sb3_dcqn.campusnav.zoo` registers CampusNav's; ``--gym-packages`` others'); needs the zoo extra.
 """
@@ -25,19 +25,26 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import importlib
+import io
+import math
+import os
 import runpy
 import shutil
 import sys
 import types
-from collections.abc import Callable, Collection, Iterator
+import warnings
+from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any, NoReturn
 
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
 from sb3_dcqn.dcqn import DCQN
-from sb3_dcqn.route_memory.layer import algorithm_class_for
-from sb3_dcqn.zoo_entry import EntryError, ZooEntry, load_zoo_entry
-from sb3_dcqn.zoo_files import default_hyperparams_path, hyperparams_namespace
+from sb3_dcqn.route_memory.layer import algorithm_class_for, saved_algorithm_class
+from sb3_dcqn.zoo_entry import EntryError, ZooEntry, load_zoo_entry, read_params
+from sb3_dcqn.zoo_files import EVALUATED_KEYS, default_hyperparams_path, hyperparams_namespace
 
 ALGO_NAME = "dcqn"
 
@@ -164,7 +171,8 @@ def require_zoo(argv: list[str] | None = None) -> None:
 def _options(command: str, args: list[str]) -> argparse.Namespace:
     """
     The options of the zoo's commands that ``dcqn-zoo`` looks at, read as the zoo's own parsers read them (prefixes,
-    ``--name=value``, ``-n5``; ``-params`` and ``--env-kwargs`` evaluated as Python), with the zoo's defaults.
+    ``--name=value``, ``-n5``; ``--env-kwargs`` evaluated as Python), with the zoo's defaults; ``-params`` as
+    ``dcqn-campusnav`` reads it (:func:`~sb3_dcqn.zoo_entry.read_params`), which :func:`_params_for_zoo` hands on.
     """
     from rl_zoo3.utils import StoreDict
 
@@ -174,14 +182,21 @@ def _options(command: str, args: list[str]) -> argparse.Namespace:
     for flags in (("-n", "--n-timesteps"), ("-conf", "--conf-file"), ("--num-threads",)):
         parser.add_argument(*flags)
     parser.add_argument("--gym-packages", nargs="+", default=[])
-    for flags in (("-params", "--hyperparams"), ("--env-kwargs",), ("--eval-env-kwargs",)):
+    parser.add_argument("-params", "--hyperparams", nargs="+")
+    for flags in (("--env-kwargs",), ("--eval-env-kwargs",)):
         parser.add_argument(*flags, nargs="+", action=StoreDict)
     try:
-        return parser.parse_known_args(args)[0]
+        options = parser.parse_known_args(args)[0]
+        # -params as dcqn-campusnav reads it: one meaning of each value in both command lines
+        options.params_text = options.hyperparams
+        options.hyperparams = None if options.hyperparams is None else read_params(options.hyperparams)
     except argparse.ArgumentError as error:
+        _refuse(command, str(error))
+    except EntryError as error:
         _refuse(command, str(error))
     except (NameError, SyntaxError) as error:  # the zoo's StoreDict evaluates the values as Python
         _refuse(command, _first_line(error) + _EVALUATED_VALUE_HINT)
+    return options
 
 
 def _check_timesteps(command: str, value: str | None) -> None:
@@ -208,19 +223,19 @@ def _with_default_threads(
 
 def _prepare(command: str, args: list[str], options: argparse.Namespace) -> tuple[Callable[[], None], list[str]]:
     """The function that runs ``command`` (it parses ``sys.argv``) and the arguments to give it."""
+    help_asked = any(arg in _HELP_FLAGS for arg in args)
     if command == "train":
         return _prepare_train(args, options)
     if command == "enjoy":
         _allow_enjoy_without_requests()
         from rl_zoo3 import enjoy
 
-        def enjoy_found_models() -> None:
-            with _replaced(enjoy, "get_model_path", _model_path_or_refuse(command, enjoy.get_model_path)):
-                enjoy.enjoy()
-
-        return enjoy_found_models, args
+        if not help_asked:
+            _found_model(command, args)
+        return enjoy.enjoy, args
     if command == "record_video":
-        return _record_video, args
+        runner = functools.partial(runpy.run_module, "rl_zoo3.record_video", run_name="__main__")  # a script
+        return runner, args if help_asked else _with_saved_env_kwargs(args, _found_model(command, args))
     if command == "plot_train":
         output, args = _pop_plot_output(args)
         if output is not None:
@@ -245,11 +260,41 @@ def _prepare_train(args: list[str], options: argparse.Namespace) -> tuple[Callab
     if options.conf_file is None:
         options.conf_file = str(default_hyperparams_path())
         args = [*args, "-conf", options.conf_file]
+    args = _params_for_zoo(args, options)
     entry = _checked_entry(options)
     if entry is not None and entry.env_kwargs and options.env_kwargs is None and options.eval_env_kwargs is None:
         args = [*args, "--eval-env-kwargs", *(f"{key}:{value!r}" for key, value in entry.env_kwargs.items())]
     run = _next_run_folder(options)
     return (lambda: _train(train, None if entry is None else entry.source, run)), args
+
+
+def _params_for_zoo(args: list[str], options: argparse.Namespace) -> list[str]:
+    """
+    ``args`` with ``-params`` given to the zoo as :func:`~sb3_dcqn.zoo_entry.read_params` read them, in the zoo's
+    syntax (its ``StoreDict`` evaluates each value as Python): plain values as Python literals (``lin_3e-4``, which
+    Python cannot read, reaches it as the string YAML made of it); an object the zoo makes of a string itself
+    (``policy_kwargs``, the replay buffer's keys) as that string. The zoo's rule stays: the last ``-params`` counts.
+    """
+    if options.hyperparams is None:
+        return args
+    parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    parser.add_argument("-params", "--hyperparams", nargs="+")
+    texts = {key.strip(): text.strip() for key, _, text in (item.partition(":") for item in options.params_text)}
+    items = []
+    for key, value in options.hyperparams.items():
+        if not _is_literal(value) and key not in EVALUATED_KEYS:
+            _refuse("train", f"-params {key}: {texts[key]!r} is not a value the zoo's -params can take")
+        items.append(f"{key}:{value!r}" if _is_literal(value) else f"{key}:{texts[key]!r}")
+    return [*parser.parse_known_args(args)[1], "-params", *items]
+
+
+def _is_literal(value: Any) -> bool:
+    """Whether ``repr(value)`` is a Python literal that evaluates back to ``value`` (numbers, strings, containers)."""
+    if isinstance(value, list | tuple):
+        return all(map(_is_literal, value))
+    if isinstance(value, dict):
+        return all(_is_literal(key) and _is_literal(item) for key, item in value.items())
+    return value is None or isinstance(value, bool | int | str) or (isinstance(value, float) and math.isfinite(value))
 
 
 def _checked_entry(options: argparse.Namespace) -> ZooEntry | None:
@@ -326,34 +371,50 @@ def _raised_in(error: BaseException, *methods: str) -> bool:
     return False
 
 
-@contextlib.contextmanager
-def _replaced(owner: Any, name: str, value: Any) -> Iterator[None]:
-    """``owner.name`` is ``value`` while the block runs (the zoo's scripts look their helpers up by name)."""
-    original = getattr(owner, name)
-    setattr(owner, name, value)
+def _found_model(command: str, args: list[str]) -> str:
+    """
+    The run folder of the trained agent ``enjoy`` or ``record_video`` will load, found by the zoo's own
+    ``get_model_path`` with their options before they run: a log folder or model that is not there is one line (the
+    zoo's ``enjoy`` would try to download it from the Hugging Face Hub, ``record_video`` raise). A model saved
+    wearing the route memory is loaded by the class that wears it (the zoo loads ``ALGOS[algo]``; the bare class
+    would drop the memory).
+    """
+    from rl_zoo3.utils import ALGOS, EnvironmentName, get_model_path
+
+    parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    for *flags, default in (("--algo", "ppo"), ("--env", "CartPole-v1"), ("-f", "--folder", "rl-trained-agents")):
+        parser.add_argument(*flags, default=default)
+    parser.add_argument("--exp-id", type=int, default=0)
+    parser.add_argument("--load-checkpoint")
+    for flag in ("--load-best", "--load-last-checkpoint"):
+        parser.add_argument(flag, action="store_true")
     try:
-        yield
-    finally:
-        setattr(owner, name, original)
-
-
-def _model_path_or_refuse(command: str, get_model_path: Callable[..., Any]) -> Callable[..., Any]:
-    """The zoo's ``get_model_path``, refusing in one line a log folder or model that is not there (no Hub download)."""
-
-    def found(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return get_model_path(*args, **kwargs)
-        except (AssertionError, ValueError) as error:
-            _refuse(command, f"{error} (-f names the log folder of the trained agents)")
-
-    return found
+        options = parser.parse_known_args(args)[0]
+        with contextlib.redirect_stdout(io.StringIO()):  # the zoo says which run it loads when it runs
+            found = get_model_path(
+                options.exp_id,
+                options.folder,
+                options.algo,
+                EnvironmentName(options.env),
+                options.load_best,
+                options.load_checkpoint,
+                options.load_last_checkpoint,
+            )
+    except argparse.ArgumentError as error:
+        _refuse(command, str(error))
+    except (AssertionError, ValueError) as error:
+        _refuse(command, f"{error} (-f names the log folder of the trained agents)")
+    bare = getattr(ALGOS.get(options.algo), "bare_class", ALGOS.get(options.algo))
+    if isinstance(bare, type) and issubclass(bare, OffPolicyAlgorithm):
+        ALGOS[options.algo] = saved_algorithm_class(found[1], bare)
+    return os.path.join(found[2], str(EnvironmentName(options.env)))
 
 
 # What the zoo raises on bad input before training: its checks, SB3's and the envs' (assertions, wrong values or
 # keywords), evaluated strings; raised inside these ExperimentManager methods, it is an error while training
 _INPUT_ERRORS = (AssertionError, ImportError, KeyError, TypeError, ValueError, NameError, SyntaxError)
 _TRAINING = ("learn", "hyperparameters_optimization", "save_trained_model")
-_EVALUATED_VALUE_HINT = " (-params/--env-kwargs values are Python: quote strings, e.g. policy:'MlpPolicy')"
+_EVALUATED_VALUE_HINT = " (--env-kwargs values are Python: quote strings, e.g. encoder:'pixels')"
 # Files that make a run folder worth keeping: models and checkpoints, evaluations, saved replay buffers
 _RESULT_SUFFIXES = (".zip", ".npz", ".pkl")
 
@@ -410,28 +471,29 @@ def _allow_enjoy_without_requests() -> None:
         if error.name != "requests":
             raise
         stand_in = types.ModuleType("rl_zoo3.load_from_hub", "Stand-in without requests (see sb3_dcqn.zoo)")
-        stand_in.download_from_hub = None  # type: ignore[attr-defined]  # never called: see _model_path_or_refuse
+        stand_in.download_from_hub = None  # type: ignore[attr-defined]  # never called: see _found_model
         sys.modules["rl_zoo3.load_from_hub"] = stand_in
 
 
-def _record_video() -> None:
-    """Run ``rl_zoo3.record_video`` (a script: its code is under ``if __name__ == "__main__"``)."""
-    from rl_zoo3 import utils
+def _with_saved_env_kwargs(args: list[str], stats_path: str) -> list[str]:
+    """
+    ``record_video``'s ``args`` with the ``env_kwargs`` saved in the run's ``config.yml`` (those of the command line
+    winning) as ``--env-kwargs``: rl_zoo3 2.9's ``record_video`` ignores them (CampusNav's ``view_dim``: the model's
+    observation space would not match the env's), which ``enjoy`` applies.
+    """
+    from rl_zoo3.utils import StoreDict, get_saved_hyperparams
 
-    create_test_env = utils.create_test_env
-
-    def create_with_saved_env_kwargs(*args: Any, hyperparams: dict[str, Any], **kwargs: Any) -> Any:
-        # rl_zoo3.record_video (2.9) ignores the env_kwargs saved in config.yml (CampusNav's view_dim), which enjoy
-        # applies: the model's observation space would not match the env's. The command line's still win.
-        saved = hyperparams.pop("env_kwargs", None) or {}
-        kwargs["env_kwargs"] = {**saved, **(kwargs.get("env_kwargs") or {})}
-        return create_test_env(*args, hyperparams=hyperparams, **kwargs)
-
-    with (
-        _replaced(utils, "create_test_env", create_with_saved_env_kwargs),
-        _replaced(utils, "get_model_path", _model_path_or_refuse("record_video", utils.get_model_path)),
-    ):
-        runpy.run_module("rl_zoo3.record_video", run_name="__main__")  # it imports both from utils when it runs
+    parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    parser.add_argument("--env")  # known here, so that it is not read as --env-kwargs abbreviated
+    parser.add_argument("--env-kwargs", nargs="+", action=StoreDict)
+    options, rest = parser.parse_known_args(args)
+    env_kwargs = {**(get_saved_hyperparams(stats_path)[0].get("env_kwargs") or {}), **(options.env_kwargs or {})}
+    env = [] if options.env is None else ["--env", options.env]
+    return (
+        [*rest, *env, "--env-kwargs", *(f"{key}:{value!r}" for key, value in env_kwargs.items())]
+        if env_kwargs
+        else args
+    )
 
 
 def _pop_plot_output(args: list[str]) -> tuple[str | None, list[str]]:
@@ -465,8 +527,10 @@ def _plot_train(plot_train: Callable[[], None], output: str | None) -> None:
         return
     from matplotlib import pyplot as plt
 
-    with _replaced(plt, "show", lambda *args, **kwargs: plt.savefig(output)):  # plot_train ends with plt.show()
+    with warnings.catch_warnings():  # Agg (set for -o) cannot show: plot_train's closing plt.show() does nothing
+        warnings.simplefilter("ignore", UserWarning)
         plot_train()
+    plt.savefig(output)
     print(f"Saved the figure to {output}")
 
 

@@ -1,18 +1,19 @@
-"""One entry of a zoo-format hyperparameter file, typed and checked: what ``dcqn-zoo`` and ``dcqn-campusnav`` read.
+"""One entry of a zoo-format hyperparameter file, checked: what ``dcqn-zoo`` and ``dcqn-campusnav`` read.
 
 :func:`load_zoo_entry` reads an env's entry once, ``-params`` overrides applied first (as the zoo applies them), into a
-frozen :class:`ZooEntry`: the zoo's own keys as typed fields (``n_timesteps``, ``n_envs``, ``env_kwargs``,
-``normalize``, ``frame_stack``, ``env_wrapper``, ``vec_env_wrapper``, ``callback``, ``monitor_kwargs``),
-``route_memory`` as a field of its own, and the rest as the algorithm's keyword arguments, whose strings become objects
-as rl_zoo3 makes them (:func:`sb3_dcqn.zoo_files.to_object`: ``learning_rate: lin_0.001`` is a linear schedule from
-0.001 to 0). Two refusals where the zoo fails later or guesses: a count must be a whole number, and a schedule string
-is ``lin_<initial value>`` (the zoo reads any ``word_<number>`` as linear).
+frozen :class:`ZooEntry`: the zoo's budget, envs, ``env_kwargs`` and callbacks, the zoo's env-building keys as written
+(``normalize``, ``frame_stack``, ``env_wrapper``, ``vec_env_wrapper``, ``monitor_kwargs``: the zoo applies them,
+``dcqn-campusnav`` refuses them), and the algorithm's keyword arguments, whose strings become objects through the zoo's
+own functions (:mod:`sb3_dcqn.zoo_files`: ``learning_rate: lin_0.001`` is a linear schedule from 0.001 to 0). Two
+refusals where the zoo fails later or guesses: a count must be a whole number, and a schedule string is
+``lin_<initial value>`` (the zoo reads any ``word_<number>`` as linear). :func:`read_params` reads ``-params`` for
+both command lines.
 
 Every key is checked before anything is built: keys the algorithm does not take, values its constructor cannot use
 (types from its defaults, ranges from :data:`VALUE_CHECKS`; else an ``AssertionError`` from SB3, or a failure once
 training reaches it: ``batch_size: -64`` after ``learning_starts`` steps), ``policy_kwargs`` and
-``replay_buffer_kwargs`` keys, replay variants that do not combine. A bad setting raises :class:`EntryError`, which
-carries the file, the entry, the key and the value; its text is one line naming them.
+``replay_buffer_kwargs`` keys, replay variants that do not combine, class paths that cannot be imported. A bad setting
+raises :class:`EntryError`, which carries the file, the entry, the key and the value; its text is one line naming them.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.buffers import ReplayBuffer
 
 from sb3_dcqn.dcqn import DCQN
-from sb3_dcqn.route_memory.layer import algorithm_class_for
+from sb3_dcqn.route_memory.layer import algorithm_class_for, memory_settings
 from sb3_dcqn.zoo_files import (
     EVALUATED_KEYS,
     SCHEDULE_KEYS,
@@ -39,19 +40,21 @@ from sb3_dcqn.zoo_files import (
     class_by_path,
     describe_yaml_error,
     hyperparams_namespace,
+    make_callbacks,
     read_zoo_table,
     to_object,
 )
 
 __all__ = [
     "VALUE_CHECKS",
-    "ZOO_ONLY_KEYS",
+    "ZOO_ENV_KEYS",
     "ClassSpec",
     "EntryError",
     "ZooEntry",
     "check_params",
     "load_zoo_entry",
     "read_entry",
+    "read_params",
     "unknown_keyword",
     "value_problem",
 ]
@@ -59,11 +62,10 @@ __all__ = [
 # A class named by its dotted path, with its keyword arguments: the zoo's form of callback and env_wrapper items
 ClassSpec = tuple[str, dict[str, Any]]
 # Keys that only the zoo's env building applies (VecNormalize, VecFrameStack, wrappers, its Monitor)
-ZOO_ONLY_KEYS = ("normalize", "frame_stack", "env_wrapper", "vec_env_wrapper", "monitor_kwargs")
-# Keys that configure the zoo's envs, callbacks and budget, not the algorithm
-ZOO_KEYS = ("n_timesteps", "n_envs", "env_kwargs", "callback", *ZOO_ONLY_KEYS)
+ZOO_ENV_KEYS = ("normalize", "frame_stack", "env_wrapper", "vec_env_wrapper", "monitor_kwargs")
 # Arguments of a replay buffer that the algorithm passes itself (not replay_buffer_kwargs keys)
 _BUFFER_ARGUMENTS = ("buffer_size", "observation_space", "action_space", "env", "device", "n_envs")
+_PARAMS_FORM = "expected key:value (e.g. learning_rate:0.001 buffer_size:10000)"
 
 
 class EntryError(ValueError):
@@ -112,12 +114,8 @@ class ZooEntry:
     :param n_envs: Number of training envs (``n_envs``, default 1)
     :param callbacks: The ``callback`` key, as the zoo reads it: ``(class path, keyword arguments)`` pairs (e.g.
         ``("campusnav_env.callbacks.StartCurriculumCallback", {"initial": 2})``), built by :meth:`make_callbacks`
-    :param normalize: ``VecNormalize``'s keyword arguments when the entry normalizes (``normalize: true``, a mapping
-        or a ``dict(...)`` string; ``gamma`` the entry's, as the zoo adds it), else ``None``
-    :param frame_stack: Frames stacked by ``VecFrameStack`` (``frame_stack``), else ``None``
-    :param env_wrappers: The ``env_wrapper`` key as ``(class path, keyword arguments)`` pairs, first one innermost
-    :param vec_env_wrappers: The ``vec_env_wrapper`` key, in the same form
-    :param monitor_kwargs: Keyword arguments of the zoo's ``Monitor`` (``monitor_kwargs``)
+    :param zoo_settings: The keys of :data:`ZOO_ENV_KEYS` the entry sets, as written (checked, not applied here:
+        the zoo's env building applies them)
     :param file: The file it was read from (``None``: made in code)
     :param name: The entry read (the env id, or the ``default`` entry)
     :param params: The keys that ``-params`` overrides gave
@@ -128,20 +126,10 @@ class ZooEntry:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     n_envs: int = 1
     callbacks: tuple[ClassSpec, ...] = ()
-    normalize: dict[str, Any] | None = None
-    frame_stack: int | None = None
-    env_wrappers: tuple[ClassSpec, ...] = ()
-    vec_env_wrappers: tuple[ClassSpec, ...] = ()
-    monitor_kwargs: dict[str, Any] = field(default_factory=dict)
+    zoo_settings: dict[str, Any] = field(default_factory=dict)
     file: Path | None = None
     name: str | None = None
     params: tuple[str, ...] = ()
-    #: The route memory's setting (``route_memory``: false, true or a mapping of its settings), taken from
-    #: ``hyperparams`` so that the two never disagree; :meth:`algorithm_class` chooses by it
-    route_memory: bool | dict[str, Any] = field(init=False)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "route_memory", self.hyperparams.get("route_memory", False))
 
     @property
     def source(self) -> str:
@@ -153,18 +141,14 @@ class ZooEntry:
         return EntryError(problem, self.file, self.name, key, value, from_params=key in self.params)
 
     def algorithm_class(self) -> type[BaseAlgorithm]:
-        """The algorithm the entry's hyperparameters are for, the one place that chooses it: DCQN, wearing the route
-        memory where the entry sets ``route_memory`` (:func:`~sb3_dcqn.route_memory.layer.algorithm_class_for`)."""
+        """The algorithm the entry's hyperparameters are for: DCQN, wearing the route memory where the entry sets
+        ``route_memory`` (:func:`~sb3_dcqn.route_memory.layer.algorithm_class_for`; the model's
+        ``wears_route_memory`` says whether the memory is on)."""
         return algorithm_class_for(DCQN, self.hyperparams)
-
-    @property
-    def algorithm_kwargs(self) -> dict[str, Any]:
-        """The keyword arguments of :meth:`algorithm_class` (``hyperparams``)."""
-        return dict(self.hyperparams)
 
     def make_model(self, env: Any, **kwargs: Any) -> BaseAlgorithm:
         """A new model of the entry's algorithm on ``env``; ``kwargs`` replace the entry's arguments."""
-        return self.algorithm_class()(env=env, **{**self.algorithm_kwargs, **kwargs})
+        return self.algorithm_class()(env=env, **{**self.hyperparams, **kwargs})
 
     def budget(self, steps: int | None = None) -> int:
         """
@@ -180,19 +164,7 @@ class ZooEntry:
 
     def make_callbacks(self) -> list[Any]:
         """New instances of the entry's callbacks (SB3 ``BaseCallback``), one per call: a callback trains one model."""
-        return [class_by_path(path)(**kwargs) for path, kwargs in self.callbacks]
-
-    @property
-    def zoo_only_settings(self) -> tuple[str, ...]:
-        """The keys the entry sets that only the zoo's env building applies (:data:`ZOO_ONLY_KEYS`)."""
-        given = {
-            "normalize": self.normalize is not None,
-            "frame_stack": self.frame_stack is not None,
-            "env_wrapper": bool(self.env_wrappers),
-            "vec_env_wrapper": bool(self.vec_env_wrappers),
-            "monitor_kwargs": bool(self.monitor_kwargs),
-        }
-        return tuple(key for key in ZOO_ONLY_KEYS if given[key])
+        return make_callbacks(self.callbacks)
 
 
 # ------------------------------------------------------------------------------------------------ reading
@@ -208,8 +180,8 @@ def load_zoo_entry(
 
     :param path: The YAML file
     :param env_id: The env id (top-level key)
-    :param overrides: Settings that replace the entry's before it is read (the zoo's ``-params key:value``, values
-        as YAML or the zoo's ``-params`` make them)
+    :param overrides: Settings that replace the entry's before it is read (``-params``, as :func:`read_params`
+        reads them)
     :param fallbacks: Entries used, in order, when the file has none for ``env_id`` (the zoo's ``default``; it tries
         ``atari`` first for Atari envs)
     :param algorithm: The algorithm whose arguments the entry's other keys are
@@ -241,7 +213,7 @@ def read_entry(
     algorithm: type[BaseAlgorithm] = DCQN,
 ) -> ZooEntry:
     """
-    One entry's settings, checked and typed (see :func:`load_zoo_entry`).
+    One entry's settings, checked (see :func:`load_zoo_entry`).
 
     :param settings: The entry, overrides applied
     :param file: Its file, ``name``: its name, ``params``: the keys overrides gave (for messages)
@@ -256,32 +228,51 @@ def read_entry(
     entry = dict(settings)
     if "n_timesteps" not in entry:
         raise error(None, "no 'n_timesteps' (the zoo needs it, -n or not)")
-    zoo = {key: entry.pop(key) for key in ZOO_KEYS if key in entry}
-    n_timesteps = zoo["n_timesteps"]
+    n_timesteps = entry.pop("n_timesteps")
     if isinstance(n_timesteps, bool) or not _is_number(n_timesteps) or n_timesteps != int(n_timesteps):
         raise error("n_timesteps", f"expected a whole number, got {n_timesteps!r}{_number_hint(n_timesteps)}")
-    for key in ("n_envs", "frame_stack"):
-        if zoo.get(key) is not None and (problem := VALUE_CHECKS[key](zoo[key])):
-            raise error(key, problem, zoo[key])
-    mappings = {key: _as_object(key, zoo.get(key) or {}, error) for key in ("env_kwargs", "monitor_kwargs")}
-    for key, value in mappings.items():
-        if not isinstance(value, dict):
-            raise error(key, f"expected a mapping, got {value!r}", value)
+    n_envs, env_kwargs, callback = entry.pop("n_envs", 1), entry.pop("env_kwargs", None), entry.pop("callback", None)
+    zoo_settings = {key: entry.pop(key) for key in ZOO_ENV_KEYS if key in entry}
+    _check_zoo_settings({"n_envs": n_envs, "env_kwargs": env_kwargs or {}, **zoo_settings}, error)
     return ZooEntry(
         int(n_timesteps),
         _algorithm_settings(entry, algorithm, error),
-        dict(mappings["env_kwargs"]),
-        int(zoo.get("n_envs", 1)),
-        callbacks=_class_specs(zoo.get("callback"), "callback", error),
-        normalize=_normalize_kwargs(zoo.get("normalize", False), entry.get("gamma"), error),
-        frame_stack=zoo.get("frame_stack"),
-        env_wrappers=_class_specs(zoo.get("env_wrapper"), "env_wrapper", error),
-        vec_env_wrappers=_class_specs(zoo.get("vec_env_wrapper"), "vec_env_wrapper", error),
-        monitor_kwargs=dict(mappings["monitor_kwargs"]),
+        dict(env_kwargs or {}),
+        n_envs,
+        callbacks=_class_specs(callback, "callback", error),
+        zoo_settings=zoo_settings,
         file=file,
         name=name,
         params=params,
     )
+
+
+def read_params(items: Iterable[str]) -> dict[str, Any]:
+    """
+    ``-params key:value ...`` as both command lines read them: a value as the zoo reads it (Python, evaluated in the
+    names of :func:`~sb3_dcqn.zoo_files.hyperparams_namespace`: ``1e-3``, ``'MlpPolicy'``, ``dict(net_arch=[64])``,
+    ``True``), and one that Python cannot read (a bare word: ``lin_3e-4``, ``MlpPolicy``, ``true``, ``[2, step]``)
+    as YAML reads it.
+
+    :raises EntryError: naming ``-params`` and the key, for an item without ``key:`` or a value Python fails on
+    """
+    params: dict[str, Any] = {}
+    for item in items:
+        key, colon, text = item.partition(":")
+        key, text = key.strip(), text.strip()
+        if not colon or not key:
+            raise EntryError(_PARAMS_FORM, key=item, value=item, from_params=True)
+        try:
+            params[key] = eval(text, dict(hyperparams_namespace()))  # the zoo's StoreDict reads values so
+        except (NameError, SyntaxError):
+            try:
+                params[key] = yaml.safe_load(text)
+            except yaml.YAMLError:
+                params[key] = text
+        except Exception as raised:
+            problem = f"cannot evaluate {text!r} ({type(raised).__name__}: {raised})"
+            raise EntryError(problem, key=key, value=text, from_params=True) from None
+    return params
 
 
 def check_params(settings: Mapping[str, Any], algorithm: type[BaseAlgorithm] = DCQN) -> dict[str, Any]:
@@ -299,6 +290,22 @@ def check_params(settings: Mapping[str, Any], algorithm: type[BaseAlgorithm] = D
 
 
 _ErrorFactory = Callable[..., EntryError]
+
+
+def _check_zoo_settings(settings: dict[str, Any], error: _ErrorFactory) -> None:
+    """The zoo's own keys in the forms its ``ExperimentManager`` takes (counts, mappings, ``normalize``, wrapper
+    classes that import), so that a bad one is named before the zoo fails on it."""
+    for key in ("n_envs", "frame_stack"):
+        if key in settings and (problem := VALUE_CHECKS[key](settings[key])):
+            raise error(key, problem, settings[key])
+    for key in ("env_kwargs", "monitor_kwargs", "normalize"):
+        value = _as_object(key, settings[key], error) if key in settings else {}
+        if key == "normalize" and not isinstance(value, bool | dict):
+            raise error(key, "expected true, false or a mapping of VecNormalize's arguments", value)
+        if key != "normalize" and not isinstance(value, dict):
+            raise error(key, f"expected a mapping, got {value!r}", value)
+    for key in ("env_wrapper", "vec_env_wrapper"):
+        _class_specs(settings.get(key), key, error)
 
 
 def _algorithm_settings(settings: dict[str, Any], algorithm: type, error: _ErrorFactory) -> dict[str, Any]:
@@ -335,19 +342,6 @@ def _as_object(key: str, value: Any, error: _ErrorFactory) -> Any:
         return to_object(key, value)
     except Exception as raised:
         raise error(key, f"cannot evaluate {value!r} ({type(raised).__name__}: {raised})", value) from None
-
-
-def _normalize_kwargs(value: Any, gamma: Any, error: _ErrorFactory) -> dict[str, Any] | None:
-    """``normalize`` (a boolean, a mapping or a ``dict(...)`` string): ``VecNormalize``'s arguments, or ``None``."""
-    value = _as_object("normalize", value, error)
-    if value is False:
-        return None
-    if value is not True and not isinstance(value, dict):
-        raise error("normalize", "expected true, false or a mapping of VecNormalize's arguments", value)
-    kwargs = dict(value) if isinstance(value, dict) else {}
-    if gamma is not None:  # the zoo discounts the normalized reward with the algorithm's gamma
-        kwargs["gamma"] = gamma
-    return kwargs
 
 
 def _class_specs(value: Any, key: str, error: _ErrorFactory) -> tuple[ClassSpec, ...]:
@@ -485,9 +479,14 @@ def _device(value: Any) -> str | None:
 
 
 def _route_memory(value: Any) -> str | None:
-    if isinstance(value, bool | dict):
-        return None
-    return f"expected true, false or a mapping of the memory's settings, got {value!r}"
+    # The layer reads the setting (memory_settings): one meaning wherever it is given, its unknown settings named
+    if not isinstance(value, bool | dict):
+        return f"expected true, false or a mapping of the memory's settings, got {value!r}"
+    try:
+        memory_settings(value)
+    except ValueError as error:
+        return str(error).removeprefix("route_memory: ")
+    return None
 
 
 def _did_you_mean(given: Any, known: Iterable[str], form: str) -> str:

@@ -1,19 +1,17 @@
-"""The RL Zoo's hyperparameter files: the shipped ones, their table of entries, and the zoo's rule for their strings.
+"""The RL Zoo's hyperparameter files: the shipped ones, their table of entries, and the zoo's rules for their strings.
 
-A zoo-format YAML file maps env ids to settings. :func:`read_zoo_table` reads one; :mod:`sb3_dcqn.zoo_entry` reads an
-entry of it into a typed, checked :class:`~sb3_dcqn.zoo_entry.ZooEntry`. The few settings whose strings the zoo turns
-into objects (``lin_`` schedules; ``policy_kwargs``, replay buffer, ``normalize`` and ``monitor_kwargs`` strings
-evaluated as Python) go through :func:`to_object`: rl_zoo3's own code where it is installed, else
-:func:`_without_zoo`, which reads the same strings the same way (``tests/test_zoo_files.py`` compares the two on one
-file through rl_zoo3's ``ExperimentManager``).
-
-Reads YAML with PyYAML; otherwise needs SB3 alone, like the algorithm modules (rl_zoo3, an optional extra, lazily).
+A zoo-format YAML file maps env ids to settings. :func:`read_zoo_table` reads one; :mod:`sb3_dcqn.zoo_entry` checks an
+entry of it. What the zoo turns into objects goes through rl_zoo3's own public functions where it is installed
+(``rl_zoo3.utils``: ``linear_schedule``, ``get_class_by_name``, ``get_callback_list``; strings evaluated in the names
+of its ``exp_manager``), else through the few lines below, which read the same files the same way
+(``tests/test_zoo_files.py`` compares both with rl_zoo3's ``ExperimentManager``). rl_zoo3 is imported lazily.
 """
 
 from __future__ import annotations
 
 import functools
 import importlib
+from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -22,10 +20,10 @@ import yaml
 from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.her.her_replay_buffer import HerReplayBuffer
 
-# Keys whose string values are schedules (rl_zoo3's ExperimentManager._preprocess_schedules)
+# Keys whose string values are schedules, and those whose strings the zoo evaluates as Python (rl_zoo3 2.9's
+# ExperimentManager reads both so)
 SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf", "delta_std")
 SCHEDULE_PREFIX = "lin_"
-# Keys whose string values the zoo evaluates as Python (rl_zoo3's ExperimentManager._preprocess_hyperparams)
 EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs", "normalize", "monitor_kwargs")
 
 
@@ -63,35 +61,33 @@ def describe_yaml_error(error: yaml.YAMLError) -> str:
     return problem if mark is None else f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
 
 
+def _zoo_utils() -> Any:
+    """``rl_zoo3.utils``, or ``None`` where the zoo extra is not installed."""
+    try:
+        from rl_zoo3 import utils
+    except ImportError:
+        return None
+    return utils
+
+
 def to_object(key: str, text: str) -> Any:
     """
-    The string of a setting of :data:`SCHEDULE_KEYS` (``lin_0.001``) or :data:`EVALUATED_KEYS` (``"dict(...)"``) as
-    the zoo turns it into an object: with rl_zoo3 installed, its own ``ExperimentManager._preprocess_schedules`` and
-    evaluation in its experiment manager's names (DCQN's added, as :func:`sb3_dcqn.zoo.register_dcqn` adds them);
-    without it, :func:`_without_zoo`.
+    A setting's string as the zoo makes it an object: ``lin_<value>`` of :data:`SCHEDULE_KEYS` a linear schedule from
+    the value to 0 (the zoo's ``linear_schedule``), any other string Python evaluated in the zoo's names and those of
+    :func:`hyperparams_namespace` (which :func:`sb3_dcqn.zoo.register_dcqn` adds to the zoo's).
 
-    :raises Exception: what the zoo's reading raises (``ValueError``, ``NameError``, ``SyntaxError``, ...)
+    :raises Exception: what the reading raises (``ValueError``, ``NameError``, ``SyntaxError``, ...)
     """
-    try:
-        from rl_zoo3 import exp_manager
-    except ImportError:
-        return _without_zoo(key, text)
+    utils = _zoo_utils()
     if key in SCHEDULE_KEYS:
-        return exp_manager.ExperimentManager._preprocess_schedules({key: text})[key]
-    vars(exp_manager).update(hyperparams_namespace())
-    return eval(text, dict(vars(exp_manager)))  # the zoo's convention
-
-
-def _without_zoo(key: str, text: str) -> Any:
-    """The zoo's reading of a setting's string where rl_zoo3 is not installed: ``lin_<value>`` a linear schedule from
-    the value to 0, any other string Python evaluated in the names of :func:`hyperparams_namespace`."""
-    if key in SCHEDULE_KEYS:
-        return LinearSchedule(float(text.removeprefix(SCHEDULE_PREFIX)), 0.0, 1.0)
-    return eval(text, dict(hyperparams_namespace()))
+        start = float(text.removeprefix(SCHEDULE_PREFIX))
+        return LinearSchedule(start, 0.0, 1.0) if utils is None else utils.linear_schedule(start)
+    names = {} if utils is None else dict(vars(importlib.import_module("rl_zoo3.exp_manager")))
+    return eval(text, {**names, **hyperparams_namespace()})  # the zoo's convention
 
 
 def class_by_path(path: str) -> Any:
-    """``"package.module.Name"`` -> the object (the rule of rl_zoo3's ``get_class_by_name``).
+    """``"package.module.Name"`` -> the object (rl_zoo3's ``get_class_by_name`` where installed, its rule else).
 
     :raises ImportError, AttributeError: if the module or the name is missing
     :raises ValueError: if ``path`` has no module part
@@ -99,7 +95,16 @@ def class_by_path(path: str) -> Any:
     module_name, _, name = path.rpartition(".")
     if not module_name:
         raise ValueError(f"{path!r} is not a dotted path (module.Class)")
-    return getattr(importlib.import_module(module_name), name)
+    utils = _zoo_utils()
+    return getattr(importlib.import_module(module_name), name) if utils is None else utils.get_class_by_name(path)
+
+
+def make_callbacks(specs: Sequence[tuple[str, dict[str, Any]]]) -> list[Any]:
+    """New callbacks from ``(class path, keyword arguments)`` pairs (rl_zoo3's ``get_callback_list`` if installed)."""
+    utils = _zoo_utils()
+    if utils is None:
+        return [class_by_path(path)(**kwargs) for path, kwargs in specs]
+    return utils.get_callback_list({"callback": [{path: dict(kwargs)} for path, kwargs in specs]})
 
 
 @functools.cache

@@ -356,3 +356,27 @@ def test_a_closure_between_learn_calls_never_makes_training_time_run_backwards(
     assert seconds == sorted(seconds) and min(seconds) >= 0
     recovery = closures.recoveries[0]
     assert recovery.recovered and 0 <= recovery.seconds < slow_evaluations
+
+
+@pytest.mark.parametrize(
+    ("route_memory", "wears"),
+    [(True, True), ({}, True), ({"explore": False}, True), (False, False), (None, False)],
+    ids=["true", "the layer's defaults {}", "a setting", "false", "DCQN itself"],
+)
+def test_the_critics_alone_are_evaluated_for_every_model_that_wears_the_memory(
+    env_kwargs, route_memory: Any, wears: bool
+) -> None:
+    # Whether a model wears the memory is its class's answer (wears_route_memory), never the truthiness of its
+    # setting: route_memory={} (the memory's defaults) wears it, and its results rely on the critics' row
+    from sb3_dcqn import RouteMemoryDCQN
+
+    env = DummyVecEnv([lambda: CampusNavEnv(**env_kwargs)])
+    kwargs = dict(learning_starts=100_000, policy_kwargs=dict(net_arch=[16]), seed=0)
+    if route_memory is None:
+        model = DCQN("MultiInputPolicy", env, **kwargs)
+    else:
+        model = RouteMemoryDCQN("MultiInputPolicy", env, route_memory=route_memory, **kwargs)
+    assert getattr(model, "wears_route_memory", False) is wears
+    evaluation = RouteEvaluationCallback(eval_freq=100_000, unit="episode")
+    model.learn(20, callback=evaluation)
+    assert evaluation.evaluations and all((e.critics is not None) is wears for e in evaluation.evaluations)

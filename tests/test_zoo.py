@@ -17,11 +17,13 @@ import os
 import re
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from stable_baselines3.common.utils import FloatSchedule
 
 pytest.importorskip("rl_zoo3")
 
@@ -354,6 +356,21 @@ def test_enjoy_plays_the_goal_env_agent(goal_run: Path) -> None:
     assert f"Loading logs/dcqn/{GOAL_ENV}_1/{GOAL_ENV}.zip" in result.stdout
 
 
+def test_enjoy_loads_a_model_that_wears_the_memory_as_the_class_that_wears_it(
+    goal_run: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The shipped goal entry asks for the route memory: DCQN.load would drop it and play the critics alone
+    from rl_zoo3 import enjoy
+    from rl_zoo3.utils import ALGOS
+
+    from sb3_dcqn.route_memory import with_route_memory
+
+    loaded: list[type] = []
+    monkeypatch.setattr(enjoy, "enjoy", lambda: loaded.append(ALGOS["dcqn"]))
+    main(["enjoy", "--algo", "dcqn", "--env", GOAL_ENV, "-f", str(goal_run / "logs"), "-n", "20", "--no-render"])
+    assert loaded == [with_route_memory(DCQN)]
+
+
 # ------------------------------------------------------------------------------------------------ bad input
 # Bad input is one line on stderr, exit 2, before any folder exists; a failed run leaves no empty folders
 FAILING_CALLBACK = """
@@ -435,7 +452,8 @@ def test_a_bad_params_override_is_one_line_naming_it(tmp_path: Path, capsys: pyt
     for params, message in [
         (["batch_siz:32"], r": error: -params batch_siz: unknown DCQN hyperparameter \(did you mean 'batch_size'"),
         (["learning_rate:'lin_x'"], r": error: -params learning_rate: expected a linear schedule lin_"),
-        (["learning_rate:lin_1e-3"], r"NameError: name 'lin_1e' is not defined \(-params/--env-kwargs values are"),
+        (["learning_rate:1/0"], r": error: -params learning_rate: cannot evaluate '1/0' \(ZeroDivisionError: "),
+        (["learning_rate"], r": error: -params learning_rate: expected key:value"),
     ]:
         with pytest.raises(SystemExit) as exit_info:
             zoo_train(conf, logs, "-params", *params)
@@ -588,3 +606,67 @@ def test_a_log_folder_without_the_agent_is_one_line(
         one_error_line(capsys)
         == f"dcqn-zoo {command[0]}: error: {message} (-f names the log folder of the trained agents)"
     )
+
+
+# ------------------------------------------------------------------------------------------------ -params
+# The same -params items, and what both command lines make of each: a value as the zoo reads it (Python), and one that
+# Python cannot read (a bare word) as YAML reads it
+PARAMS = [
+    ("learning_rate:lin_1e-3", "learning_rate", (1e-3, 5e-4)),  # a bare word: the zoo's schedule string, via YAML
+    ("learning_rate:'lin_1e-3'", "learning_rate", (1e-3, 5e-4)),
+    ("learning_rate:1e-3", "learning_rate", (1e-3, 1e-3)),  # Python's float (YAML 1.1 would read a string)
+    ("batch_size:32", "batch_size", (32, 32)),
+    ("train_freq:[2, step]", "train_freq", (2, "step")),
+    ("train_freq:(2, 'episode')", "train_freq", (2, "episode")),
+    ("optimize_memory_usage:false", "optimize_memory_usage", False),
+    ("optimize_memory_usage:False", "optimize_memory_usage", False),
+    ("policy:MlpPolicy", "policy", "MlpPolicy"),
+    (
+        "policy_kwargs:dict(net_arch=[8], activation_fn=nn.Tanh)",
+        "policy_kwargs",
+        {"net_arch": [8], "activation_fn": "Tanh"},
+    ),
+    ("policy_kwargs:{net_arch: [8]}", "policy_kwargs", {"net_arch": [8]}),
+]
+
+
+def as_built(value: object) -> object:
+    """A value as the tests compare it: a learning rate by its values at the start and half way (SB3 makes a number
+    the constant schedule the zoo makes), a class by its name."""
+    if isinstance(value, float | int | Callable) and not isinstance(value, type | bool):
+        schedule = FloatSchedule(value)
+        return (round(schedule(1.0), 12), round(schedule(0.5), 12))
+    if isinstance(value, dict):
+        return {key: as_built(item) for key, item in value.items()}
+    return value.__name__ if isinstance(value, type) else value
+
+
+@pytest.mark.parametrize(("item", "key", "expected"), PARAMS, ids=[item for item, _, _ in PARAMS])
+def test_params_mean_the_same_in_dcqn_campusnav_and_dcqn_zoo(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, item: str, key: str, expected: object
+) -> None:
+    from rl_zoo3 import train as train_module
+    from rl_zoo3.exp_manager import ExperimentManager
+    from rl_zoo3.utils import StoreDict
+
+    from sb3_dcqn.campusnav.cli import build_parser
+    from sb3_dcqn.campusnav.entries import conf_entry
+    from sb3_dcqn.campusnav.requests import Request
+
+    conf = write_tiny(tmp_path / "tiny.yml")
+    # dcqn-campusnav: its parser and the entry its subcommands train with
+    request = Request.from_args(build_parser().parse_args(["train", "--conf", str(conf), "-params", item]))
+    campusnav = conf_entry(request.conf, "CartPole-v1", request.params).hyperparams[key]
+    # dcqn-zoo: the command line the zoo's train is given, read by the zoo's own StoreDict and experiment manager
+    given: list[list[str]] = []
+    monkeypatch.setattr(train_module, "train", lambda: given.append(list(sys.argv)))
+    zoo_train(conf, tmp_path / "logs", "-params", item)
+    parser = argparse.ArgumentParser()
+    parser.add_argument("-params", "--hyperparams", nargs="+", action=StoreDict)
+    overrides = parser.parse_known_args(given[0][1:])[0].hyperparams
+    manager = ExperimentManager(argparse.Namespace(), "dcqn", "CartPole-v1", str(tmp_path / "logs"), config=str(conf))
+    manager.custom_hyperparams = overrides
+    zoo = manager._preprocess_hyperparams(manager.read_hyperparameters()[0])[0][key]
+    if key == "train_freq":
+        zoo = tuple(zoo)
+    assert as_built(campusnav) == as_built(zoo) == expected

@@ -1,11 +1,11 @@
-"""The zoo's hyperparameter files: one typed entry schema (``sb3_dcqn.zoo_entry``) for ``dcqn-campusnav`` and
-``dcqn-zoo``.
+"""The zoo's hyperparameter files: one entry reading (``sb3_dcqn.zoo_entry``) for ``dcqn-campusnav`` and ``dcqn-zoo``.
 
-An entry reads as rl_zoo3 2.9 reads it (``ExperimentManager.read_hyperparameters`` and ``_preprocess_hyperparams``):
-``lin_`` schedules, evaluated strings, ``normalize``, ``frame_stack``, wrappers, callbacks, ``-params`` overrides and
-the ``default`` entry; with rl_zoo3 installed through its own code, without it through ours, and both agree with the
-zoo's ``ExperimentManager``. The checks raise an error carrying the file, the entry, the key and the value of a bad
-setting before anything is built.
+An entry reads as rl_zoo3 2.9 reads it (``ExperimentManager.read_hyperparameters`` and ``_preprocess_hyperparams``,
+the oracle here): ``lin_`` schedules, evaluated strings, callbacks, ``-params`` overrides and the ``default`` entry;
+with rl_zoo3 installed through its own public functions, without it through ours, and both agree with the zoo's
+``ExperimentManager``. The zoo's env-building keys (``normalize``, ``frame_stack``, wrappers, ``monitor_kwargs``) are
+checked and kept as written, for the zoo to apply. The checks raise an error carrying the file, the entry, the key and
+the value of a bad setting before anything is built.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from typing import Any
 
 import gymnasium as gym
 import pytest
+import yaml
 from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.utils import FloatSchedule
 
@@ -30,8 +31,16 @@ from sb3_dcqn.replay import (
     RevisionDictReplayBuffer,
 )
 from sb3_dcqn.route_memory import algorithm_name, with_route_memory
-from sb3_dcqn.zoo_entry import EntryError, ZooEntry, check_params, load_zoo_entry, read_entry
-from sb3_dcqn.zoo_files import class_by_path, default_hyperparams_path
+from sb3_dcqn.zoo_entry import (
+    ZOO_ENV_KEYS,
+    EntryError,
+    ZooEntry,
+    check_params,
+    load_zoo_entry,
+    read_entry,
+    read_params,
+)
+from sb3_dcqn.zoo_files import default_hyperparams_path
 
 GOAL_ENV = "CampusNavGoal-v0"
 # One entry with every key the zoo preprocesses, a lin_ learning rate first of all
@@ -113,19 +122,15 @@ def test_an_entry_with_a_lin_schedule_reads_as_rl_zoo3_reads_it(
     assert entry.hyperparams["learning_rate"](0.5) == pytest.approx(5e-4)  # from 1e-3 at the start to 0 at the end
     assert (entry.n_timesteps, entry.n_envs) == (manager.n_timesteps, manager.n_envs) == (2000, 2)
     assert entry.env_kwargs == manager.env_kwargs == {"sutton_barto_reward": True}
-    assert manager.normalize and entry.normalize == manager.normalize_kwargs  # gamma 0.98 added, as the zoo does
-    assert entry.normalize == {"norm_obs": True, "norm_reward": False, "gamma": 0.98}
-    assert entry.frame_stack == manager.frame_stack == 2
-    assert entry.monitor_kwargs == manager.monitor_kwargs == {"info_keywords": ()}
-    ((path, kwargs),) = entry.env_wrappers
-    ours, zoo = class_by_path(path)(gym.make("CartPole-v1"), **kwargs), env_wrapper(gym.make("CartPole-v1"))
-    assert isinstance(ours, gym.wrappers.TimeLimit) and isinstance(zoo, gym.wrappers.TimeLimit)
-    assert ours._max_episode_steps == zoo._max_episode_steps == 100
     built = entry.make_callbacks()
     assert [type(c) for c in built] == [type(c) for c in callbacks] and built[0].max_episodes == callbacks[
         0
     ].max_episodes
-    assert entry.zoo_only_settings == ("normalize", "frame_stack", "env_wrapper", "monitor_kwargs")
+    # The zoo's env-building keys: checked, kept as written for the zoo's own code (dcqn-campusnav refuses them)
+    written = yaml.safe_load(EVERY_KEY)["CartPole-v1"]
+    assert entry.zoo_settings == {key: written[key] for key in ZOO_ENV_KEYS if key in written}
+    assert set(entry.zoo_settings) == {"normalize", "frame_stack", "env_wrapper", "monitor_kwargs"}
+    assert manager.frame_stack == 2 and env_wrapper is not None
 
 
 def test_params_overrides_replace_the_entrys_settings_before_they_are_read(tmp_path: Path) -> None:
@@ -141,6 +146,25 @@ def test_params_overrides_replace_the_entrys_settings_before_they_are_read(tmp_p
     with pytest.raises(EntryError, match=r"^-params learning_rate: expected a linear schedule") as raised:
         load_zoo_entry(conf, "CartPole-v1", {"learning_rate": "lin_fast"})
     assert raised.value.from_params and (raised.value.file, raised.value.entry) == (conf, "CartPole-v1")
+
+
+@pytest.mark.parametrize("zoo_installed", [True, False], ids=["with rl_zoo3", "without rl_zoo3"])
+def test_params_read_the_same_with_and_without_rl_zoo3(monkeypatch: pytest.MonkeyPatch, zoo_installed: bool) -> None:
+    # -params' one reading (Python as the zoo reads it, else YAML) needs no rl_zoo3: dcqn-campusnav reads them alike
+    items = ["learning_rate:lin_1e-3", "train_freq:[2, step]", "policy_kwargs:dict(net_arch=[8])", "gamma:0.9"]
+    with contextlib.nullcontext() if zoo_installed else without_rl_zoo3(monkeypatch):
+        params = read_params(items)
+        entry = entry_of(policy="MlpPolicy", **params)
+    assert params == {
+        "learning_rate": "lin_1e-3",
+        "train_freq": [2, "step"],
+        "policy_kwargs": {"net_arch": [8]},
+        "gamma": 0.9,
+    }
+    assert entry.hyperparams["learning_rate"](0.5) == pytest.approx(5e-4) and entry.hyperparams["train_freq"] == (
+        2,
+        "step",
+    )
 
 
 def test_an_env_without_its_own_entry_reads_the_default_entry_as_the_zoo_does(tmp_path: Path) -> None:
@@ -219,10 +243,8 @@ def test_a_bad_file_entry_or_zoo_setting_is_named(tmp_path: Path, text: str, key
         load_zoo_entry(tmp_path / "nope.yml", "CartPole-v1")
 
 
-def test_an_entry_without_zoo_only_settings_says_so() -> None:
-    entry = load_zoo_entry(default_hyperparams_path(), "CartPole-v1")
-    assert entry.zoo_only_settings == () and entry.normalize is None and entry.frame_stack is None
-    assert entry.env_wrappers == entry.vec_env_wrappers == () and entry.monitor_kwargs == {}
+def test_an_entry_without_the_zoos_env_keys_says_so() -> None:
+    assert load_zoo_entry(default_hyperparams_path(), "CartPole-v1").zoo_settings == {}
 
 
 # ------------------------------------------------------------------------------------------------ the shipped entries
@@ -230,7 +252,7 @@ def test_an_entry_without_zoo_only_settings_says_so() -> None:
 def test_the_shipped_city_entries_pass_the_checks_and_bring_their_curriculum(env_id: str) -> None:
     entry = load_zoo_entry(default_hyperparams_path(), env_id)
     assert entry.hyperparams["replay_buffer_class"] is LeanDictReplayBuffer and entry.hyperparams["n_steps"] > 1
-    assert entry.route_memory == {"explore": "first"} and entry.algorithm_kwargs["route_memory"] == {"explore": "first"}
+    assert entry.hyperparams["route_memory"] == {"explore": "first"}
     assert [type(c).__name__ for c in entry.make_callbacks()] == ["StartCurriculumCallback"]
 
 
@@ -244,19 +266,24 @@ def test_the_shipped_goal_entry_reads_as_sb3s_her_buffer_and_passes_the_checks()
 
 
 # ------------------------------------------------------------------------------------------------ the route memory
-def test_the_route_memory_is_a_typed_field_and_the_algorithm_is_chosen_in_one_place() -> None:
+def test_whether_a_model_wears_the_memory_is_decided_once_by_the_layer() -> None:
     multi = load_zoo_entry(default_hyperparams_path(), "CampusNavMulti-v0")
     single = load_zoo_entry(default_hyperparams_path(), "CampusNav-v0")
-    assert multi.route_memory is True and single.route_memory is False
     # An entry that names the memory gets DCQN wearing it (off where it says False); one that does not, DCQN itself
     assert multi.algorithm_class() is with_route_memory(DCQN) and single.algorithm_class() is DCQN
-    assert entry_of(route_memory=False).algorithm_class() is with_route_memory(DCQN)
-    assert entry_of(route_memory={"explore": False}).algorithm_kwargs["route_memory"] == {"explore": False}
-    wearing = entry_of(policy="MlpPolicy", route_memory=True).make_model("CartPole-v1")
-    off = entry_of(policy="MlpPolicy", route_memory=False).make_model("CartPole-v1")
-    assert algorithm_name(wearing) == "DCQN + memory" and algorithm_name(off) == "DCQN" and off.memory is None
+    # The model answers whether the memory is on (wears_route_memory), by the layer's reading of the setting: {} (the
+    # memory's defaults) is on, as True is; never the setting's truthiness
+    for setting, wears in [(True, True), ({}, True), ({"explore": False}, True), (False, False)]:
+        model = entry_of(policy="MlpPolicy", route_memory=setting).make_model("CartPole-v1")
+        assert model.wears_route_memory is wears and (model.memory is not None) is wears, setting
+        assert algorithm_name(model) == ("DCQN + memory" if wears else "DCQN")
     with pytest.raises(EntryError, match=r"route_memory: expected true, false or a mapping of the memory's settings"):
         entry_of(route_memory="yes")
+    # The layer's own check, at reading: a misspelt setting is named with the file and the entry, before any model
+    with pytest.raises(
+        EntryError, match=r"^conf.yml: entry 'CartPole-v1': route_memory: unknown settings \['max_state'\]"
+    ):
+        entry_of(route_memory={"max_state": 3})
 
 
 # ------------------------------------------------------------------------------------------------ the checks

@@ -445,8 +445,9 @@ def _training_flags() -> argparse.ArgumentParser:
         nargs="+",
         default=[],
         metavar="KEY:VALUE",
-        help="override the entry's hyperparameters, e.g. -params learning_rate:0.001 buffer_size:10000 (checked as "
-        "the YAML's keys; a saved model keeps those it was built with)",
+        help="override the entry's hyperparameters, e.g. -params learning_rate:lin_1e-3 buffer_size:10000 (each "
+        "value read as dcqn-zoo reads it: Python, else YAML; checked as the YAML's keys; a saved model keeps those it "
+        "was built with)",
     )
     return parser
 

@@ -62,7 +62,8 @@ def conf_entry(conf: str | None, env_id: str, params: Sequence[str] = ()) -> Zoo
         entry = load_zoo_entry(path, env_id, parse_params(params))
     except EntryError as error:
         raise _command_error(error) from None
-    for key in (*entry.zoo_only_settings, *(key for key in NOT_APPLIED if key in entry.hyperparams)):
+    # One check for every key this command line does not apply: the zoo's env keys and those its flags set
+    for key in (key for key in NOT_APPLIED if key in entry.zoo_settings or key in entry.hyperparams):
         raise _command_error(entry.error(key, f"not applied by dcqn-campusnav ({NOT_APPLIED[key]})"))
     return entry
 
@@ -100,19 +101,14 @@ def training_budget(entry: ZooEntry, timesteps: int | None) -> int:
 
 
 def parse_params(params: Sequence[str]) -> dict[str, Any]:
-    """``-params key:value ...`` as a dict, values as YAML reads them (the entry's reading does the rest)."""
-    import yaml
+    """``-params key:value ...`` as a dict, read as ``dcqn-zoo`` reads them (:func:`sb3_dcqn.zoo_entry.read_params`:
+    Python as the zoo reads it, else YAML); the entry's reading does the rest."""
+    from sb3_dcqn.zoo_entry import EntryError, read_params
 
-    parsed: dict[str, Any] = {}
-    for item in params:
-        key, colon, text = item.partition(":")
-        if not colon or not key.strip():
-            raise CommandError(f"-params {item}: expected key:value (e.g. learning_rate:0.001 buffer_size:10000)")
-        try:
-            parsed[key.strip()] = yaml.safe_load(text.strip())
-        except yaml.YAMLError:
-            parsed[key.strip()] = text.strip()
-    return parsed
+    try:
+        return read_params(params)
+    except EntryError as error:
+        raise _command_error(error) from None
 
 
 def checked_params(params: dict[str, Any]) -> dict[str, Any]:

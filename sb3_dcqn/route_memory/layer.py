@@ -178,6 +178,13 @@ class RouteMemoryLayer:
         return f"<{type(self).__name__}: {algorithm_name(self)}>"
 
     @property
+    def wears_route_memory(self) -> bool:
+        """Whether this model keeps a route memory, decided by :func:`memory_settings` alone: ``True``, ``{}`` and any
+        dict of settings are on, ``False`` off. Asked by duck typing where the layer cannot be imported
+        (``campusnav_env.callbacks``); a model without this property wears none."""
+        return memory_settings(self.route_memory) is not None
+
+    @property
     def explores_untried(self) -> bool:
         """Whether exploration drives to the memory's untried moves (``route_memory``'s ``explore``)."""
         return self._explores
