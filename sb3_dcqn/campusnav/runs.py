@@ -91,6 +91,11 @@ def restore_closures(
 
     :return: the roads closed
     """
+    if saved.settings is None:  # saved by DCQN.save, or its settings file lost: say so, never score it silently
+        note(
+            f"{model}: no {model_paths(model)[2].name} beside it, so the closures it was trained under are not "
+            "known; starting from the open map (plus the --close roads)"
+        )
     if not saved.closed_roads:
         return []
     roads = ", ".join(f"{u}-{v}" for u, v in saved.closed_roads)
