@@ -6,6 +6,7 @@
 - A save that fails writes no model file: a run folder that failed never looks finished.
 - ``evaluate`` of a model without its settings file says that the closures it was trained under are not known
   (it scored it on the open map without a word).
+- ``--device cuda`` on a machine without CUDA is refused in one line, exit status 2 (it trained on the CPU, exit 0).
 
 Each run trains the built-in campus for a few hundred steps with the cheap ``pixels`` encoder on 64 x 48 views.
 """
@@ -17,9 +18,11 @@ import pickle
 from pathlib import Path
 
 import pytest
+import torch
 from cli_runs_support import FAST, ROAD, cli
 
 from sb3_dcqn.campusnav import experiments, model_files
+from sb3_dcqn.campusnav.cli import main
 
 pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
@@ -51,6 +54,16 @@ def recovered_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """Every route evaluation at the recovery bar: a closure is recovered from before a step is trained."""
     monkeypatch.setattr(experiments, "DEFAULT_SUCCESS_THRESHOLD", 0.0)
     monkeypatch.setattr(experiments, "DEFAULT_SPL_THRESHOLD", 0.0)
+
+
+def fails(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    """Run the command line, expect exit status 2 and one line on stderr, no traceback; return the line."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and "Traceback" not in error, error
+    return error
 
 
 @pytest.mark.usefixtures("recovered_at_once")
@@ -87,3 +100,23 @@ def test_evaluate_says_when_a_model_does_not_say_which_closures_it_was_trained_u
     error = capsys.readouterr().err
     assert "dcqn_campusnav.env.json beside it, so the closures it was trained under are not known" in error
     assert "starting from the open map" in error
+
+
+@pytest.mark.parametrize("device", ["cuda", "cuda:0"])
+def test_device_cuda_without_cuda_is_refused_in_one_line(
+    device: str, tmp_path: Path, conf: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # whatever this machine has
+    out = tmp_path / "run"
+    error = fails(["train", *FAST, "--conf", str(conf), "--device", device, "--out", str(out)], capsys)
+    assert f"--device {device}: CUDA is not available on this machine" in error and "--device cpu" in error
+    assert not out.exists()
+
+
+def test_device_cuda_past_the_last_gpu_is_refused(
+    tmp_path: Path, conf: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    error = fails(["train", *FAST, "--conf", str(conf), "--device", "cuda:3", "--out", str(tmp_path / "r")], capsys)
+    assert "--device cuda:3: this machine has 1 CUDA device(s), cuda:0..cuda:0" in error
