@@ -7,6 +7,7 @@
 - ``evaluate`` of a model without its settings file says that the closures it was trained under are not known
   (it scored it on the open map without a word).
 - ``--device cuda`` on a machine without CUDA is refused in one line, exit status 2 (it trained on the CPU, exit 0).
+- ``--save-freq`` on a run that stops (solved) before its first checkpoint says why none was written.
 
 Each run trains the built-in campus for a few hundred steps with the cheap ``pixels`` encoder on 64 x 48 views.
 """
@@ -21,7 +22,7 @@ import pytest
 import torch
 from cli_runs_support import FAST, ROAD, cli
 
-from sb3_dcqn.campusnav import experiments, model_files
+from sb3_dcqn.campusnav import experiments, model_files, solved
 from sb3_dcqn.campusnav.cli import main
 
 pytestmark = pytest.mark.usefixtures("shared_feature_cache")
@@ -120,3 +121,20 @@ def test_device_cuda_past_the_last_gpu_is_refused(
     monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
     error = fails(["train", *FAST, "--conf", str(conf), "--device", "cuda:3", "--out", str(tmp_path / "r")], capsys)
     assert "--device cuda:3: this machine has 1 CUDA device(s), cuda:0..cuda:0" in error
+
+
+def test_save_freq_on_a_run_that_stops_before_its_first_checkpoint_says_why(
+    tmp_path: Path, conf: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(solved, "SOLVED_SUCCESS", 0.0)  # solved at the first route evaluation
+    monkeypatch.setattr(solved, "SOLVED_SPL", 0.0)
+    out = tmp_path / "run"
+    budget = ("--timesteps", "300", "--eval-freq", "100", "--save-freq", "200")
+    cli("train", *FAST, "--conf", str(conf), *budget, "--out", str(out))
+    assert not (out / "checkpoints").exists()
+    error = capsys.readouterr().err
+    assert "no checkpoint written: training ended after 100 steps, before --save-freq 200" in error
+    assert "add --keep-training" in error
+    cli("train", *FAST, "--conf", str(conf), *budget, "--keep-training", "--out", str(tmp_path / "kept"))
+    assert (tmp_path / "kept" / "checkpoints" / "dcqn_campusnav_200_steps.zip").is_file()
+    assert "no checkpoint written" not in capsys.readouterr().err
