@@ -559,7 +559,8 @@ class Run:
     def finish(self, outcome: TrainingOutcome) -> tuple[dict[str, Any], str]:
         """
         Figures (files and TensorBoard images), model, summary, all of the model as saved; returns the summary and
-        its Markdown text (``summary.json``, ``summary.md``).
+        its Markdown text (``summary.json``, ``summary.md``). The figures are drawn and the model's files saved before
+        any picture is written, and the summary last: a run that fails here leaves no folder that looks finished.
         """
         from stable_baselines3.common.logger import Image
 
@@ -585,13 +586,13 @@ class Run:
             title=f"{algorithm_name(model)} on {self.settings.describe()}",
             note=_curves_note(self.callbacks),
         )
+        saved = self.save(self.model_path, self.replay_buffer)  # all serialised first, then written, the zip last
         for name, image in figures.items():
             files[name] = str(write_figure(out / f"{name}.png", image))
             model.logger.record(f"figures/{name}", Image(image, "HWC"), exclude=_IMAGE_ONLY_TO_TENSORBOARD)
         model.logger.dump(model.num_timesteps)
         model.logger.close()
 
-        saved = self.save(self.model_path, self.replay_buffer)
         files["model"] = str(saved[0])
         if self.replay_buffer:
             files["replay_buffer"] = str(saved[1])
