@@ -97,3 +97,13 @@ def test_a_full_buffer_is_written_whole_and_loads_back(tmp_path: Any) -> None:
     data = io.BytesIO()
     dump_compact_buffer(model.replay_buffer, data)
     assert_same(model.replay_buffer, pickle.loads(data.getvalue()), "buffer")
+
+
+@pytest.mark.parametrize("variants", [(), ("revision",)])
+def test_an_empty_buffer_is_written_and_loads_back(variants: tuple[str, ...]) -> None:
+    # A run that stored no transition (readapt of a model saved without its buffer, recovered at once) saves it too
+    model = cartpole_model(variants)
+    assert model.replay_buffer is not None and model.replay_buffer.size() == 0
+    data = io.BytesIO()
+    dump_compact_buffer(model.replay_buffer, data)
+    assert_same(model.replay_buffer, pickle.loads(data.getvalue()), "buffer")

@@ -1,8 +1,10 @@
-"""README's figures: every row of its Results table names the command that made it and the results file it wrote.
+"""The figures of the docs' Results page (``docs/results.md``): every row names the command that made it and the
+results file it wrote; README's few headline rows come from those files too.
 
-The table is the one place README states measured figures. A row with no command, a command whose script does not
-exist, a results file that does not exist, or a results file written by another script (its ``Command:`` line) fails
-here; so does a machine that the results file does not name.
+The table is the one place the docs state measured figures (README repeats a handful of its rows). A row with no
+command, a command whose script does not exist, a results file that does not exist, or a results file written by
+another script (its ``Command:`` line) fails here; so does a machine that the results file does not name, and a
+README row whose results file is not one of the table's.
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
-COLUMNS = ("measure", "figure", "memory", "machine", "command", "results file")
+RESULTS = ROOT / "docs" / "results.md"
+COLUMNS = ("measure", "figure", "memory", "machine", "results file", "command")  # the long commands last
 MEMORY = {"yes", "no", "floor", "matcher only", "-"}
 # How a results file's Machine line spells the CPUs the table names
 CPU_SPELLINGS = {"AMD EPYC": ("AMD EPYC",), "Intel Xeon": ("Intel(R) Xeon(R)", "Intel Xeon"), "x86_64": ("x86_64",)}
@@ -50,13 +53,13 @@ def split_row(line: str) -> list[str]:
     return cells
 
 
-def results_table(text: str) -> list[Row]:
-    """The rows of the table under README's ``## Results`` heading."""
-    section = text.split("\n## Results\n", 1)[1].split("\n## ", 1)[0]
+def results_table(text: str, columns: tuple[str, ...] = COLUMNS) -> list[Row]:
+    """The rows of the table under a ``## Results`` heading (README), or of a page's first table (the Results page)."""
+    section = text.split("\n## Results\n", 1)[1].split("\n## ", 1)[0] if "\n## Results\n" in text else text
     lines = [line for line in section.splitlines() if line.startswith("|")]
     header = tuple(split_row(lines[0]))
-    assert header == COLUMNS, f"README's Results table has the columns {header}, expected {COLUMNS}"
-    return [Row(dict(zip(COLUMNS, split_row(line), strict=True))) for line in lines[2:]]
+    assert header == columns, f"the Results table has the columns {header}, expected {columns}"
+    return [Row(dict(zip(columns, split_row(line), strict=True))) for line in lines[2:]]
 
 
 def console_scripts() -> set[str]:
@@ -73,7 +76,9 @@ def script_of(command: str) -> str:
     return words[0].removeprefix(".venv/bin/")
 
 
-ROWS = results_table(README.read_text())
+ROWS = results_table(RESULTS.read_text())
+HEADLINE_COLUMNS = ("measure", "figure", "memory", "results file")
+HEADLINES = results_table(README.read_text(), HEADLINE_COLUMNS)
 
 
 def test_readme_has_a_results_table_with_rows() -> None:
@@ -113,8 +118,8 @@ def test_every_figure_names_its_command_machine_memory_and_results_file(row: Row
 def test_the_table_parser_sees_a_missing_command_and_a_pipe_inside_code() -> None:
     text = (
         "intro\n\n## Results\n\n| " + " | ".join(COLUMNS) + " |\n|---|---|---|---|---|---|\n"
-        "| a | 1 | no | x86_64 |  | `benchmarks/results/scale.md` |\n"
-        "| b | 2 | no | x86_64 | `python benchmarks/scale.py --x 'a|b'` | `benchmarks/results/scale.md` |\n"
+        "| a | 1 | no | x86_64 | `benchmarks/results/scale.md` |  |\n"
+        "| b | 2 | no | x86_64 | `benchmarks/results/scale.md` | `python benchmarks/scale.py --x 'a|b'` |\n"
         "\n## Layout\n"
     )
     first, second = results_table(text)
@@ -122,3 +127,12 @@ def test_the_table_parser_sees_a_missing_command_and_a_pipe_inside_code() -> Non
     assert script_of(second.commands[0]) == "benchmarks/scale.py"
     assert script_of("SOAK_REPORT=x.md pytest -m slow -s tests/test_soak.py") == "tests/test_soak.py"
     assert script_of(".venv/bin/dcqn-campusnav") == "dcqn-campusnav"
+
+
+def test_readmes_headline_figures_come_from_the_results_pages_files() -> None:
+    assert 3 <= len(HEADLINES) <= 10, "README shows a handful of headline rows"
+    files = {name for row in ROWS for name in row.results_files}
+    for row in HEADLINES:
+        assert row.results_files, f"README's row {row.cells['measure']!r} names no results file"
+        for name in row.results_files:
+            assert (ROOT / name).is_file() and name in files, f"README quotes {name}, not a file of docs/results.md"

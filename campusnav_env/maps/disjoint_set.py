@@ -1,4 +1,4 @@
-"""Union-find over the integers ``0 .. n-1`` (connectivity while building and importing road graphs)."""
+"""Union-find over the integers ``0`` to ``n - 1`` (connectivity while building and importing road graphs)."""
 
 from __future__ import annotations
 

@@ -13,11 +13,11 @@ looks related.
 :class:`StreetViewRenderer` composes the parts of a view (numpy + OpenCV, no display; about 15-30 ms for a 640x480
 view on one core), each drawing into the shared buffers of a :class:`~campusnav_env.rendering.camera.View`:
 
-1. **Sky** and 2. **ground** (:mod:`~campusnav_env.rendering.ground`): a gradient that follows the time of day; roads,
+1. **Sky and ground** (:mod:`~campusnav_env.rendering.ground`): a gradient that follows the time of day; roads,
    markings, fields and parks as the exact perspective image of a top-down texture.
-3. **Buildings** (:mod:`~campusnav_env.rendering.buildings`): walls found per image column by a ray cast, textured
+2. **Buildings** (:mod:`~campusnav_env.rendering.buildings`): walls found per image column by a ray cast, textured
    facades, landmark names on their walls.
-4. **Trees, cars, monument signs, closure barriers** (:mod:`~campusnav_env.rendering.props`,
+3. **Trees, cars, monument signs, closure barriers** (:mod:`~campusnav_env.rendering.props`,
    :mod:`~campusnav_env.rendering.buildings`, :mod:`~campusnav_env.rendering.barriers`): billboards and boxes drawn
    far to near and depth-tested against the walls. A closed road (``closed_roads`` of
    :meth:`StreetViewRenderer.render_node`) gets a construction barrier at each end, :data:`BARRIER_OFFSET` along it.

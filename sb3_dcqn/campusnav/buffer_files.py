@@ -33,7 +33,8 @@ def _pack(array: np.ndarray, stored: int) -> dict[str, Any] | None:
     fill = tail.reshape(-1)[0] if tail.size else np.zeros((), dtype=array.dtype)
     if tail.size and not np.array_equal(tail, np.broadcast_to(fill, tail.shape)):
         return None
-    head = np.ascontiguousarray(array[:stored]).reshape(stored, -1)
+    # The row width spelt out: an empty buffer (a run saved before it stored a transition) has no -1 to infer
+    head = np.ascontiguousarray(array[:stored]).reshape(stored, int(np.prod(array.shape[1:], dtype=np.int64)))
     packed: dict[str, Any] = {"shape": array.shape, "dtype": array.dtype, "fill": fill, "rows": head, "index": None}
     if stored and head.shape[1]:
         keys = head.view(np.dtype((np.void, head.dtype.itemsize * head.shape[1]))).reshape(-1)

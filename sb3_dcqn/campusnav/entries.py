@@ -122,12 +122,29 @@ def checked_params(params: dict[str, Any]) -> dict[str, Any]:
 
 
 def check_device(device: str | None) -> None:
-    """``--device``: a torch device name, checked as an entry's ``device`` is."""
+    """
+    ``--device``: a torch device name, checked as an entry's ``device`` is, and one this machine has (SB3 falls back
+    to the CPU without a word where CUDA or MPS is missing: a run asked for the GPU must not quietly run without it).
+    """
     from sb3_dcqn.zoo_entry import value_problem
 
     problem = None if device is None else value_problem("device", device)
     if problem is not None:
         raise CommandError(f"--device: {problem}")
+    if device is None or device in ("auto", "cpu"):
+        return
+    import torch as th
+
+    kind, _, index = device.partition(":")
+    if kind == "cuda":
+        count = th.cuda.device_count() if th.cuda.is_available() else 0
+        if count == 0:
+            build = f"torch {th.__version__}, " + ("built without CUDA" if th.version.cuda is None else "no GPU found")
+            raise CommandError(f"--device {device}: CUDA is not available on this machine ({build}); pass --device cpu")
+        if index and int(index) >= count:
+            raise CommandError(f"--device {device}: this machine has {count} CUDA device(s), cuda:0..cuda:{count - 1}")
+    elif kind == "mps" and not th.backends.mps.is_available():
+        raise CommandError(f"--device {device}: MPS is not available on this machine; pass --device cpu")
 
 
 def _command_error(error: EntryError) -> CommandError:

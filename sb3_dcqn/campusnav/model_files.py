@@ -94,19 +94,20 @@ def save_model(
     Save the model (and its replay buffer, as large as what it stores: :mod:`~sb3_dcqn.campusnav.buffer_files`, and
     its env settings), each file atomically; returns the paths.
 
+    Every file is serialised before any is written, and the model zip is written last: a save that fails writes
+    nothing, and a model zip is never left without the settings file that says which closures it was trained under.
+
     :param closed_roads: The roads closed now (``closed_roads_at_save``)
     :param levers: The re-adaptation levers it trains with (readapt's default)
     :param callbacks: Its entry's ``callback`` specs (readapt builds them anew)
     """
     zip_path, buffer_path, sidecar = model_paths(path)
-    zip_path.parent.mkdir(parents=True, exist_ok=True)
-    data = io.BytesIO()
-    model.save(data)
-    written = [write_bytes_atomic(zip_path, data.getvalue())]
+    model_data = io.BytesIO()
+    model.save(model_data)
+    buffer_data = None
     if replay_buffer:
-        data = io.BytesIO()
-        dump_compact_buffer(model.replay_buffer, data)  # as large as what it stores; load_replay_buffer reads it
-        written.append(write_bytes_atomic(buffer_path, data.getvalue()))
+        buffer_data = io.BytesIO()
+        dump_compact_buffer(model.replay_buffer, buffer_data)  # as large as what it stores; load_replay_buffer reads it
     document = {
         "settings": settings.to_json(),
         "num_timesteps": model.num_timesteps,
@@ -115,5 +116,8 @@ def save_model(
         "levers": list(levers),
         "callbacks": [[path, kwargs] for path, kwargs in callbacks],
     }
+    zip_path.parent.mkdir(parents=True, exist_ok=True)
+    written = [] if buffer_data is None else [write_bytes_atomic(buffer_path, buffer_data.getvalue())]
     written.append(write_text_atomic(sidecar, json.dumps(document, indent=2) + "\n"))
+    written.insert(0, write_bytes_atomic(zip_path, model_data.getvalue()))
     return written

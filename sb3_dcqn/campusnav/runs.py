@@ -91,6 +91,11 @@ def restore_closures(
 
     :return: the roads closed
     """
+    if saved.settings is None:  # saved by DCQN.save, or its settings file lost: say so, never score it silently
+        note(
+            f"{model}: no {model_paths(model)[2].name} beside it, so the closures it was trained under are not "
+            "known; starting from the open map (plus the --close roads)"
+        )
     if not saved.closed_roads:
         return []
     roads = ", ".join(f"{u}-{v}" for u, v in saved.closed_roads)
@@ -247,12 +252,26 @@ class Checkpoints(BaseCallback):
         super().__init__()
         self.run = run
         self.every = max(every // run.venv.num_envs, 1)  # calls, each of n_envs steps (as the RL Zoo counts)
+        self.asked = every
+        self.written = 0
 
     def _on_step(self) -> bool:
         if self.n_calls % self.every == 0:
             path = self.run.out / "checkpoints" / f"{MODEL_NAME}_{self.num_timesteps}_steps.zip"
             self.run.save(path, replay_buffer=self.run.replay_buffer)
+            self.written += 1
         return True
+
+    def say_if_none(self, steps: int, keep_training: bool) -> None:
+        """A run that ended before its first checkpoint says so and why: the user asked for checkpoints."""
+        if self.written:
+            return
+        why = (
+            "--timesteps is below --save-freq"
+            if keep_training
+            else "a run stops once solved and recovered; add --keep-training to train the whole --timesteps budget"
+        )
+        note(f"no checkpoint written: training ended after {steps} steps, before --save-freq {self.asked} ({why})")
 
 
 # ------------------------------------------------------------------------------------------------ the run
@@ -456,8 +475,9 @@ class Run:
         :class:`Interrupted` saying how to go on.
         """
         request = self.request
+        start = self.model.num_timesteps
         try:
-            return experiments.train_with_closures(
+            outcome = experiments.train_with_closures(
                 self.model,
                 self.plan,
                 budget=self.budgets[0],
@@ -472,8 +492,13 @@ class Run:
             )
         except KeyboardInterrupt as interrupt:
             print(file=sys.stderr)  # past the progress bar
-            outcome = interrupt.outcome if isinstance(interrupt, experiments.TrainingInterrupted) else None
-        saved = self._save_interrupted(outcome)
+            interrupted = interrupt.outcome if isinstance(interrupt, experiments.TrainingInterrupted) else None
+        else:
+            for callback in self.callbacks:
+                if isinstance(callback, Checkpoints):
+                    callback.say_if_none(self.model.num_timesteps - start, request.keep_training)
+            return outcome
+        saved = self._save_interrupted(interrupted)
         raise Interrupted(
             f"interrupted at step {self.model.num_timesteps}: saved {saved[0]} with its replay buffer and the closures "
             f"in force; go on with '{PROG} train -i {saved[0]}' (or '{PROG} readapt {saved[0]} --in-place --close "
@@ -534,7 +559,8 @@ class Run:
     def finish(self, outcome: TrainingOutcome) -> tuple[dict[str, Any], str]:
         """
         Figures (files and TensorBoard images), model, summary, all of the model as saved; returns the summary and
-        its Markdown text (``summary.json``, ``summary.md``).
+        its Markdown text (``summary.json``, ``summary.md``). The figures are drawn and the model's files saved before
+        any picture is written, and the summary last: a run that fails here leaves no folder that looks finished.
         """
         from stable_baselines3.common.logger import Image
 
@@ -560,13 +586,13 @@ class Run:
             title=f"{algorithm_name(model)} on {self.settings.describe()}",
             note=_curves_note(self.callbacks),
         )
+        saved = self.save(self.model_path, self.replay_buffer)  # all serialised first, then written, the zip last
         for name, image in figures.items():
             files[name] = str(write_figure(out / f"{name}.png", image))
             model.logger.record(f"figures/{name}", Image(image, "HWC"), exclude=_IMAGE_ONLY_TO_TENSORBOARD)
         model.logger.dump(model.num_timesteps)
         model.logger.close()
 
-        saved = self.save(self.model_path, self.replay_buffer)
         files["model"] = str(saved[0])
         if self.replay_buffer:
             files["replay_buffer"] = str(saved[1])

@@ -1,5 +1,5 @@
 """
-Example inputs shipped with the package, for README's commands and quick tries:
+Example inputs shipped with the package, for the commands of docs/guide/command_line.md and quick tries:
 
 - ``small_town.graphml``: a road network of 15 intersections and 19 roads over 670 m x 470 m, as osmnx saves one
   (a ``MultiDiGraph``, two-way streets as two edges, a bent road as a WKT ``geometry``, street names), in UTM zone 17N
