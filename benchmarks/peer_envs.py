@@ -71,8 +71,9 @@ ICE, SLIPPERY = {"map_name": "8x8", "is_slippery": False}, {"map_name": "8x8", "
 ENVS = {
     "FrozenLake-deterministic": PeerEnv("FrozenLake-v1", 50_000, "deterministic", ICE, 0.0),
     "FrozenLake-slippery": PeerEnv("FrozenLake-v1", 50_000, "stochastic", SLIPPERY, 0.0),
-    # CliffWalking ends only at its goal (-1 there; the cliff, -100, sends the agent back without ending)
-    "CliffWalking": PeerEnv("CliffWalking-v1", 20_000, "deterministic", {}, -50.0),
+    # CliffWalking ends only at its goal (-1 there; the cliff, -100, sends the agent back without ending): its
+    # episodes are cut at 200 steps, as FrozenLake's (Gymnasium registers it with no limit)
+    "CliffWalking": PeerEnv("CliffWalking-v1", 20_000, "deterministic", {"max_episode_steps": 200}, -50.0),
     # Taxi pays +20 for the passenger dropped where asked, the one end of an episode short of the time limit
     "Taxi": PeerEnv("Taxi-v4", 50_000, "deterministic", {}, 0.0),
     "CartPole": PeerEnv("CartPole-v1", 50_000, "continuous", {}, None, zoo_entry=True),

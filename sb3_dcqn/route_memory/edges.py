@@ -19,8 +19,9 @@ roads between places: ``count_outcomes``), a slot that led to two ends by turns 
 alike: the world itself is random there (a slippery floor). Such a store keeps **outcome counts** per
 ``(state, slot)`` (where it ended: a state, or :data:`DEAD` for an end of the episode without success) and the number
 of times the end changed from one try to the next. A deterministic world
-with closures changes a move's end once per closure or reopening; a move whose end changed :data:`STOCHASTIC_CHANGES`
-times or more is **stochastic** (:attr:`EdgeStore.stochastic`): its outcomes are never disputed (no alias), a stay
+with closures changes a move's end once per closure or reopening, and a pose's move leads to one state (or stays,
+closed); a move whose end changed :data:`STOCHASTIC_CHANGES` times or more, or that led to two states, is
+**stochastic** (:attr:`EdgeStore.stochastic`): its outcomes are never disputed (no alias), a stay
 there closes nothing, and its remembered target is its most frequent end elsewhere (the explorer's way along it). Once
 one move is stochastic the world is, and the counts of every move are the model the planner solves
 (:meth:`EdgeStore.outcome_model`).
@@ -191,7 +192,9 @@ class EdgeStore:
             self._changes[key] = self._changes.get(key, 0) + 1
         self._last_end[key] = end
         if not self.stochastic[state, slot]:
-            if self._changes.get(key, 0) < STOCHASTIC_CHANGES:
+            # Two ends elsewhere: a pose's move leads to one state, or stays where a road closed; another end is chance
+            elsewhere = sum(1 for target in ends if target not in (state, DEAD, -1))
+            if self._changes.get(key, 0) < STOCHASTIC_CHANGES and elsewhere < 2:
                 return False
             self.stochastic[state, slot] = True
             self.n_stochastic += 1
