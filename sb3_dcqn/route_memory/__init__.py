@@ -3,8 +3,9 @@
 Its parts, one concern each, stand behind :class:`RouteMemory` (see :mod:`sb3_dcqn.route_memory.memory`):
 :mod:`~sb3_dcqn.route_memory.places` (the recogniser), :mod:`~sb3_dcqn.route_memory.edges` (the moves),
 :mod:`~sb3_dcqn.route_memory.goals` (where goals are), :mod:`~sb3_dcqn.route_memory.planner` (routes, the bounded
-cache) and :mod:`~sb3_dcqn.route_memory.explorer` (the way to the untried). The layer that any discrete off-policy
-algorithm wears to use it is :mod:`sb3_dcqn.route_memory.layer`.
+cache), :mod:`~sb3_dcqn.route_memory.explorer` (the way to the untried) and :mod:`~sb3_dcqn.route_memory.evidence`
+(its predictions scored: where they fail, it stands aside). The layer that any discrete off-policy algorithm wears
+to use it is :mod:`sb3_dcqn.route_memory.layer`.
 """
 
 from sb3_dcqn.route_memory.edges import Outcome

@@ -32,8 +32,12 @@ that carries a heading or a position is compared bit for bit), and slots are the
 transitions it is given, then remembers them in order: it never guesses a place before it knows what "the same place"
 looks like in this world. **A guard**: where states grow like transitions (more than ``GROWTH_GUARD`` new states per
 transition over ``GUARD_WINDOW`` transitions) or most pictures stay unsure, recognition is failing: the memory warns
-once and steps aside for good (every answer -1): the critics act alone from then on. (A memory that recognises
-places, but with places split in two, routes on: it can be slower than the critics alone; see README's Results.)
+once and steps aside for good (every answer -1): the critics act alone from then on; so does a memory none of whose
+first ``NEVER_AGAIN_WINDOW`` transitions met a state seen before (observations that never repeat). **Its evidence**
+(:mod:`~sb3_dcqn.route_memory.evidence`): each move it knows predicts a state, scored against the state recognised
+after it; where those predictions fail it stands aside (:attr:`RouteMemory.speaks` false: no routes, no exploration,
+no place merged or split) until they hold again. **Stochastic moves** (poses: see
+:mod:`~sb3_dcqn.route_memory.edges`) are planned on their outcome counts by value iteration.
 
 **Success** is the env's ``info["is_success"]`` (the ``successes`` flags of :meth:`RouteMemory.add_batch`); where the
 env gives none, a terminated transition with a reward above ``success_reward`` reached its goal, if that is set (else
@@ -772,11 +776,13 @@ class RouteMemory:
         return np.flatnonzero(self.edges.outcome[state] == Outcome.UNTRIED)
 
     def _untried_in_turn(self, state: int) -> list[int]:
-        """The untried slots of a state in the order the explorer tries them: the lowest first, but at a state of which
-        nothing is known yet, every slot untried, in a uniform order (the memory knows nothing there to prefer one
-        by: its choice is epsilon's, not a bias towards slot 0 at every new observation, as CartPole's would be)."""
+        """The untried slots of a state in the order the explorer tries them: the lowest first (a place's compass
+        slots in turn, as the floor tries them), but at a pose of which nothing is known yet, every slot untried, in a
+        uniform order: a pose may never come again, and the memory knows nothing there to prefer a slot by (its
+        choice is then epsilon's, not a push to slot 0 at every new observation, as CartPole's would be)."""
         slots = self.untried_slots(state)
-        return (np.random.permutation(slots) if slots.size == self.n_actions else slots).tolist()
+        fresh_pose = self.place_frame is None and slots.size == self.n_actions
+        return (np.random.permutation(slots) if fresh_pose else slots).tolist()
 
     def frontier(self) -> np.ndarray:
         """The states with at least one untried slot."""
