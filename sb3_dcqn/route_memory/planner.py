@@ -128,13 +128,18 @@ class Planner:
         :meth:`hops_to` for a named target, reused while at most ``staleness`` changes old and no move was lost since
         (a route never goes through a road seen closed because of a stale search).
         """
+        return self._kept(key, staleness, lambda: self.hops_to(is_target(np.arange(self.edges.n_rows)), retry))
+
+    def _kept(self, key: Hashable, staleness: int, search: Callable[[], np.ndarray]) -> np.ndarray:
+        """The cache's answer for ``key`` while at most ``staleness`` changes old and no move was lost since, else
+        ``search()``'s, kept."""
         entry = self.cache.get(key)
         version = self.edges.version
         if entry is not None and entry[0] >= self.edges.lost_move_version and version - entry[0] <= staleness:
             return entry[1]
-        hops = self.hops_to(is_target(np.arange(self.edges.n_rows)), retry)
-        self.cache.put(key, version, hops)
-        return hops
+        answer = search()
+        self.cache.put(key, version, answer)
+        return answer
 
     def first_slots(
         self, states: np.ndarray, hops: np.ndarray, is_target: TargetTest, retry: bool = False
@@ -189,14 +194,7 @@ class Planner:
         self, key: Hashable, goal_states: np.ndarray, staleness: int = 0, retry: bool = False
     ) -> np.ndarray:
         """:meth:`values_to` for a named goal, kept as :meth:`cached_hops` keeps its searches."""
-        key = ("values", key)
-        entry = self.cache.get(key)
-        version = self.edges.version
-        if entry is not None and entry[0] >= self.edges.lost_move_version and version - entry[0] <= staleness:
-            return entry[1]
-        values = self.values_to(goal_states, retry)
-        self.cache.put(key, version, values)
-        return values
+        return self._kept(("values", key), staleness, lambda: self.values_to(goal_states, retry))
 
     @staticmethod
     def best_slots(states: np.ndarray, values: np.ndarray) -> np.ndarray:
