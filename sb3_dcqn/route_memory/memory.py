@@ -775,15 +775,6 @@ class RouteMemory:
         """The slots never tried from ``state`` (inferred ones are known, not untried)."""
         return np.flatnonzero(self.edges.outcome[state] == Outcome.UNTRIED)
 
-    def _untried_in_turn(self, state: int) -> list[int]:
-        """The untried slots of a state in the order the explorer tries them: the lowest first (a place's compass
-        slots in turn, as the floor tries them), but at a pose of which nothing is known yet, every slot untried, in a
-        uniform order: a pose may never come again, and the memory knows nothing there to prefer a slot by (its
-        choice is then epsilon's, not a push to slot 0 at every new observation, as CartPole's would be)."""
-        slots = self.untried_slots(state)
-        fresh_pose = self.place_frame is None and slots.size == self.n_actions
-        return (np.random.permutation(slots) if fresh_pose else slots).tolist()
-
     def frontier(self) -> np.ndarray:
         """The states with at least one untried slot."""
         self.edges.ensure(self.n_states)
@@ -817,10 +808,14 @@ class RouteMemory:
         if not 0 <= state < self.n_states:
             raise ValueError(f"state {state} is not one of the memory's {self.n_states} states")
         self.edges.ensure(self.n_states)
+        if self.place_frame is None and (self.edges.outcome[state] == Outcome.UNTRIED).all():
+            # A pose it knows nothing of (it may never come again: CartPole's) has no slot to prefer: no way to offer,
+            # so the caller's own uniform draw acts (SB3's, from the same generator as without the memory)
+            return None
         if self._exhausted_version != self.edges.version:
             self._exhausted, self._exhausted_version = set(), self.edges.version
         if state not in self._exhausted:
-            path = path_to(self.edges, state, self._untried_in_turn, exclude)
+            path = path_to(self.edges, state, lambda here: self.untried_slots(here).tolist(), exclude)
             if path is not None:
                 return path
             if not exclude:
