@@ -519,7 +519,6 @@ class RouteMemory:
             if skip or state < 0:  # an unsure picture: nothing is recorded (the clock still counts)
                 self.edges.clock += 1
                 continue
-            self.edges.ensure(self.n_states)
             self.edges.record(state, slot, following, arrival, is_dead, self.recogniser.alike)
             if self.edges.disputed:
                 disputed |= self._witness_disputes(observations, next_observations, index, state)
