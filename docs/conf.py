@@ -27,7 +27,6 @@ extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
     "sphinx.ext.autosummary",
-    "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
 ]
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
@@ -49,9 +48,8 @@ autodoc_typehints = "description"
 autodoc_typehints_description_target = "documented_params"
 autodoc_class_signature = "separated"
 autodoc_preserve_defaults = True
-# SB3's docstrings (inherited members) use reST with :param: fields, as ours do; napoleon reads Google/NumPy style too
-napoleon_google_docstring = True
-napoleon_numpy_docstring = False
+# Docstrings are reST with :param:/:ivar: fields, as SB3's are. No napoleon: it reads a property's first line
+# "text: more" as "type: description" (Google style), and ours are prose with colons
 add_module_names = False
 
 myst_enable_extensions = ["colon_fence", "deflist"]
@@ -62,8 +60,6 @@ html_theme = "furo"
 html_title = f"sb3-dcqn {release}"
 html_static_path: list[str] = []
 html_show_sourcelink = False
-
-napoleon_use_ivar = True  # an "Attributes:" section as fields: the annotated attributes are documented once
 
 # ------------------------------------------------------------------------------------------------ Markdown docstrings
 # The envs' class docstrings are written as Gymnasium writes its envs' (Markdown: "## Observation Space", ```python

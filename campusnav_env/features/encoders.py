@@ -85,15 +85,14 @@ def _file_digest(path: Path) -> str:
 class ViewEncoder(abc.ABC):
     """Maps batches of RGB views to fixed-shape arrays.
 
-    Attributes:
-        name: Stable identifier used in cache keys; it includes the weights' identity and all parameters that change
-            the output.
-        output_shape: Shape of the encoding of one view.
-        dtype: Dtype of the encodings.
-        view_input_size: ``(height, width)`` every view is resized to before it is encoded, where views need not be
-            rendered any bigger (the feature build then renders them at about that size,
-            :func:`campusnav_env.features.view_source.settings_for_encoder`); None where the encoder has no such size or
-            relies on shrinking big renders (the thumbnails of the pixel and thumbnail encoders).
+    :ivar name: Stable identifier used in cache keys; it includes the weights' identity and all parameters that
+        change the output.
+    :ivar output_shape: Shape of the encoding of one view.
+    :ivar dtype: Dtype of the encodings.
+    :ivar view_input_size: ``(height, width)`` every view is resized to before it is encoded, where views need not be
+        rendered any bigger (the feature build then renders them at about that size,
+        :func:`campusnav_env.features.view_source.settings_for_encoder`); None where the encoder has no such size or
+        relies on shrinking big renders (the thumbnails of the pixel and thumbnail encoders).
     """
 
     name: str
