@@ -11,9 +11,9 @@ own CLI (``train`` when the first argument is an option)::
 
 The zoo's commands run as they are (none of their functions replaced): ``dcqn-zoo`` reads and checks what they will
 read first (the entry and ``-params``, through :mod:`sb3_dcqn.zoo_entry` as ``dcqn-campusnav`` reads them; the trained
-agent, by the zoo's ``get_model_path``) and adds arguments for two gaps of rl_zoo3 2.9: ``train``'s evaluation envs and
-``record_video`` lack the entry's ``env_kwargs``. Registers no env (:mod:`sb3_dcqn.campusnav.zoo` registers
-CampusNav's; ``--gym-packages`` others'); needs the zoo extra (the plot commands: seaborn and scipy, in it too).
+agent, by the zoo's ``get_model_path``) and bridges three gaps of rl_zoo3 2.9: ``train``'s evaluation envs and
+``record_video`` lack the entry's ``env_kwargs``; ``-n -5`` trains the entry's budget (refused). Registers no env
+(:mod:`sb3_dcqn.campusnav.zoo` registers CampusNav's; ``--gym-packages`` others'); needs the zoo extra.
 """
 
 from __future__ import annotations
@@ -154,11 +154,8 @@ def require_zoo(argv: list[str] | None = None) -> None:
 
 
 def _options(command: str, args: list[str]) -> argparse.Namespace:
-    """
-    The options of the zoo's commands that ``dcqn-zoo`` looks at, read as the zoo's own parsers read them (prefixes,
-    ``--name=value``, ``-n5``; ``--env-kwargs`` evaluated as Python), with the zoo's defaults; ``-params`` as
-    ``dcqn-campusnav`` reads it (:func:`~sb3_dcqn.zoo_entry.read_params`), which :func:`_params_for_zoo` hands on.
-    """
+    """The options ``dcqn-zoo`` looks at, read as the zoo's parsers read them (prefixes, ``--name=value``, ``-n5``, its
+    defaults); ``-params`` as ``dcqn-campusnav`` reads it (:func:`~sb3_dcqn.zoo_entry.read_params`)."""
     from rl_zoo3.utils import StoreDict
 
     parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
@@ -239,12 +236,8 @@ def _prepare(command: str, args: list[str], options: argparse.Namespace) -> tupl
 
 
 def _prepare_train(args: list[str], options: argparse.Namespace) -> tuple[Callable[[], None], list[str]]:
-    """
-    The zoo's ``train`` (``-conf`` defaulting to the shipped ``dcqn.yml``), once the entry it will read is read and
-    checked (:func:`_checked_entry`): a bad entry is one line naming the file, the entry and the key, exit 2. Its
-    evaluation envs (``--eval-freq``, ``-optimize``'s trials) get the entry's ``env_kwargs`` as ``--eval-env-kwargs``
-    unless env kwargs are given (rl_zoo3 2.9 gives them only ``--env-kwargs``, not the entry's ``view_dim``).
-    """
+    """The zoo's ``train`` (``-conf`` defaulting to the shipped ``dcqn.yml``) once its entry is checked; its evaluation
+    envs get the entry's ``env_kwargs`` unless env kwargs are given (rl_zoo3 2.9 gives them only ``--env-kwargs``)."""
     from rl_zoo3.train import train
 
     if any(arg in _HELP_FLAGS for arg in args):
@@ -261,12 +254,9 @@ def _prepare_train(args: list[str], options: argparse.Namespace) -> tuple[Callab
 
 
 def _params_for_zoo(args: list[str], options: argparse.Namespace) -> list[str]:
-    """
-    ``args`` with ``-params`` given to the zoo as :func:`~sb3_dcqn.zoo_entry.read_params` read them, in the zoo's
-    syntax (its ``StoreDict`` evaluates each value as Python): plain values as Python literals (``lin_3e-4``, which
-    Python cannot read, reaches it as the string YAML made of it); an object the zoo makes of a string itself
-    (``policy_kwargs``, the replay buffer's keys) as that string. The zoo's rule stays: the last ``-params`` counts.
-    """
+    """``args`` with ``-params`` as :func:`~sb3_dcqn.zoo_entry.read_params` read them, in the zoo's syntax (its
+    ``StoreDict`` evaluates each value as Python): a plain value as its literal (``lin_3e-4`` as the string YAML made
+    of it), a string the zoo evaluates itself (``policy_kwargs``, the replay buffer's keys) as that string."""
     if options.hyperparams is None:
         return args
     parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
@@ -289,10 +279,8 @@ def _is_literal(value: Any) -> bool:
 
 
 def _checked_entry(options: argparse.Namespace) -> ZooEntry | None:
-    """
-    The entry the zoo will read (``-params`` applied), read and checked against the algorithm now; ``None`` where the
-    zoo reads no YAML entry (a Python config) or will refuse the command line itself (an unknown env or algorithm).
-    """
+    """The entry the zoo will read (``-params`` applied), checked now; ``None`` where the zoo reads no YAML entry (a
+    Python config) or will refuse the command line itself (an unknown env or algorithm)."""
     import gymnasium as gym
     from rl_zoo3.exp_manager import ExperimentManager
     from rl_zoo3.utils import ALGOS
@@ -312,7 +300,7 @@ def _checked_entry(options: argparse.Namespace) -> ZooEntry | None:
         entry.budget(None if options.n_timesteps is None else int(options.n_timesteps))
     except EntryError as error:
         _refuse("train", str(error))
-    # An entry that asks for the route memory gets the algorithm wearing it (the zoo builds ALGOS[algo])
+    # The zoo builds ALGOS[algo](**entry) and has no hook for the class: set, for this run, the one that takes the entry
     ALGOS[algo] = algorithm_class_for(algorithm, entry.hyperparams)
     return entry
 
@@ -330,11 +318,8 @@ def _next_run_folder(options: argparse.Namespace) -> Path | None:
 
 
 def _train(train: Callable[[], None], source: str | None, run: Path | None) -> None:
-    """
-    Run the zoo's ``train``. Bad input it meets before training (its own argument checks; an env or model that cannot
-    be set up with the entry, named by ``source``) is one line, exit 2; a run that fails before it wrote results
-    leaves no folder, nor log folders made for it (:func:`_remove_unfinished_run`).
-    """
+    """Run the zoo's ``train``: bad input it meets before training is one line (an env or model the entry cannot set
+    up named by ``source``), exit 2; a run that fails before it wrote results leaves no folders made for it."""
     existed = (
         set() if run is None else {*_run_folders(run), *(p for p in (run.parent, run.parent.parent) if p.exists())}
     )
@@ -363,11 +348,8 @@ def _raised_in(error: BaseException, *methods: str) -> bool:
 
 
 def _found_model(command: str, options: argparse.Namespace) -> str:
-    """
-    The run folder of the trained agent ``enjoy`` or ``record_video`` will load, found by the zoo's own
-    ``get_model_path`` before they run: a log folder or model that is not there is one line (the zoo's ``enjoy``
-    would try to download it from the Hugging Face Hub, ``record_video`` raise).
-    """
+    """The run folder of the agent ``enjoy`` or ``record_video`` will load, by the zoo's ``get_model_path``: one that is
+    not there is one line (the zoo's ``enjoy`` would try the Hugging Face Hub, ``record_video`` raise)."""
     from rl_zoo3.utils import ALGOS, EnvironmentName, get_model_path
 
     try:
@@ -442,11 +424,8 @@ def _refuse(command: str, message: str) -> NoReturn:
 
 
 def _with_saved_env_kwargs(args: list[str], options: argparse.Namespace, stats_path: str) -> list[str]:
-    """
-    ``record_video``'s ``args`` with the ``env_kwargs`` saved in the run's ``config.yml`` (those of the command line
-    winning) as a last ``--env-kwargs`` (the zoo's parser keeps the last): rl_zoo3 2.9's ``record_video`` ignores
-    them (CampusNav's ``view_dim``: the model's observation space would not match the env's), which ``enjoy`` applies.
-    """
+    """``args`` with the run's saved ``env_kwargs`` (the command line's winning) as a last ``--env-kwargs``, the one the
+    zoo's parser keeps: rl_zoo3 2.9's ``record_video`` ignores them (CampusNav's ``view_dim``), its ``enjoy`` not."""
     from rl_zoo3.utils import get_saved_hyperparams
 
     env_kwargs = {**(get_saved_hyperparams(stats_path)[0].get("env_kwargs") or {}), **(options.env_kwargs or {})}
