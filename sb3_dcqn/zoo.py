@@ -1,9 +1,7 @@
 """RL Baselines3 Zoo glue: make ``--algo dcqn`` available to the zoo's commands (the ``dcqn-zoo`` console script).
 
-``rl_zoo3`` has no plugin hook, so :func:`register_dcqn` adds DCQN to the zoo's algorithm, sampler and converter
-tables (for ``-optimize``) and the names of :func:`~sb3_dcqn.zoo_files.hyperparams_namespace` to the namespace in
-which the zoo evaluates ``policy_kwargs`` and replay buffer strings. :func:`main` runs one of the zoo's commands, named
-as in the zoo's own CLI (``train`` when the first argument is an option)::
+:func:`register_dcqn` adds DCQN to the zoo's tables; :func:`main` runs one of the zoo's commands, named as in the zoo's
+own CLI (``train`` when the first argument is an option)::
 
     dcqn-zoo train --algo dcqn --env CartPole-v1 -f logs/                  # -conf defaults to the shipped dcqn.yml
     dcqn-zoo --algo dcqn --env CartPole-v1 -optimize --storage dcqn.log     # train without the command word
@@ -11,24 +9,21 @@ as in the zoo's own CLI (``train`` when the first argument is an option)::
     dcqn-zoo record_video --algo dcqn --env CartPole-v1 -f logs/ -n 500 -o videos/
     dcqn-zoo plot_train -a dcqn -e CartPole-v1 -f logs/ -w 20 -o curve.png   # -o FILE: ours, saved with Agg
 
-The plot commands need seaborn and scipy (in our ``zoo`` extra); ``record_video`` an env with ``rgb_array`` rendering.
-The zoo's commands run as they are (none of their functions replaced): ``dcqn-zoo`` only reads and checks what they
-will read first (the entry, through :mod:`sb3_dcqn.zoo_entry`, as ``dcqn-campusnav`` reads it; ``-params`` as
-:func:`~sb3_dcqn.zoo_entry.read_params` reads it; the trained agent, by the zoo's ``get_model_path``) and adds
-arguments for three gaps of rl_zoo3 2.9: ``train``'s evaluation envs and ``record_video`` lack the entry's
-``env_kwargs``; ``-n -5`` trains the entry's budget. ``enjoy``'s undeclared import of ``requests`` gets a stand-in.
-
-Registers no env (:mod:`sb3_dcqn.campusnav.zoo` registers CampusNav's; ``--gym-packages`` others'); needs the zoo extra.
+The zoo's commands run as they are (none of their functions replaced): ``dcqn-zoo`` reads and checks what they will
+read first (the entry and ``-params``, through :mod:`sb3_dcqn.zoo_entry` as ``dcqn-campusnav`` reads them; the trained
+agent, by the zoo's ``get_model_path``) and bridges three gaps of rl_zoo3 2.9: ``train``'s evaluation envs and
+``record_video`` lack the entry's ``env_kwargs``; ``-n -5`` trains the entry's budget (refused). Registers no env
+(:mod:`sb3_dcqn.campusnav.zoo` registers CampusNav's; ``--gym-packages`` others'); needs the zoo extra.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import contextlib
 import functools
 import importlib
 import io
-import math
 import os
 import runpy
 import shutil
@@ -49,29 +44,18 @@ from sb3_dcqn.zoo_files import EVALUATED_KEYS, default_hyperparams_path, hyperpa
 ALGO_NAME = "dcqn"
 
 
-def _import_zoo() -> Any:
+def register_dcqn() -> None:
+    """Add DCQN to the RL Zoo's algorithm, sampler and converter tables (idempotent; ``-optimize`` samples the zoo's
+    DQN search space: DCQN has DQN's hyperparameters)."""
     try:
-        import rl_zoo3  # noqa: F401
         from rl_zoo3 import exp_manager, hyperparams_opt, utils
     except ImportError as error:
         raise ImportError('The RL Zoo integration needs rl_zoo3: pip install "sb3-dcqn[zoo]"') from error
-    return exp_manager, hyperparams_opt, utils
-
-
-def sample_dcqn_params(trial: Any, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
-    """Optuna sampler for DCQN: the zoo's DQN search space (DCQN has the same hyperparameters)."""
-    _, hyperparams_opt, _ = _import_zoo()
-    return hyperparams_opt.sample_dqn_params(trial, n_actions, n_envs, additional_args)
-
-
-def register_dcqn() -> None:
-    """Add DCQN to the RL Zoo's algorithm, sampler and converter tables (idempotent)."""
-    exp_manager, hyperparams_opt, utils = _import_zoo()
-    # The zoo's modules import these dicts by name: mutating them in place reaches every user
+    # rl_zoo3 has no plugin hook: its modules import these dicts by name, so adding to them reaches every user
     utils.ALGOS[ALGO_NAME] = DCQN
-    hyperparams_opt.HYPERPARAMS_SAMPLER[ALGO_NAME] = sample_dcqn_params
+    hyperparams_opt.HYPERPARAMS_SAMPLER[ALGO_NAME] = hyperparams_opt.HYPERPARAMS_SAMPLER["dqn"]
     hyperparams_opt.HYPERPARAMS_CONVERTER[ALGO_NAME] = hyperparams_opt.convert_offpolicy_params
-    # The experiment manager eval()s policy_kwargs and replay buffer strings in its own module globals
+    # The experiment manager eval()s policy_kwargs and replay buffer strings in its module's globals, nowhere else
     vars(exp_manager).update(hyperparams_namespace())
 
 
@@ -87,8 +71,9 @@ COMMANDS: dict[str, str] = {
 _HELP_FLAGS = ("-h", "--help")
 # The zoo's commands whose -n/--n-timesteps counts steps
 _STEP_COMMANDS = ("train", "enjoy", "record_video")
-# The zoo's commands that take --env and --num-threads
+# The zoo's commands that take --env and --num-threads; those that load a trained agent
 _THREADED_COMMANDS = ("train", "enjoy")
+_LOADING_COMMANDS = ("enjoy", "record_video")
 
 
 def usage() -> str:
@@ -120,7 +105,7 @@ def main(argv: list[str] | None = None, single_thread_envs: Collection[str] = ()
         unless the arguments give ``--num-threads``: envs whose small networks run slower on more threads
     :raises SystemExit: 2 on bad input, 130 on Ctrl-C before the zoo catches it, else as the zoo's commands exit
     """
-    require_zoo()
+    require_zoo(argv)
     args = list(sys.argv[1:] if argv is None else argv)
     if not args:
         print(usage(), file=sys.stderr)
@@ -169,16 +154,21 @@ def require_zoo(argv: list[str] | None = None) -> None:
 
 
 def _options(command: str, args: list[str]) -> argparse.Namespace:
-    """
-    The options of the zoo's commands that ``dcqn-zoo`` looks at, read as the zoo's own parsers read them (prefixes,
-    ``--name=value``, ``-n5``; ``--env-kwargs`` evaluated as Python), with the zoo's defaults; ``-params`` as
-    ``dcqn-campusnav`` reads it (:func:`~sb3_dcqn.zoo_entry.read_params`), which :func:`_params_for_zoo` hands on.
-    """
+    """The options ``dcqn-zoo`` looks at, read as the zoo's parsers read them (prefixes, ``--name=value``, ``-n5``, its
+    defaults); ``-params`` as ``dcqn-campusnav`` reads it (:func:`~sb3_dcqn.zoo_entry.read_params`)."""
     from rl_zoo3.utils import StoreDict
 
     parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
-    for *flags, default in (("--algo", "ppo"), ("--env", "CartPole-v1"), ("-f", "--log-folder", "logs")):
-        parser.add_argument(*flags, default=default)
+    parser.add_argument("--algo", default="ppo")
+    parser.add_argument("--env", default="CartPole-v1")
+    if command in _LOADING_COMMANDS:  # the trained agent's options, as these commands name them
+        parser.add_argument("-f", "--folder", default="rl-trained-agents")
+        parser.add_argument("--exp-id", type=int, default=0)
+        parser.add_argument("--load-checkpoint")
+        for flag in ("--load-best", "--load-last-checkpoint"):
+            parser.add_argument(flag, action="store_true")
+    else:
+        parser.add_argument("-f", "--log-folder", default="logs")
     for flags in (("-n", "--n-timesteps"), ("-conf", "--conf-file"), ("--num-threads",)):
         parser.add_argument(*flags)
     parser.add_argument("--gym-packages", nargs="+", default=[])
@@ -227,15 +217,14 @@ def _prepare(command: str, args: list[str], options: argparse.Namespace) -> tupl
     if command == "train":
         return _prepare_train(args, options)
     if command == "enjoy":
-        _allow_enjoy_without_requests()
-        from rl_zoo3 import enjoy
+        from rl_zoo3 import enjoy  # its Hub download imports requests, which our zoo extra declares
 
         if not help_asked:
-            _found_model(command, args)
+            _found_model(command, options)
         return enjoy.enjoy, args
     if command == "record_video":
         runner = functools.partial(runpy.run_module, "rl_zoo3.record_video", run_name="__main__")  # a script
-        return runner, args if help_asked else _with_saved_env_kwargs(args, _found_model(command, args))
+        return runner, args if help_asked else _with_saved_env_kwargs(args, options, _found_model(command, options))
     if command == "plot_train":
         output, args = _pop_plot_output(args)
         if output is not None:
@@ -247,12 +236,8 @@ def _prepare(command: str, args: list[str], options: argparse.Namespace) -> tupl
 
 
 def _prepare_train(args: list[str], options: argparse.Namespace) -> tuple[Callable[[], None], list[str]]:
-    """
-    The zoo's ``train`` (``-conf`` defaulting to the shipped ``dcqn.yml``), once the entry it will read is read and
-    checked (:func:`_checked_entry`): a bad entry is one line naming the file, the entry and the key, exit 2. Its
-    evaluation envs (``--eval-freq``, ``-optimize``'s trials) get the entry's ``env_kwargs`` as ``--eval-env-kwargs``
-    unless env kwargs are given (rl_zoo3 2.9 gives them only ``--env-kwargs``, not the entry's ``view_dim``).
-    """
+    """The zoo's ``train`` (``-conf`` defaulting to the shipped ``dcqn.yml``) once its entry is checked; its evaluation
+    envs get the entry's ``env_kwargs`` unless env kwargs are given (rl_zoo3 2.9 gives them only ``--env-kwargs``)."""
     from rl_zoo3.train import train
 
     if any(arg in _HELP_FLAGS for arg in args):
@@ -269,12 +254,9 @@ def _prepare_train(args: list[str], options: argparse.Namespace) -> tuple[Callab
 
 
 def _params_for_zoo(args: list[str], options: argparse.Namespace) -> list[str]:
-    """
-    ``args`` with ``-params`` given to the zoo as :func:`~sb3_dcqn.zoo_entry.read_params` read them, in the zoo's
-    syntax (its ``StoreDict`` evaluates each value as Python): plain values as Python literals (``lin_3e-4``, which
-    Python cannot read, reaches it as the string YAML made of it); an object the zoo makes of a string itself
-    (``policy_kwargs``, the replay buffer's keys) as that string. The zoo's rule stays: the last ``-params`` counts.
-    """
+    """``args`` with ``-params`` as :func:`~sb3_dcqn.zoo_entry.read_params` read them, in the zoo's syntax (its
+    ``StoreDict`` evaluates each value as Python): a plain value as its literal (``lin_3e-4`` as the string YAML made
+    of it), a string the zoo evaluates itself (``policy_kwargs``, the replay buffer's keys) as that string."""
     if options.hyperparams is None:
         return args
     parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
@@ -290,18 +272,15 @@ def _params_for_zoo(args: list[str], options: argparse.Namespace) -> list[str]:
 
 def _is_literal(value: Any) -> bool:
     """Whether ``repr(value)`` is a Python literal that evaluates back to ``value`` (numbers, strings, containers)."""
-    if isinstance(value, list | tuple):
-        return all(map(_is_literal, value))
-    if isinstance(value, dict):
-        return all(_is_literal(key) and _is_literal(item) for key, item in value.items())
-    return value is None or isinstance(value, bool | int | str) or (isinstance(value, float) and math.isfinite(value))
+    try:
+        return ast.literal_eval(repr(value)) == value
+    except (ValueError, SyntaxError):
+        return False
 
 
 def _checked_entry(options: argparse.Namespace) -> ZooEntry | None:
-    """
-    The entry the zoo will read (``-params`` applied), read and checked against the algorithm now; ``None`` where the
-    zoo reads no YAML entry (a Python config) or will refuse the command line itself (an unknown env or algorithm).
-    """
+    """The entry the zoo will read (``-params`` applied), checked now; ``None`` where the zoo reads no YAML entry (a
+    Python config) or will refuse the command line itself (an unknown env or algorithm)."""
     import gymnasium as gym
     from rl_zoo3.exp_manager import ExperimentManager
     from rl_zoo3.utils import ALGOS
@@ -321,7 +300,7 @@ def _checked_entry(options: argparse.Namespace) -> ZooEntry | None:
         entry.budget(None if options.n_timesteps is None else int(options.n_timesteps))
     except EntryError as error:
         _refuse("train", str(error))
-    # An entry that asks for the route memory gets the algorithm wearing it (the zoo builds ALGOS[algo])
+    # The zoo builds ALGOS[algo](**entry) and has no hook for the class: set, for this run, the one that takes the entry
     ALGOS[algo] = algorithm_class_for(algorithm, entry.hyperparams)
     return entry
 
@@ -339,11 +318,8 @@ def _next_run_folder(options: argparse.Namespace) -> Path | None:
 
 
 def _train(train: Callable[[], None], source: str | None, run: Path | None) -> None:
-    """
-    Run the zoo's ``train``. Bad input it meets before training (its own argument checks; an env or model that cannot
-    be set up with the entry, named by ``source``) is one line, exit 2; a run that fails before it wrote results
-    leaves no folder, nor log folders made for it (:func:`_remove_unfinished_run`).
-    """
+    """Run the zoo's ``train``: bad input it meets before training is one line (an env or model the entry cannot set
+    up named by ``source``), exit 2; a run that fails before it wrote results leaves no folders made for it."""
     existed = (
         set() if run is None else {*_run_folders(run), *(p for p in (run.parent, run.parent.parent) if p.exists())}
     )
@@ -371,25 +347,12 @@ def _raised_in(error: BaseException, *methods: str) -> bool:
     return False
 
 
-def _found_model(command: str, args: list[str]) -> str:
-    """
-    The run folder of the trained agent ``enjoy`` or ``record_video`` will load, found by the zoo's own
-    ``get_model_path`` with their options before they run: a log folder or model that is not there is one line (the
-    zoo's ``enjoy`` would try to download it from the Hugging Face Hub, ``record_video`` raise). A model saved
-    wearing the route memory is loaded by the class that wears it (the zoo loads ``ALGOS[algo]``; the bare class
-    would drop the memory).
-    """
+def _found_model(command: str, options: argparse.Namespace) -> str:
+    """The run folder of the agent ``enjoy`` or ``record_video`` will load, by the zoo's ``get_model_path``: one that is
+    not there is one line (the zoo's ``enjoy`` would try the Hugging Face Hub, ``record_video`` raise)."""
     from rl_zoo3.utils import ALGOS, EnvironmentName, get_model_path
 
-    parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
-    for *flags, default in (("--algo", "ppo"), ("--env", "CartPole-v1"), ("-f", "--folder", "rl-trained-agents")):
-        parser.add_argument(*flags, default=default)
-    parser.add_argument("--exp-id", type=int, default=0)
-    parser.add_argument("--load-checkpoint")
-    for flag in ("--load-best", "--load-last-checkpoint"):
-        parser.add_argument(flag, action="store_true")
     try:
-        options = parser.parse_known_args(args)[0]
         with contextlib.redirect_stdout(io.StringIO()):  # the zoo says which run it loads when it runs
             found = get_model_path(
                 options.exp_id,
@@ -400,10 +363,10 @@ def _found_model(command: str, args: list[str]) -> str:
                 options.load_checkpoint,
                 options.load_last_checkpoint,
             )
-    except argparse.ArgumentError as error:
-        _refuse(command, str(error))
     except (AssertionError, ValueError) as error:
         _refuse(command, f"{error} (-f names the log folder of the trained agents)")
+    # The zoo loads ALGOS[algo] and has no hook for the class of a file: a model saved wearing the route memory
+    # is loaded by the class that wears it (the bare class would drop the memory)
     bare = getattr(ALGOS.get(options.algo), "bare_class", ALGOS.get(options.algo))
     if isinstance(bare, type) and issubclass(bare, OffPolicyAlgorithm):
         ALGOS[options.algo] = saved_algorithm_class(found[1], bare)
@@ -460,40 +423,13 @@ def _refuse(command: str, message: str) -> NoReturn:
     raise SystemExit(2)
 
 
-def _allow_enjoy_without_requests() -> None:
-    """
-    Let ``rl_zoo3.enjoy`` (2.9) be imported without ``requests``, which its ``load_from_hub`` imports undeclared, for
-    Hub downloads of pretrained agents: a stand-in module takes its place (a model missing from ``-f`` is refused).
-    """
-    try:
-        import rl_zoo3.load_from_hub  # noqa: F401
-    except ModuleNotFoundError as error:
-        if error.name != "requests":
-            raise
-        stand_in = types.ModuleType("rl_zoo3.load_from_hub", "Stand-in without requests (see sb3_dcqn.zoo)")
-        stand_in.download_from_hub = None  # type: ignore[attr-defined]  # never called: see _found_model
-        sys.modules["rl_zoo3.load_from_hub"] = stand_in
+def _with_saved_env_kwargs(args: list[str], options: argparse.Namespace, stats_path: str) -> list[str]:
+    """``args`` with the run's saved ``env_kwargs`` (the command line's winning) as a last ``--env-kwargs``, the one the
+    zoo's parser keeps: rl_zoo3 2.9's ``record_video`` ignores them (CampusNav's ``view_dim``), its ``enjoy`` not."""
+    from rl_zoo3.utils import get_saved_hyperparams
 
-
-def _with_saved_env_kwargs(args: list[str], stats_path: str) -> list[str]:
-    """
-    ``record_video``'s ``args`` with the ``env_kwargs`` saved in the run's ``config.yml`` (those of the command line
-    winning) as ``--env-kwargs``: rl_zoo3 2.9's ``record_video`` ignores them (CampusNav's ``view_dim``: the model's
-    observation space would not match the env's), which ``enjoy`` applies.
-    """
-    from rl_zoo3.utils import StoreDict, get_saved_hyperparams
-
-    parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
-    parser.add_argument("--env")  # known here, so that it is not read as --env-kwargs abbreviated
-    parser.add_argument("--env-kwargs", nargs="+", action=StoreDict)
-    options, rest = parser.parse_known_args(args)
     env_kwargs = {**(get_saved_hyperparams(stats_path)[0].get("env_kwargs") or {}), **(options.env_kwargs or {})}
-    env = [] if options.env is None else ["--env", options.env]
-    return (
-        [*rest, *env, "--env-kwargs", *(f"{key}:{value!r}" for key, value in env_kwargs.items())]
-        if env_kwargs
-        else args
-    )
+    return [*args, "--env-kwargs", *(f"{key}:{value!r}" for key, value in env_kwargs.items())] if env_kwargs else args
 
 
 def _pop_plot_output(args: list[str]) -> tuple[str | None, list[str]]:

@@ -1,19 +1,12 @@
 """One entry of a zoo-format hyperparameter file, checked: what ``dcqn-zoo`` and ``dcqn-campusnav`` read.
 
 :func:`load_zoo_entry` reads an env's entry once, ``-params`` overrides applied first (as the zoo applies them), into a
-frozen :class:`ZooEntry`: the zoo's budget, envs, ``env_kwargs`` and callbacks, the zoo's env-building keys as written
-(``normalize``, ``frame_stack``, ``env_wrapper``, ``vec_env_wrapper``, ``monitor_kwargs``: the zoo applies them,
-``dcqn-campusnav`` refuses them), and the algorithm's keyword arguments, whose strings become objects through the zoo's
-own functions (:mod:`sb3_dcqn.zoo_files`: ``learning_rate: lin_0.001`` is a linear schedule from 0.001 to 0). Two
-refusals where the zoo fails later or guesses: a count must be a whole number, and a schedule string is
-``lin_<initial value>`` (the zoo reads any ``word_<number>`` as linear). :func:`read_params` reads ``-params`` for
-both command lines.
-
-Every key is checked before anything is built: keys the algorithm does not take, values its constructor cannot use
-(types from its defaults, ranges from :data:`VALUE_CHECKS`; else an ``AssertionError`` from SB3, or a failure once
-training reaches it: ``batch_size: -64`` after ``learning_starts`` steps), ``policy_kwargs`` and
-``replay_buffer_kwargs`` keys, replay variants that do not combine, class paths that cannot be imported. A bad setting
-raises :class:`EntryError`, which carries the file, the entry, the key and the value; its text is one line naming them.
+frozen :class:`ZooEntry`; its strings become objects through the zoo's own functions (:mod:`sb3_dcqn.zoo_files`:
+``learning_rate: lin_0.001`` is a linear schedule from 0.001 to 0). The zoo's env-building keys (:data:`ZOO_ENV_KEYS`)
+are checked and kept as written. :func:`read_params` reads ``-params`` for both command lines. Every key is checked
+before anything is built, stricter than the zoo where it fails later or guesses (a count is a whole number; a schedule
+is ``lin_<initial value>``: the zoo reads any ``word_<number>`` as linear): a bad setting raises :class:`EntryError`,
+one line naming the file, the entry, the key and the value.
 """
 
 from __future__ import annotations
@@ -41,7 +34,6 @@ from sb3_dcqn.zoo_files import (
     describe_yaml_error,
     hyperparams_namespace,
     make_callbacks,
-    read_zoo_table,
     to_object,
 )
 
@@ -138,7 +130,7 @@ class ZooEntry:
 
     def error(self, key: str | None, problem: str, value: Any = None) -> EntryError:
         """An :class:`EntryError` about one of this entry's keys (or the entry as a whole)."""
-        return EntryError(problem, self.file, self.name, key, value, from_params=key in self.params)
+        return _errors(self.file, self.name, self.params)(key, problem, value)
 
     def algorithm_class(self) -> type[BaseAlgorithm]:
         """The algorithm the entry's hyperparameters are for: DCQN, wearing the route memory where the entry sets
@@ -189,14 +181,14 @@ def load_zoo_entry(
         (not a mapping, no ``n_timesteps``) or the key, as :func:`read_entry`
     """
     path = Path(path)
+    if not path.is_file():
+        raise EntryError(f"hyperparameter file not found: {path}")
     try:
-        table = read_zoo_table(path)
-    except FileNotFoundError as error:
-        raise EntryError(str(error)) from None
+        table = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as error:
         raise EntryError(f"not valid YAML ({describe_yaml_error(error)})", path) from None
-    except TypeError as error:
-        raise EntryError(str(error), path) from None
+    if not isinstance(table, dict):
+        raise EntryError("not a zoo-format hyperparameter file (expected env ids mapped to their settings)", path)
     name = next((key for key in (env_id, *fallbacks) if key in table), None)
     if name is None:
         raise EntryError(f"no entry for {env_id!r} (entries: {sorted(map(str, table))})", path)
@@ -217,27 +209,36 @@ def read_entry(
 
     :param settings: The entry, overrides applied
     :param file: Its file, ``name``: its name, ``params``: the keys overrides gave (for messages)
-    :raises EntryError: on the first setting that cannot be used (no ``n_timesteps``; a zoo key of the wrong form; a
-        key ``algorithm`` does not take, a value it cannot use, a string that cannot be evaluated, a class path that
-        cannot be imported)
+    :raises EntryError: on the first setting that cannot be used
     """
-
-    def error(key: str | None, problem: str, value: Any = None) -> EntryError:
-        return EntryError(problem, file, name, key, value, from_params=key in params)
-
+    error = _errors(file, name, params)
     entry = dict(settings)
     if "n_timesteps" not in entry:
         raise error(None, "no 'n_timesteps' (the zoo needs it, -n or not)")
     n_timesteps = entry.pop("n_timesteps")
-    if isinstance(n_timesteps, bool) or not _is_number(n_timesteps) or n_timesteps != int(n_timesteps):
+    if not _is_number(n_timesteps) or n_timesteps != int(n_timesteps):
         raise error("n_timesteps", f"expected a whole number, got {n_timesteps!r}{_number_hint(n_timesteps)}")
-    n_envs, env_kwargs, callback = entry.pop("n_envs", 1), entry.pop("env_kwargs", None), entry.pop("callback", None)
+    n_envs, env_kwargs, callback = (
+        entry.pop("n_envs", 1),
+        entry.pop("env_kwargs", None) or {},
+        entry.pop("callback", None),
+    )
     zoo_settings = {key: entry.pop(key) for key in ZOO_ENV_KEYS if key in entry}
-    _check_zoo_settings({"n_envs": n_envs, "env_kwargs": env_kwargs or {}, **zoo_settings}, error)
+    # The zoo's own keys in the forms its ExperimentManager takes, named before the zoo fails on them
+    for key, value in (("n_envs", n_envs), ("frame_stack", zoo_settings.get("frame_stack", 1))):
+        if problem := VALUE_CHECKS[key](value):
+            raise error(key, problem, value)
+    for key, value in [("env_kwargs", env_kwargs), *((k, zoo_settings.get(k, {})) for k in _EVALUATED_ENV_KEYS)]:
+        value = _as_object(key, value, error)
+        if not isinstance(value, dict) and not (key == "normalize" and isinstance(value, bool)):
+            expected = "true, false or a mapping of VecNormalize's arguments" if key == "normalize" else "a mapping"
+            raise error(key, f"expected {expected}, got {value!r}", value)
+    for key in ("env_wrapper", "vec_env_wrapper"):
+        _class_specs(zoo_settings.get(key), key, error)
     return ZooEntry(
         int(n_timesteps),
         _algorithm_settings(entry, algorithm, error),
-        dict(env_kwargs or {}),
+        dict(env_kwargs),
         n_envs,
         callbacks=_class_specs(callback, "callback", error),
         zoo_settings=zoo_settings,
@@ -282,30 +283,18 @@ def check_params(settings: Mapping[str, Any], algorithm: type[BaseAlgorithm] = D
     :return: the algorithm's keyword arguments
     :raises EntryError: naming ``-params`` and the key
     """
-
-    def error(key: str | None, problem: str, value: Any = None) -> EntryError:
-        return EntryError(problem, key=key, value=value, from_params=True)
-
-    return _algorithm_settings(dict(settings), algorithm, error)
+    return _algorithm_settings(dict(settings), algorithm, _errors(None, None, all_params=True))
 
 
 _ErrorFactory = Callable[..., EntryError]
+# The zoo's env keys whose strings it evaluates as Python, besides env_kwargs
+_EVALUATED_ENV_KEYS = ("monitor_kwargs", "normalize")
 
 
-def _check_zoo_settings(settings: dict[str, Any], error: _ErrorFactory) -> None:
-    """The zoo's own keys in the forms its ``ExperimentManager`` takes (counts, mappings, ``normalize``, wrapper
-    classes that import), so that a bad one is named before the zoo fails on it."""
-    for key in ("n_envs", "frame_stack"):
-        if key in settings and (problem := VALUE_CHECKS[key](settings[key])):
-            raise error(key, problem, settings[key])
-    for key in ("env_kwargs", "monitor_kwargs", "normalize"):
-        value = _as_object(key, settings[key], error) if key in settings else {}
-        if key == "normalize" and not isinstance(value, bool | dict):
-            raise error(key, "expected true, false or a mapping of VecNormalize's arguments", value)
-        if key != "normalize" and not isinstance(value, dict):
-            raise error(key, f"expected a mapping, got {value!r}", value)
-    for key in ("env_wrapper", "vec_env_wrapper"):
-        _class_specs(settings.get(key), key, error)
+def _errors(file: Path | None, name: str | None, params: Iterable[str] = (), all_params: bool = False) -> _ErrorFactory:
+    """``error(key, problem, value=None)``: an :class:`EntryError` about a key of this entry (``None``: the whole)."""
+    params = tuple(params)
+    return lambda key, problem, value=None: EntryError(problem, file, name, key, value, all_params or key in params)
 
 
 def _algorithm_settings(settings: dict[str, Any], algorithm: type, error: _ErrorFactory) -> dict[str, Any]:

@@ -1,10 +1,9 @@
-"""The RL Zoo's hyperparameter files: the shipped ones, their table of entries, and the zoo's rules for their strings.
+"""The RL Zoo's hyperparameter files: the shipped ones, and the zoo's rules for their strings.
 
-A zoo-format YAML file maps env ids to settings. :func:`read_zoo_table` reads one; :mod:`sb3_dcqn.zoo_entry` checks an
-entry of it. What the zoo turns into objects goes through rl_zoo3's own public functions where it is installed
-(``rl_zoo3.utils``: ``linear_schedule``, ``get_class_by_name``, ``get_callback_list``; strings evaluated in the names
-of its ``exp_manager``), else through the few lines below, which read the same files the same way
-(``tests/test_zoo_files.py`` compares both with rl_zoo3's ``ExperimentManager``). rl_zoo3 is imported lazily.
+What the zoo turns into objects goes through rl_zoo3's own public functions where it is installed (``rl_zoo3.utils``:
+``linear_schedule``, ``get_class_by_name``, ``get_callback_list``; strings evaluated in the names of its
+``exp_manager``), else through the few lines below, which read the same files the same way (``tests/test_zoo_files.py``
+compares both with rl_zoo3's ``ExperimentManager``). rl_zoo3 is imported lazily: it is the optional ``zoo`` extra.
 """
 
 from __future__ import annotations
@@ -35,23 +34,6 @@ def default_hyperparams_path() -> Path:
 def paper_hyperparams_path() -> Path:
     """Path of ``dcqn_paper.yml``: the paper's settings for CampusNav (lr 1e-4, gamma 0.95, replay buffer 412)."""
     return Path(str(resources.files("sb3_dcqn") / "hyperparams" / "dcqn_paper.yml"))
-
-
-def read_zoo_table(path: Path) -> dict[Any, Any]:
-    """
-    The table of a zoo-format hyperparameter file (env ids mapped to their settings).
-
-    :raises FileNotFoundError: if the file does not exist
-    :raises yaml.YAMLError: if it is not valid YAML (:func:`describe_yaml_error` says where)
-    :raises TypeError: if it is not a table of entries
-    """
-    if not path.is_file():
-        raise FileNotFoundError(f"hyperparameter file not found: {path}")
-    with open(path) as file:
-        table = yaml.safe_load(file) or {}
-    if not isinstance(table, dict):
-        raise TypeError("not a zoo-format hyperparameter file (expected env ids mapped to their settings)")
-    return table
 
 
 def describe_yaml_error(error: yaml.YAMLError) -> str:

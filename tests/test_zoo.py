@@ -532,6 +532,36 @@ def test_without_the_zoo_extra_dcqn_zoo_help_shows_the_commands_and_how_to_insta
     assert result.stdout.rstrip().endswith('pip install "sb3-dcqn[zoo]"')
 
 
+def test_without_the_zoo_extra_main_reads_the_arguments_it_is_given(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # sb3_dcqn.zoo.main(argv) called from Python: its own argv decides help (exit 0) or not, never sys.argv's
+    monkeypatch.setitem(sys.modules, "rl_zoo3", None)
+    monkeypatch.setattr(sys, "argv", ["python", "train", "--algo", "dcqn"])
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0 and capsys.readouterr().out.startswith("usage: dcqn-zoo")
+    monkeypatch.setattr(sys, "argv", ["python", "--help"])
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--algo", "dcqn"])
+    assert exit_info.value.code == 2 and 'pip install "sb3-dcqn[zoo]"' in capsys.readouterr().err
+
+
+def test_the_zoo_extra_declares_what_the_zoos_enjoy_imports_undeclared() -> None:
+    # rl_zoo3 2.9's enjoy imports its Hub download, which imports requests (not among rl_zoo3's requirements): the
+    # zoo extra declares it, so that enjoy imports as it is (no stand-in module)
+    import importlib.metadata
+
+    zoo_requires = importlib.metadata.requires("rl_zoo3") or []
+    assert not any(re.match(r"requests\b", requirement) for requirement in zoo_requires)
+    extra = re.search(r"^zoo = \[(.*)\]$", Path("pyproject.toml").read_text(), re.MULTILINE)  # tomllib: 3.11+
+    assert extra is not None and re.search(r'"requests\b', extra.group(1)), extra
+    import rl_zoo3.enjoy
+    import rl_zoo3.load_from_hub
+
+    assert rl_zoo3.load_from_hub.__file__ is not None and callable(rl_zoo3.enjoy.enjoy)
+
+
 def test_a_failed_run_leaves_no_folder_unless_it_wrote_results(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     (tmp_path / "failing_callback.py").write_text(FAILING_CALLBACK)
     monkeypatch.syspath_prepend(str(tmp_path))

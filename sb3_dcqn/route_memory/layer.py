@@ -717,9 +717,10 @@ def with_route_memory(algorithm_class: type[OffPolicyAlgorithm]) -> type[OffPoli
 
 def algorithm_class_for(algorithm_class: type[OffPolicyAlgorithm], hyperparams: Mapping[str, Any]) -> type:
     """
-    The class that takes an entry's hyperparameters: the algorithm wearing the route memory where they set
-    ``route_memory`` (any value: ``False`` is the memory off), the algorithm itself elsewhere (the command line's,
-    the zoo's and the benchmarks' entries name the memory as a hyperparameter).
+    The class whose constructor takes these keyword arguments (an entry's, or a saved model's data): the algorithm
+    wearing the route memory where they give ``route_memory`` (``route_memory: false`` too: the zoo passes an entry's
+    keys to the class as they are), the algorithm itself elsewhere. Whether the memory is on is the model's
+    ``wears_route_memory`` (:func:`memory_settings`), never this choice.
 
     :param algorithm_class: The algorithm (``DCQN``, ``DQN``, ``QRDQN``)
     :param hyperparams: Its keyword arguments
@@ -741,7 +742,7 @@ def saved_algorithm_class(path: str | Path, algorithm_class: type[OffPolicyAlgor
         path = path.with_suffix(".zip")
     with zipfile.ZipFile(path) as archive:
         data = json.loads(archive.read("data").decode())
-    return with_route_memory(algorithm_class) if "route_memory" in data else algorithm_class
+    return algorithm_class_for(algorithm_class, data)
 
 
 def algorithm_name(model_or_class: Any, *, for_files: bool = False) -> str:
@@ -755,8 +756,9 @@ def algorithm_name(model_or_class: Any, *, for_files: bool = False) -> str:
     """
     cls = model_or_class if isinstance(model_or_class, type) else type(model_or_class)
     bare = getattr(cls, "bare_class", cls)
+    # A class is named as it can run; a model as it runs (the property reads its setting through memory_settings)
     wears = issubclass(cls, RouteMemoryLayer) and (
-        isinstance(model_or_class, type) or memory_settings(model_or_class.route_memory) is not None
+        isinstance(model_or_class, type) or model_or_class.wears_route_memory
     )
     if not wears:
         return bare.__name__
