@@ -65,7 +65,7 @@ def aliased_pairs(views: np.ndarray, tolerance: float) -> tuple[int, int]:
     return equal, close
 
 
-def make_env(world: str, map_seed: int, size: int, encoder: str, renders: int | None) -> CampusNavEnv:
+def make_env(world: str, map_seed: int, size: int, encoder: str, variation: dict[str, Any] | None) -> CampusNavEnv:
     build = ViewBuild(
         render_settings=RenderSettings(64, 48) if encoder == PIXELS else None,
         progress=False,
@@ -75,7 +75,7 @@ def make_env(world: str, map_seed: int, size: int, encoder: str, renders: int | 
     graph = generate_city(size, seed=map_seed) if graph is None else graph
     goals = 0 if world == "town" else "Dreese Lab"  # the town names no landmark of the campus's
     return CampusNavEnv(
-        world=graph, goals=goals, view_dim=64, encoder=encoder, view_build=build, view_variation=renders
+        world=graph, goals=goals, view_dim=64, encoder=encoder, view_build=build, view_variation=variation
     )
 
 
@@ -151,7 +151,7 @@ def wrong_moves(memory: RouteMemory, nav: CampusNavEnv, node_of: dict[int, int])
 
 def count(world: str, map_seed: int, size: int, encoder: str, world_name: str, draws: int) -> dict[str, Any]:
     settings = WORLDS[world_name]
-    nav = make_env(world, map_seed, size, encoder, settings.renders)
+    nav = make_env(world, map_seed, size, encoder, settings.variation)
     env = GaussianObservationNoise(nav, settings.noise, keys=["views"]) if settings.noise else nav
     equal, close = aliased_pairs(nav._open_views, TOLERANCE)
     return {

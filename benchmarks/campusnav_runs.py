@@ -99,26 +99,31 @@ class World:
     How the pictures of a task's map behave between visits: fixed (the paper's reproduction: every visit sees the
     same views), fresh Gaussian noise on the current views at every observation (:class:`GaussianObservationNoise`,
     sigma in units of a standardised feature), or ``K`` renders per view drawn per visit (``view_variation``: hours,
-    passing cars, a few degrees of camera yaw). The route evaluation sees the same world (it goes through the
-    wrappers and draws the renders as training does).
+    passing cars, a few degrees of camera yaw), or both. The route evaluation sees the same world (it goes through
+    the wrappers and draws the renders as training does).
 
     :param name: Short name (command line, results)
     :param noise: Sigma of the noise on the current views (0: none)
-    :param renders: Renders per view (``None``: fixed views)
+    :param variation: The env's ``view_variation`` (:class:`~campusnav_env.rendering.variation.ViewVariation`'s
+        fields: ``renders``, ``hours``, ``yaw_jitter_deg``, ``seed``...; ``None``: fixed views)
     """
 
     name: str
     noise: float = 0.0
-    renders: int | None = None
+    variation: dict[str, Any] | None = None
 
     def make_env(self, task: Task, entry: ZooEntry) -> gym.Env:
         """The task's env in this world."""
-        env = task.make_env(entry, **({} if self.renders is None else {"view_variation": self.renders}))
+        env = task.make_env(entry, **({} if self.variation is None else {"view_variation": dict(self.variation)}))
         if not self.noise:
             return env
         current = "views" if "views" in env.observation_space.spaces else "observation"  # the goal env's views
         return GaussianObservationNoise(env, self.noise, keys=[current])
 
+
+# The harder varied world of issue 46: twice the renders, an hour window into dawn and dusk, twice the yaw, and a
+# variation seed no entry or test was tuned on
+HARDER_VARIATION = {"renders": 16, "hours": (6.0, 20.0), "yaw_jitter_deg": 6.0, "seed": 7}
 
 WORLDS = {
     world.name: world
@@ -126,7 +131,9 @@ WORLDS = {
         World("fixed"),
         World("noise 0.01", noise=0.01),
         World("noise 0.05", noise=0.05),
-        World("variation 8", renders=8),
+        World("variation 8", variation={"renders": 8}),
+        World("harder", variation=HARDER_VARIATION),
+        World("harder, noise 0.05", noise=0.05, variation=HARDER_VARIATION),
     )
 }
 
@@ -276,5 +283,6 @@ APPEARANCES = {
     "night (19:30)": RenderSettings(time_of_day=19.5),
     "passing cars": RenderSettings(cars=True),
     "night + cars": RenderSettings(time_of_day=19.5, cars=True),
+    "20:30 + cars": RenderSettings(time_of_day=20.5, cars=True),
     "22:30 + cars": RenderSettings(time_of_day=22.5, cars=True),
 }

@@ -83,6 +83,11 @@ def run_one(
         "seed": seed,
         "memory_states": None if memory is None else memory.n_states,
         "memory_stepped_aside": None if memory is None else memory.stepped_aside,
+        "memory_speaks": None if memory is None else memory.speaks,  # not standing aside on its predictions' evidence
+        "memory_prediction_accuracy": None if memory is None else memory.predictions.accuracy,
+        # Who drove at the end while the memory's routes were on trial (EpisodeTrial), and how often the lead changed
+        "critics_lead": None if memory is None else bool(model._trial.critics_lead),
+        "trial_changes": None if memory is None else int(model._trial.changes),
         "solved": solved is not None,
         "seconds": solved.train_seconds if solved else last.train_seconds,
         "steps": solved.step if solved else last.step,

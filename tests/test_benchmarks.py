@@ -13,6 +13,9 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.campusnav_runs import APPEARANCES
+from campusnav_env.goal_env import held_out_split
+
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
@@ -72,15 +75,21 @@ UNSEEN_GOALS_BUDGET = ("--budget", "2")
 def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: Path, shared_cache_dir: Path) -> None:
     # Every protocol as shipped, then the re-adaptation for every goal (the appearance change: the slow test below)
     _quick_run("unseen_goals.py", tmp_path, shared_cache_dir, "--after", "readapt", *UNSEEN_GOALS_BUDGET)
-    # Into the same results: two ablation levers on one protocol (each protocol's run is not needed here)
-    levers = ("--protocols", "strict", "--levers", "relabel8", "critics_alone", *UNSEEN_GOALS_BUDGET)
-    text = _quick_run("unseen_goals.py", tmp_path, shared_cache_dir, *levers)
+    # Into the same results: two ablation levers on one protocol (each protocol's run is not needed here), their
+    # held-out goals drawn with a split seed of their own, not the run's
+    levers = ("--protocols", "strict", "--levers", "relabel8", "critics_alone", "--split-seeds", "5")
+    text = _quick_run("unseen_goals.py", tmp_path, shared_cache_dir, *levers, *UNSEEN_GOALS_BUDGET)
+    split_runs = [
+        r for r in map(json.loads, (tmp_path / "runs.jsonl").read_text().splitlines()) if r["lever"] != "shipped"
+    ]
+    assert [(r["seed"], r["split_seed"]) for r in split_runs] == [(0, 5), (0, 5)]
+    assert all(r["held_out"] == held_out_split(101, 0.2, 5)[1] != held_out_split(101, 0.2, 0)[1] for r in split_runs)
     assert "| measure | median (worst) | goal | seeds | route memory |" in text
     rows = ("held-out goals (20%, strict)", "held-out goals, lenient", "every intersection as goal")
     rows += ("the paper's four goals", "one closure, every goal")
     for row in rows:
         assert f"| {row}" in text
-    assert "| strict | 8 relabelled goals per transition | 0 |" in text
+    assert "| strict | 8 relabelled goals per transition | 0 x splits 5 |" in text
     # The shipped entry plans over the route memory; the critics-alone lever turns it off, and the rows say which
     shipped, critics = (next(line for line in text.splitlines() if line.startswith(f"| strict | {lever} |"))
                         for lever in ("as shipped", "critics alone (route memory off)"))  # fmt: skip
@@ -89,10 +98,12 @@ def test_unseen_goals_quick_run_writes_the_goals_and_ablation_tables(tmp_path: P
 
 @pytest.mark.slow  # five evaluations of every goal, each after its goal pictures are rendered: about a minute
 def test_unseen_goals_quick_run_measures_goals_pictured_otherwise(tmp_path: Path, shared_cache_dir: Path) -> None:
-    options = ("--protocols", "all", "--after", "appearance", *UNSEEN_GOALS_BUDGET)
+    options = ("--protocols", "strict", "--after", "appearance", "--split-seeds", "5", *UNSEEN_GOALS_BUDGET)
     text = _quick_run("unseen_goals.py", tmp_path, shared_cache_dir, *options)
-    for appearance in ("morning (8:30)", "evening (17:30)", "night (19:30)", "passing cars", "night + cars"):
-        assert f"| goals pictured otherwise, {appearance} (as shipped): success |" in text
+    for appearance in APPEARANCES:
+        row = f"| held-out goals (strict) pictured otherwise, {appearance} (as shipped)"
+        assert f"{row}: success |" in text and f"{row}: worst goal's success |" in text
+        assert "| 0 x splits 5 | on |" in text
 
 
 def test_long_routes_quick_run_writes_the_ablation_table(tmp_path: Path, shared_cache_dir: Path) -> None:

@@ -277,6 +277,23 @@ def test_a_photo_of_one_view_in_other_light_is_placed_once_other_photos_of_that_
     assert np.mean(found == asked) >= 0.9 and np.all((found == asked) | (found == -1))
 
 
+def test_a_photo_within_the_references_light_overall_is_still_placed_in_the_asked_photos_light():
+    # One place glares at noon (every feature of its views far off): the references' light reaches so far that some
+    # night photos lie within it overall. Compared as they are, they match no place clearly; moved with the moments
+    # of the other night photos asked, they are found as those are
+    rng = np.random.default_rng(2)
+    places = rng.normal(size=(N_PLACES, D))
+    night = night_of(places, views=4)
+    references, labels = places.astype(np.float32), np.arange(N_PLACES)
+    references[0] += 10.0  # the glaring place
+    matcher = AlignedNearestPlace(views=4)
+    asked = np.arange(1, 21)
+    within = ~matcher.other_condition(night[asked], references)
+    assert 5 <= within.sum() <= 15  # some night photos within the references' light overall, some not
+    found = matcher.match(night[asked], references, labels, night[asked])
+    np.testing.assert_array_equal(found, asked)
+
+
 def test_a_near_tie_or_a_single_place_is_no_answer():
     references = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], dtype=np.float32)
     matcher = AlignedNearestPlace()

@@ -70,8 +70,20 @@ class SolveResult:
     evaluation_seconds: float = 0.0
 
     def curve(self) -> list[dict[str, float]]:
+        """Each evaluation's step, episode, training seconds and scores (and its critics' alone, where evaluated)."""
         return [
-            {"step": e.step, "episode": e.episode, "seconds": e.train_seconds, "success": e.success_rate, "spl": e.spl}
+            {
+                "step": e.step,
+                "episode": e.episode,
+                "seconds": e.train_seconds,
+                "success": e.success_rate,
+                "spl": e.spl,
+                **(
+                    {}
+                    if e.critics is None
+                    else {"critics_success": e.critics.success_rate, "critics_spl": e.critics.spl}
+                ),
+            }
             for e in self.evaluations
         ]
 

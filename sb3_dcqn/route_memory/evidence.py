@@ -18,6 +18,14 @@ Why these bars: a route of ``h`` hops arrives as planned with about ``accuracy *
 of 8-10 hops) 0.8 per move is under one route in five as planned, and a route that goes wrong costs the critics' steps
 to recover from a wrong place; every world the memory was measured to help in predicts above 0.95 (the benchmarks'
 ``prediction_accuracy`` column).
+
+Between the bars the memory's routes arrive, but not always as planned: below :data:`TRIAL_BELOW` they are **on
+trial** against the critics' own (:class:`EpisodeTrial`). A share of the training episodes (:data:`TRIAL_SHARE`) is
+driven by whichever side does not lead, and the side whose latest episodes were shorter leads: it drives the other
+training episodes and every greedy (evaluation) step. Episodes are the outcome a user measures (a failed episode
+counts the steps it took before the time limit), and both sides' episodes start where the env starts them, so their
+mean lengths compare the two ways of driving on the same tasks: a harder varied world whose places split is driven
+by the critics once they have learned it, while a world the memory predicts well never puts it on trial.
 """
 
 from __future__ import annotations
@@ -26,12 +34,24 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["MIN_PREDICTIONS", "PREDICTION_WINDOW", "SPEAK_AGAIN_ABOVE", "STAND_ASIDE_BELOW", "PredictionRecord"]
+__all__ = [
+    "MIN_PREDICTIONS",
+    "PREDICTION_WINDOW",
+    "SPEAK_AGAIN_ABOVE",
+    "STAND_ASIDE_BELOW",
+    "TRIAL_BELOW",
+    "EpisodeTrial",
+    "PredictionRecord",
+]
 
 PREDICTION_WINDOW = 256  # the latest scored predictions the memory is judged on
 MIN_PREDICTIONS = 64  # fewer scores than this: nothing judged yet (the memory speaks)
 STAND_ASIDE_BELOW = 0.8  # the share of hits below which the memory stands aside
 SPEAK_AGAIN_ABOVE = 0.9  # the share of hits above which it speaks again
+TRIAL_BELOW = 0.95  # the share of hits below which its routes are on trial against the critics'
+TRIAL_SHARE = 0.25  # the share of a trial's training episodes the side not leading drives
+TRIAL_WINDOW = 100  # the latest episodes of each side a trial judges
+TRIAL_MIN_EPISODES = 20  # fewer episodes of either side: the memory leads
 
 
 class PredictionRecord:
@@ -59,6 +79,11 @@ class PredictionRecord:
         """The share of hits among the kept scores (NaN before any)."""
         return self._hits / len(self._scores) if self._scores else float("nan")
 
+    @property
+    def on_trial(self) -> bool:
+        """Whether the memory's routes are on trial: judged, speaking, and below :data:`TRIAL_BELOW`."""
+        return len(self._scores) >= MIN_PREDICTIONS and not self.standing_aside and self.accuracy < TRIAL_BELOW
+
     def score(self, hits: np.ndarray) -> bool:
         """
         Add scores (one per predicted move, in order: ``True`` a hit).
@@ -80,3 +105,75 @@ class PredictionRecord:
         self.standing_aside = stands
         self.changes += 1
         return True
+
+
+class EpisodeTrial:
+    """
+    Who drives while the memory's routes are on trial: the memory or the critics, judged by the lengths of the latest
+    training episodes each drove (see the module docstring). The lead changes only where the leader's mean is longer
+    than the other's by more than their standard error: a gap within the noise changes nothing (where the two sides
+    are close, the lead still changes now and then, judged again at every episode's end).
+
+    :param n_envs: The training envs (each episode's driver is drawn when it starts)
+    """
+
+    def __init__(self, n_envs: int) -> None:
+        self.critics_lead = False
+        self.changes = 0  # times the lead changed
+        self._lengths: dict[bool, deque[int]] = {side: deque(maxlen=TRIAL_WINDOW) for side in (False, True)}
+        self._critics_drive = np.zeros(n_envs, dtype=bool)  # per env: the critics drive its episode
+        self._steps = np.zeros(n_envs, dtype=np.int64)  # per env: steps of its episode so far
+
+    @property
+    def n_envs(self) -> int:
+        return int(self._critics_drive.size)
+
+    def critics_drive(self) -> np.ndarray:
+        """Per training env: whether the critics drive its episode."""
+        return self._critics_drive.copy()
+
+    def mean_steps(self, critics: bool) -> float:
+        """The mean length of the side's latest episodes (NaN before any)."""
+        lengths = self._lengths[critics]
+        return float(np.mean(lengths)) if lengths else float("nan")
+
+    def episodes(self, critics: bool) -> int:
+        """The side's episodes kept."""
+        return len(self._lengths[critics])
+
+    def step(self, dones: np.ndarray, on_trial: bool, draws: np.ndarray | None) -> bool:
+        """
+        One training step of every env: while on trial, each finished episode's length is recorded for the side that
+        drove it and the env's next episode is given a driver by ``draws`` (uniform in [0, 1), one per env); off
+        trial, the memory drives the next episode.
+
+        :return: whether the lead changed
+        """
+        self._steps += 1
+        ended = np.flatnonzero(np.asarray(dones, dtype=bool).reshape(-1))
+        for env in ended.tolist():
+            if on_trial and draws is not None:
+                self._lengths[bool(self._critics_drive[env])].append(int(self._steps[env]))
+                self._critics_drive[env] = (float(draws[env]) < TRIAL_SHARE) != self.critics_lead
+            else:
+                self._critics_drive[env] = False
+            self._steps[env] = 0
+        lead = self._judged() if on_trial else False
+        if lead == self.critics_lead:
+            return False
+        self.critics_lead = lead
+        self.changes += 1
+        return True
+
+    def _judged(self) -> bool:
+        """Whether the critics lead now: their episodes shorter by more than the standard error (the lead kept else)."""
+        memory, critics = (np.asarray(self._lengths[side], dtype=np.float64) for side in (False, True))
+        if min(len(memory), len(critics)) < TRIAL_MIN_EPISODES:
+            return self.critics_lead
+        error = np.sqrt(memory.var(ddof=1) / len(memory) + critics.var(ddof=1) / len(critics))
+        gap = memory.mean() - critics.mean()  # positive: the critics' episodes are shorter
+        if gap > error:
+            return True
+        if gap < -error:
+            return False
+        return self.critics_lead

@@ -42,6 +42,7 @@ from sb3_dcqn.dcqn import DCQN
 from sb3_dcqn.replay.combine import with_variants
 from sb3_dcqn.replay.her import DCQNHerReplayBuffer
 from sb3_dcqn.replay.revision import PlaceKeys, RevisionReplay
+from sb3_dcqn.route_memory.evidence import EpisodeTrial
 from sb3_dcqn.route_memory.memory import RouteMemory, UntriedExplorer, batch_of_one, select_rows
 
 __all__ = [
@@ -171,7 +172,8 @@ class RouteMemoryLayer:
         self._success_reward: float | None = None
         self._explores = self._explores_first = False
         self._acted = np.zeros(2, dtype=np.int64)  # rollout actions since the last log: the memory's, all
-        self._said: set[bool] = set()  # which of standing aside (True) and speaking again (False) was said
+        self._said: set[Hashable] = set()  # the kinds of notice said (standing aside: True, speaking again: False...)
+        self._trial: EpisodeTrial | None = None  # who drives while the memory's routes are on trial (saved)
         super().__init__(*args, **kwargs)
 
     def __repr__(self) -> str:
@@ -195,6 +197,11 @@ class RouteMemoryLayer:
         stand aside for predictions that fail: :attr:`RouteMemory.speaks`)."""
         return self.memory is not None and self.memory.speaks
 
+    @property
+    def _routes_on_trial(self) -> bool:
+        """Whether the memory speaks and its routes are on trial against the critics' (:class:`EpisodeTrial`)."""
+        return self._memory_speaks and self._trial is not None and self.memory.predictions.on_trial  # type: ignore[union-attr]
+
     # ------------------------------------------------------------------------------------------------ setting up
     def _setup_model(self) -> None:
         settings = memory_settings(self.route_memory)
@@ -210,6 +217,8 @@ class RouteMemoryLayer:
         super()._setup_model()  # type: ignore[misc]
         if self.memory is not None:
             self._explorer = UntriedExplorer(self.memory, self.n_envs)  # type: ignore[attr-defined]
+            if self._trial is None or self._trial.n_envs != self.n_envs:  # type: ignore[attr-defined]
+                self._trial = EpisodeTrial(self.n_envs)  # type: ignore[attr-defined]
 
     def _new_memory(self, settings: dict[str, Any]) -> RouteMemory:
         normalizer = self._vec_normalize_env  # type: ignore[attr-defined]
@@ -256,6 +265,25 @@ class RouteMemoryLayer:
         # The memory sees what the buffer is given: SB3's unnormalized observations, terminal observations in place
         buffer = replay_buffer if self.memory is None else _Remembering(self, replay_buffer)
         super()._store_transition(buffer, buffer_action, new_obs, reward, dones, infos)  # type: ignore[misc]
+        if self.memory is not None and self._trial is not None:
+            on_trial = self._routes_on_trial
+            # The envs' next drivers, from SB3's seeded generator: drawn only on trial (elsewhere the generator's
+            # draws are the algorithm's own, as without the memory)
+            draws = np.random.rand(np.asarray(dones).size) if on_trial and np.any(dones) else None
+            if self._trial.step(dones, on_trial, draws):
+                self.memory.notices.append(self._trial_notice())
+
+    def _trial_notice(self) -> tuple[Hashable, str]:
+        """What the layer says where the lead of the trial changed (see :class:`EpisodeTrial`)."""
+        assert self._trial is not None and self.memory is not None
+        trial, accuracy = self._trial, self.memory.predictions.accuracy
+        steps = f"{trial.mean_steps(True):.1f} against {trial.mean_steps(False):.1f} steps per episode"
+        if trial.critics_lead:
+            return "critics lead", (
+                f"route memory: its routes are on trial ({accuracy:.2f} of its predicted moves came true) and the "
+                f"critics' episodes are shorter ({steps}): the critics drive, the memory goes on learning"
+            )
+        return "memory leads", f"route memory: drives again (the critics' episodes: {steps})"
 
     def _successes(self, infos: list[dict[str, Any]], rewards: np.ndarray, terminated: np.ndarray) -> np.ndarray:
         """Which terminated transitions reached their goal: the env's ``is_success``, else a reward above the
@@ -269,11 +297,13 @@ class RouteMemoryLayer:
 
     def _place_keys(self, observations: Any, actions: np.ndarray, next_observations: Any) -> PlaceKeys:
         """The transitions' places and slots in the memory, for revision by place: none (every move -1, neither revising
-        nor revised) where the memory does not speak (the critics' data as they are) or where a move is stochastic
-        (the world has not shown itself deterministic there: a new outcome contradicts no stored one)."""
+        nor revised) where the memory does not speak or the critics lead its trial (the critics' data as they are), or
+        where a move is stochastic (the world has not shown itself deterministic there: a new outcome contradicts no
+        stored one)."""
         assert self.memory is not None
         size = np.asarray(actions).size
-        if not self._memory_speaks:
+        critics_lead = self._routes_on_trial and self._trial is not None and self._trial.critics_lead
+        if not self._memory_speaks or critics_lead:
             unknown = np.full(size, -1, dtype=np.int64)
             return PlaceKeys(unknown, unknown.copy(), np.zeros(size, dtype=bool))
         places, arrivals = self.memory.states_of(observations), self.memory.states_of(next_observations)
@@ -313,6 +343,19 @@ class RouteMemoryLayer:
         """
         if not self._memory_speaks:
             return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
+        critics = self._critics_drive(observation, deterministic)
+        if critics.all():  # the memory's routes are on trial and the critics drive (see EpisodeTrial)
+            return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
+        actions, state = self._memory_predict(observation, state, episode_start, deterministic)
+        if critics.any():  # some training envs' episodes are the critics' to drive
+            theirs, _ = super().predict(observation, None, episode_start, deterministic)  # type: ignore[misc]
+            actions = np.where(critics, theirs, actions)
+        return actions, state
+
+    def _memory_predict(
+        self, observation: Any, state: Any, episode_start: Any, deterministic: bool
+    ) -> tuple[np.ndarray, Any]:
+        """:meth:`predict` where the memory drives."""
         if deterministic:
             return self._routes(observation, state, episode_start)
         if np.random.rand() < self.exploration_rate:  # type: ignore[attr-defined]
@@ -322,6 +365,19 @@ class RouteMemoryLayer:
             actions = self._uniform_where(np.full(_rows(batch), -1, dtype=np.int64))
             return (actions if batched else actions[0]), state
         return self._routes(observation, state, episode_start, rollout=True)
+
+    def _critics_drive(self, observation: Any, deterministic: bool) -> np.ndarray:
+        """Per row of ``observation``: whether the critics act for the trial (:class:`EpisodeTrial`; a training batch's
+        rows are its envs, a batch of another size follows the lead)."""
+        if not self._routes_on_trial:
+            return np.zeros(1, dtype=bool)  # the memory drives every row (the batch is not read: the common case)
+        assert self._trial is not None
+        _, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
+        rows = _rows(batch)
+        drive = self._trial.critics_drive()
+        if deterministic or drive.size != rows:
+            return np.full(rows, self._trial.critics_lead, dtype=bool)
+        return drive
 
     def _sample_action(
         self, learning_starts: int, action_noise: Any = None, n_envs: int = 1
@@ -471,6 +527,11 @@ class RouteMemoryLayer:
         if self.memory is not None:
             for name, value in getattr(self.memory, "statistics", dict)().items():
                 self.logger.record(f"memory/{name}", value)  # type: ignore[attr-defined]
+            if self._trial is not None:  # who drives while its routes are on trial, and the episodes' lengths
+                self.logger.record("memory/routes_on_trial", float(self._routes_on_trial))  # type: ignore[attr-defined]
+                self.logger.record("memory/critics_lead", float(self._trial.critics_lead))  # type: ignore[attr-defined]
+                for side, name in ((False, "memory"), (True, "critics")):
+                    self.logger.record(f"memory/episode_steps_{name}", self._trial.mean_steps(side))  # type: ignore[attr-defined]
             memory_actions, actions = self._acted.tolist()
             # The share of the rollout's actions the memory chose (routes, exploration), the rest the algorithm's
             self.logger.record("memory/action_share", memory_actions / actions if actions else 0.0)  # type: ignore[attr-defined]
@@ -478,13 +539,13 @@ class RouteMemoryLayer:
             self._say(getattr(self.memory, "notices", []))
         return rollout
 
-    def _say(self, notices: list[tuple[bool, str]]) -> None:
-        """Print the memory's notices (standing aside, speaking again) at ``verbose >= 1``, the first of each kind
-        only (``verbose >= 2``: every one); they are taken either way."""
-        for aside, words in notices:
-            if self.verbose >= 2 or (self.verbose >= 1 and aside not in self._said):  # type: ignore[attr-defined]
+    def _say(self, notices: list[tuple[Hashable, str]]) -> None:
+        """Print the memory's notices (standing aside, speaking again, the trial's lead) at ``verbose >= 1``, the first
+        of each kind only (``verbose >= 2``: every one); they are taken either way."""
+        for kind, words in notices:
+            if self.verbose >= 2 or (self.verbose >= 1 and kind not in self._said):  # type: ignore[attr-defined]
                 print(words)
-            self._said.add(aside)
+            self._said.add(kind)
         notices.clear()
 
     def learn(

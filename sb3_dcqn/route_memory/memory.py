@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import warnings
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Hashable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -210,7 +210,7 @@ class RouteMemory:
         self.aside_reason = ""
         self.predictions = PredictionRecord()  # its moves' predictions, scored: where they fail it stands aside
         # What it has to say, for the caller to print: (whether it stands aside (else speaks again), the words)
-        self.notices: list[tuple[bool, str]] = []
+        self.notices: list[tuple[Hashable, str]] = []  # (kind, words): said by the layer
         self.merged = 0  # pairs of states merged into one place
         self.split = 0  # states split into two places
         self._guard: deque[np.ndarray] = deque()  # per recorded batch: (transitions, new states, unsure pictures)
