@@ -105,6 +105,22 @@ def greedy_returns(model: Any, env: Any, episodes: int, seed: int) -> np.ndarray
     return returns
 
 
+def exact_success(model: Any, env: Any) -> float:
+    """
+    FrozenLake's greedy success without sampling noise: the chance that the model's greedy action at every state (one
+    batch, no episode's history) reaches the goal from the start within the time limit, under the env's own model
+    (``env.unwrapped.P``). A hundred episodes judge a success rate within about 0.05; this, exactly.
+    """
+    table, limit = env.unwrapped.P, env.spec.max_episode_steps
+    policy = np.asarray(model.predict(np.arange(len(table)), deterministic=True)[0]).reshape(-1)
+    chance = np.zeros(len(table))  # of reaching the goal within the steps left
+    for _ in range(limit):
+        chance = np.array(
+            [sum(p * (r if end else chance[s]) for p, s, r, end in table[state][int(policy[state])]) for state in table]
+        )
+    return float(chance[0])
+
+
 def run_one(env_name: str, algo_name: str, memory: bool, seed: int) -> dict[str, Any]:
     """Train one agent and play its greedy episodes; runs in a worker process."""
     import warnings
@@ -137,6 +153,8 @@ def run_one(env_name: str, algo_name: str, memory: bool, seed: int) -> dict[str,
         "mean_return": float(returns.mean()),
         "train_seconds": seconds,
     }
+    if peer.gym_id == "FrozenLake-v1":
+        record["exact_success"] = exact_success(model, peer.make())
     if memory:
         statistics = model.memory.statistics()
         record.update(
@@ -170,6 +188,32 @@ def _memory_words(runs: list[dict[str, Any]]) -> str:
     return ", ".join(words)
 
 
+def _spread(values: list[float]) -> str:
+    """``median (worst): per seed`` (``-``: none)."""
+    if not values:
+        return "-"
+    return f"{np.median(values):.3g} ({min(values):.3g}): {', '.join(f'{v:.3g}' for v in values)}"
+
+
+def exact_table(records: list[dict[str, Any]], envs: list[str], algos: list[str]) -> list[str]:
+    """FrozenLake's exact greedy success (:func:`exact_success`), memory off and on, where the runs measured it."""
+    rows = []
+    for env_name in envs:
+        for algo in algos:
+            cells = []
+            for memory in (False, True):
+                runs = sorted(
+                    (r for r in records if (r["env"], r["algo"], r["memory"]) == (env_name, algo, memory)),
+                    key=lambda r: r["seed"],
+                )
+                cells.append(_spread([r["exact_success"] for r in runs if "exact_success" in r]))
+            if cells != ["-", "-"]:
+                seeds = sorted({r["seed"] for r in records if (r["env"], r["algo"]) == (env_name, algo)})
+                rows.append([env_name, algo, " ".join(map(str, seeds)), *cells])
+    header = ["env", "algo", "seeds", "memory off: median (worst): per seed", "memory on"]
+    return markdown_table(header, rows) if rows else []
+
+
 def summarise(records: list[dict[str, Any]], envs: list[str], algos: list[str]) -> list[str]:
     """The table: per env and algorithm, the memory off and on side by side (median, worst, per seed)."""
     rows = []
@@ -181,12 +225,7 @@ def summarise(records: list[dict[str, Any]], envs: list[str], algos: list[str]) 
                     (r for r in records if (r["env"], r["algo"], r["memory"]) == (env_name, algo, memory)),
                     key=lambda r: r["seed"],
                 )
-                returns = [r["mean_return"] for r in runs]
-                cells.append(
-                    f"{np.median(returns):.3g} ({min(returns):.3g}): {', '.join(f'{v:.3g}' for v in returns)}"
-                    if returns
-                    else "-"
-                )
+                cells.append(_spread([r["mean_return"] for r in runs]))
                 if memory:
                     cells.append(_memory_words(runs))
             seeds = sorted({r["seed"] for r in records if (r["env"], r["algo"]) == (env_name, algo)})
@@ -235,6 +274,16 @@ def main(argv: list[str] | None = None) -> None:
         "",
         *summarise(runs.records, args.envs, args.algos),
     ]
+    exact = exact_table(runs.records, args.envs, args.algos)
+    if exact:
+        lines += [
+            "",
+            "FrozenLake's greedy success, exact: the chance that the greedy action of every state reaches the goal "
+            "from the start within the 200-step limit, under the env's own transition model (no sampling noise; the "
+            "episodes above judge it within about 0.05).",
+            "",
+            *exact,
+        ]
     publish(args.out, lines, "peer_envs.py", argv)
 
 
