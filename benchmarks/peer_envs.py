@@ -195,21 +195,27 @@ def _spread(values: list[float]) -> str:
     return f"{np.median(values):.3g} ({min(values):.3g}): {', '.join(f'{v:.3g}' for v in values)}"
 
 
+def _runs_of(records: list[dict[str, Any]], env_name: str, algo: str, memory: bool) -> list[dict[str, Any]]:
+    """One table cell's runs (an env, an algorithm, the memory off or on), in seed order."""
+    runs = (r for r in records if (r["env"], r["algo"], r["memory"]) == (env_name, algo, memory))
+    return sorted(runs, key=lambda r: r["seed"])
+
+
+def _seeds_of(records: list[dict[str, Any]], env_name: str, algo: str) -> list[int]:
+    return sorted({r["seed"] for r in records if (r["env"], r["algo"]) == (env_name, algo)})
+
+
 def exact_table(records: list[dict[str, Any]], envs: list[str], algos: list[str]) -> list[str]:
     """FrozenLake's exact greedy success (:func:`exact_success`), memory off and on, where the runs measured it."""
     rows = []
     for env_name in envs:
         for algo in algos:
-            cells = []
-            for memory in (False, True):
-                runs = sorted(
-                    (r for r in records if (r["env"], r["algo"], r["memory"]) == (env_name, algo, memory)),
-                    key=lambda r: r["seed"],
-                )
-                cells.append(_spread([r["exact_success"] for r in runs if "exact_success" in r]))
+            cells = [
+                _spread([r["exact_success"] for r in _runs_of(records, env_name, algo, memory) if "exact_success" in r])
+                for memory in (False, True)
+            ]
             if cells != ["-", "-"]:
-                seeds = sorted({r["seed"] for r in records if (r["env"], r["algo"]) == (env_name, algo)})
-                rows.append([env_name, algo, " ".join(map(str, seeds)), *cells])
+                rows.append([env_name, algo, " ".join(map(str, _seeds_of(records, env_name, algo))), *cells])
     header = ["env", "algo", "seeds", "memory off: median (worst): per seed", "memory on"]
     return markdown_table(header, rows) if rows else []
 
@@ -221,14 +227,11 @@ def summarise(records: list[dict[str, Any]], envs: list[str], algos: list[str]) 
         for algo in algos:
             cells = []
             for memory in (False, True):
-                runs = sorted(
-                    (r for r in records if (r["env"], r["algo"], r["memory"]) == (env_name, algo, memory)),
-                    key=lambda r: r["seed"],
-                )
+                runs = _runs_of(records, env_name, algo, memory)
                 cells.append(_spread([r["mean_return"] for r in runs]))
                 if memory:
                     cells.append(_memory_words(runs))
-            seeds = sorted({r["seed"] for r in records if (r["env"], r["algo"]) == (env_name, algo)})
+            seeds = _seeds_of(records, env_name, algo)
             if seeds:
                 rows.append([env_name, ENVS[env_name].world, algo, " ".join(map(str, seeds)), *cells])
     header = ["env", "world", "algo", "seeds", "memory off: median (worst): per seed", "memory on", "the memory"]

@@ -250,13 +250,6 @@ class NearestPlace:
         """Unit rows in the space similarities are measured in."""
         return _unit_rows(vectors) if self.embedding is None else self.embedding.transform(vectors)
 
-    def _other_condition_sample(self, goal_pictures: np.ndarray | None, condition: _Condition) -> np.ndarray:
-        """The most recent goal photos of another condition than the references' (``(0, d)``: none)."""
-        if goal_pictures is None or not len(goal_pictures) or not self.max_goal_pictures:
-            return np.zeros((0, condition[0].size * self.views))
-        recent = np.asarray(goal_pictures, dtype=np.float64)[-self.max_goal_pictures :]
-        return recent[self._other(recent, condition)]
-
     def similarities(self, queries: np.ndarray, references: np.ndarray) -> np.ndarray:
         """
         :param queries: ``(m, d)`` vectors

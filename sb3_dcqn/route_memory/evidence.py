@@ -117,12 +117,15 @@ class EpisodeTrial:
     :param n_envs: The training envs (each episode's driver is drawn when it starts)
     """
 
+    _judged_since = False  # trials pickled before it was kept: judged at their next step
+
     def __init__(self, n_envs: int) -> None:
         self.critics_lead = False
         self.changes = 0  # times the lead changed
         self._lengths: dict[bool, deque[int]] = {side: deque(maxlen=TRIAL_WINDOW) for side in (False, True)}
         self._critics_drive = np.zeros(n_envs, dtype=bool)  # per env: the critics drive its episode
         self._steps = np.zeros(n_envs, dtype=np.int64)  # per env: steps of its episode so far
+        self._judged_since = False  # on trial since the last judgement (no episode ended since: nothing new to judge)
 
     @property
     def n_envs(self) -> int:
@@ -158,7 +161,13 @@ class EpisodeTrial:
             else:
                 self._critics_drive[env] = False
             self._steps[env] = 0
-        lead = self._judged() if on_trial else False
+        if not on_trial:
+            lead = False
+        elif ended.size or not self._judged_since:  # the lengths change only where an episode ended (or it begins)
+            lead = self._judged()
+        else:
+            lead = self.critics_lead  # nothing new to judge: the same lengths give the same lead
+        self._judged_since = on_trial
         if lead == self.critics_lead:
             return False
         self.critics_lead = lead
