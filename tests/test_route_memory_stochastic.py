@@ -13,6 +13,7 @@ import numpy as np
 
 from sb3_dcqn.route_memory import RouteMemory
 from sb3_dcqn.route_memory.edges import STOCHASTIC_CHANGES, EdgeStore, Outcome
+from sb3_dcqn.route_memory.explorer import UntriedExplorer
 from sb3_dcqn.route_memory.layer import RouteMemoryDQN
 from sb3_dcqn.route_memory.planner import PLAN_DISCOUNT
 
@@ -137,3 +138,31 @@ def test_a_move_tried_a_few_times_in_a_slippery_world_is_planned_on_what_it_did(
     values = memory.planner.values_to(memory.goal_states(np.array(0)))
     tried = np.isfinite(values)
     assert tried.sum() > 100 and (values[tried] >= 0).all() and (values[tried] <= 1.0).all()  # chances, discounted
+
+
+def few_tries_of_one_move(env: gym.Env, state: int, action: int, tries: int) -> tuple[np.ndarray, ...]:
+    """Every move of FrozenLake tried 200 times, but ``(state, action)`` only its first ``tries`` times."""
+    states, actions, *rest = sampled_tries(env, tries=200, seed=3)
+    kept = ((states != state) | (actions != action)).nonzero()[0]
+    kept = np.sort(np.concatenate([kept, ((states == state) & (actions == action)).nonzero()[0][:tries]]))
+    return tuple(column[kept] for column in (states, actions, *rest))
+
+
+def test_a_move_tried_too_few_times_to_plan_on_is_sought_as_an_untried_one() -> None:
+    env = slippery()
+    memory = RouteMemory.for_env(env, success_reward=0.0)
+    remember(memory, few_tries_of_one_move(env, state=1, action=2, tries=3))
+    here = memory.state_of(np.array(1))
+    assert memory.edges.is_undersampled(here, 2) and memory.edges.undersampled().sum() == 1
+    # Three tries of a three-way slip are a guess: the explorer goes back to it before the goal's never-tried moves,
+    # which no episode outlives
+    assert memory.path_to_untried(here) == [2]
+    assert UntriedExplorer(memory).actions_at(np.array([here]), np.array([1]))[0] == 2
+
+
+def test_a_move_tried_once_in_a_deterministic_world_is_known() -> None:
+    env = gym.make("FrozenLake-v1", is_slippery=False, map_name="8x8")
+    memory = RouteMemory.for_env(env, success_reward=0.0)
+    remember(memory, few_tries_of_one_move(env, state=1, action=2, tries=1))
+    assert memory.edges.n_stochastic == 0 and not memory.edges.undersampled().any()
+    assert memory.path_to_untried(memory.state_of(np.array(1))) != [2]

@@ -38,7 +38,7 @@ from enum import IntEnum
 
 import numpy as np
 
-__all__ = ["CLOSED", "DEAD", "ROUTES", "STOCHASTIC_CHANGES", "EdgeStore", "Outcome"]
+__all__ = ["CLOSED", "DEAD", "ROUTES", "STOCHASTIC_CHANGES", "UNDERSAMPLED_BELOW", "EdgeStore", "Outcome"]
 
 MAX_BACKOFF = 16  # a closed slot is retried after at most retry_after * 2**16 transitions
 # Changes of a move's end from one try to the next past which the move is the world's chance, not a closure: a closure
@@ -46,6 +46,9 @@ MAX_BACKOFF = 16  # a closed slot is retried after at most retry_after * 2**16 t
 # it at two tries in three
 STOCHASTIC_CHANGES = 3
 DEAD = -2  # an outcome count's end: the episode ended without success (FrozenLake's hole)
+# Tries of a move in a stochastic world below which its counts are a guess, not a model: exploration seeks it as it
+# seeks an untried one (a three-way slip's shares are within about 0.15 after ten tries)
+UNDERSAMPLED_BELOW = 10
 
 
 class Outcome(IntEnum):
@@ -461,6 +464,20 @@ class EdgeStore:
         if self.aliased:
             moves &= ~np.isin(rows, list(self.aliased))[:, None]
         return moves
+
+    def is_undersampled(self, state: int, slot: int) -> bool:
+        """Whether a move was tried, but fewer than :data:`UNDERSAMPLED_BELOW` times, in a world shown stochastic
+        (never in a deterministic one: there a move tried once is known), out of a state that is not aliased."""
+        tries = sum(self.counts.get((state, slot), {}).values())
+        return bool(self.n_stochastic) and 0 < tries < UNDERSAMPLED_BELOW and state not in self.aliased
+
+    def undersampled(self) -> np.ndarray:
+        """:meth:`is_undersampled` of every ``(state, slot)`` of the used rows."""
+        wanted = np.zeros((self.n_rows, self.n_slots), dtype=bool)
+        if self.n_stochastic:
+            for state, slot in self.counts:
+                wanted[state, slot] = state < self.n_rows and self.is_undersampled(state, slot)
+        return wanted
 
     def untried(self, rows: np.ndarray) -> np.ndarray:
         return self.outcome[rows] == Outcome.UNTRIED

@@ -2,7 +2,9 @@
 
 Where nothing untried can be reached any more, the nearest closed move whose retry is due is sought instead (a road
 bumped before it was ever driven is tried again after it may have reopened, ever more rarely: see
-:meth:`~sb3_dcqn.route_memory.edges.EdgeStore.retry_due`).
+:meth:`~sb3_dcqn.route_memory.edges.EdgeStore.retry_due`). In a stochastic world a move tried too few times for its
+outcome counts to be a model is sought as an untried one is
+(:meth:`~sb3_dcqn.route_memory.edges.EdgeStore.is_undersampled`).
 """
 
 from __future__ import annotations
@@ -100,7 +102,7 @@ class UntriedExplorer:
         if target is None:
             return False
         edges = self.memory.edges
-        if edges.outcome[target] == Outcome.UNTRIED:
+        if edges.outcome[target] == Outcome.UNTRIED or edges.is_undersampled(*target):
             return True
         return bool(edges.retry_due(np.array([target[0]]))[0, target[1]])
 

@@ -800,7 +800,9 @@ class RouteMemory:
         """
         The slots from ``state`` to the nearest untried ``(state, slot)`` (``exclude``'s pairs passed over), that slot
         last; where nothing untried can be reached, to the nearest closed slot whose retry is due (see
-        :func:`~sb3_dcqn.route_memory.explorer.path_to`), unless ``retry`` is False.
+        :func:`~sb3_dcqn.route_memory.explorer.path_to`), unless ``retry`` is False. In a stochastic world (with
+        ``retry``) the nearest of all three: untried, tried too few times to plan on
+        (:meth:`~sb3_dcqn.route_memory.edges.EdgeStore.undersampled`) and closed with its retry due.
 
         :return: the slots, or ``None`` if nothing can be reached
         """
@@ -811,6 +813,13 @@ class RouteMemory:
             # A pose it knows nothing of (it may never come again: CartPole's) has no slot to prefer: no way to offer,
             # so the caller's own uniform draw acts (SB3's, from the same generator as without the memory)
             return None
+        if retry and self.edges.n_stochastic:
+            # A stochastic world's counts are the planner's model: a move tried only a few times is sought as an
+            # untried one is, in one search with them (searched after them, the goal's never-tried moves, which no
+            # episode outlives, would be sought for ever)
+            rows = np.arange(self.n_states)
+            wanted = self.edges.untried(rows) | self.edges.undersampled()[rows] | self.edges.retry_due(rows)
+            return path_to(self.edges, state, lambda here: np.flatnonzero(wanted[here]).tolist(), exclude)
         if self._exhausted_version != self.edges.version:
             self._exhausted, self._exhausted_version = set(), self.edges.version
         if state not in self._exhausted:
