@@ -125,6 +125,32 @@ class World:
 # variation seed no entry or test was tuned on
 HARDER_VARIATION = {"renders": 16, "hours": (6.0, 20.0), "yaw_jitter_deg": 6.0, "seed": 7}
 
+# The severity sweep of issue 46: the harder world with one axis at a time made easier or harder (the middle value of
+# each is the harder world's own)
+SEVERITY_AXES: dict[str, tuple[Any, ...]] = {
+    "renders": (8, 16, 32),
+    "hours": ((9.0, 17.0), (6.0, 20.0), (0.0, 24.0)),
+    "yaw_jitter_deg": (3.0, 6.0, 12.0),
+    "noise": (0.0, 0.05, 0.1),
+}
+
+
+def _severity_worlds() -> list[World]:
+    """The harder world, and one world per other value of each severity axis (named by the value changed)."""
+    worlds = [World("harder", variation=HARDER_VARIATION)]
+    for axis, values in SEVERITY_AXES.items():
+        for value in values:
+            if axis == "noise":
+                if value:
+                    worlds.append(World(f"harder, noise {value:g}", noise=value, variation=HARDER_VARIATION))
+            elif value != HARDER_VARIATION[axis]:
+                shown = f"{value[0]:g}-{value[1]:g}" if axis == "hours" else f"{value:g}"
+                name = f"harder, {axis.removesuffix('_jitter_deg')} {shown}"
+                worlds.append(World(name, variation={**HARDER_VARIATION, axis: value}))
+    return worlds
+
+
+SEVERITY_SWEEP = tuple(world.name for world in _severity_worlds())
 WORLDS = {
     world.name: world
     for world in (
@@ -132,8 +158,7 @@ WORLDS = {
         World("noise 0.01", noise=0.01),
         World("noise 0.05", noise=0.05),
         World("variation 8", variation={"renders": 8}),
-        World("harder", variation=HARDER_VARIATION),
-        World("harder, noise 0.05", noise=0.05, variation=HARDER_VARIATION),
+        *_severity_worlds(),
     )
 }
 

@@ -41,13 +41,16 @@ import numpy as np
 import torch as th
 from matplotlib.figure import Figure
 
-from benchmarks.campusnav_runs import TASKS, VARIANTS, WORLDS
+from benchmarks.campusnav_runs import SEVERITY_SWEEP, TASKS, VARIANTS, WORLDS
 from benchmarks.report import RESULTS_DIR, machine_line, publish, run_missing, write_results
 from campusnav_env.figures import figure_image, write_figure
 from sb3_dcqn.campusnav.experiments import train_until_solved
 from sb3_dcqn.campusnav.solved import SOLVED_SPL, SOLVED_SUCCESS
 
 DEFAULT_VARIANTS = ("DCQN", "DCQN, no heading_key", "DQN")
+# The route memory against the critics alone (the same entry with route_memory: false), where both ran in a world
+MEMORY_TWINS = (("DCQN", "DCQN, critics alone"), ("DCQN + memory", "DCQN, critics alone"))
+MEMORY_WITHIN = 1.1  # issue 46: the memory solves within 1.1x the critics' env steps
 
 
 def run_one(
@@ -207,6 +210,60 @@ def summary_table(runs: list[dict[str, Any]], tasks: list[str], variants: list[s
     return lines
 
 
+def memory_against_critics_table(runs: list[dict[str, Any]], tasks: list[str]) -> list[str]:
+    """
+    One row per (task, world, memory twin) where both ran: env steps to solved, median (worst) and per seed, of the
+    memory-wearing agent and of the critics alone; the ratio of the medians and the worst seed's ratio (a miss is
+    infinitely slow), against :data:`MEMORY_WITHIN`.
+    """
+    lines = [
+        "| task | world | seeds | memory: median (worst) env steps | per seed | critics alone: median (worst) | "
+        f"per seed | ratio of medians | worst seed's ratio | within {MEMORY_WITHIN:g}x |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+
+    def steps(run: dict[str, Any]) -> float:
+        return float(run["steps"]) if run["solved"] else np.inf
+
+    def shown(value: float) -> str:
+        return f"{value:,.0f}" if np.isfinite(value) else "miss"
+
+    def ratio(value: float) -> str:
+        if np.isnan(value):
+            return "both missed"
+        return {0.0: "0 (critics missed)", np.inf: "inf (memory missed)"}.get(float(value), f"{value:.2f}")
+
+    for task_name in tasks:
+        for world in WORLDS:
+            mine = [r for r in runs if r["task"] == task_name and _world(r) == world]
+            for memory, critics in MEMORY_TWINS:
+                pairs = {
+                    seed: (m, c)
+                    for m in mine
+                    for c in mine
+                    if m["variant"] == memory and c["variant"] == critics and (seed := m["seed"]) == c["seed"]
+                }
+                if not pairs:
+                    continue
+                seeds = sorted(pairs)
+                ours = np.array([steps(pairs[seed][0]) for seed in seeds])
+                theirs = np.array([steps(pairs[seed][1]) for seed in seeds])
+                with np.errstate(invalid="ignore"):  # both missed: no ratio (nan), left out of the worst
+                    ratios, median_ratio = ours / theirs, np.median(ours) / np.median(theirs)
+                worst = np.nanmax(ratios) if not np.isnan(ratios).all() else np.nan
+                # Never slower: the worst seed is judged beside the median (both missed on a seed: not slower)
+                verdict = "missed" if not median_ratio <= MEMORY_WITHIN else "met"
+                if verdict == "met" and worst > MEMORY_WITHIN:
+                    verdict = "median only"
+                lines.append(
+                    f"| {TASKS[task_name].description} | {world} | {' '.join(map(str, seeds))} | "
+                    f"{shown(np.median(ours))} ({shown(ours.max())}) | {', '.join(map(shown, ours))} | "
+                    f"{shown(np.median(theirs))} ({shown(theirs.max())}) | {', '.join(map(shown, theirs))} | "
+                    f"{ratio(median_ratio)} | {ratio(worst)} | {verdict} |"
+                )
+    return lines if len(lines) > 2 else []
+
+
 def plot_curves(runs: list[dict[str, Any]], tasks: list[str], path: Path) -> None:
     """Success rate vs training seconds, one panel per task, one line per run (colour: agent)."""
     tasks = [t for t in tasks if any(r["task"] == t for r in runs)]
@@ -239,6 +296,21 @@ def plot_curves(runs: list[dict[str, Any]], tasks: list[str], path: Path) -> Non
     write_figure(path, figure_image(figure))
 
 
+def _twins_section(table: list[str]) -> list[str]:
+    if not table:
+        return []
+    return [
+        "## The route memory against the critics alone (env steps to solved)",
+        "",
+        "The same entry with the memory on and with `route_memory: false`, per seed; a miss is infinitely slow (it "
+        f"sets the worst and can set the median). Goal: the memory within {MEMORY_WITHIN:g}x the critics' steps, on "
+        'the median and on the worst seed ("median only": the median is, a seed is not).',
+        "",
+        *table,
+        "",
+    ]
+
+
 def _profile_section(path: Path) -> list[str]:
     if not path.exists():
         return []
@@ -259,7 +331,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--variants", nargs="+", default=list(DEFAULT_VARIANTS), choices=sorted(VARIANTS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument(
-        "--worlds", nargs="+", default=["fixed"], choices=list(WORLDS), help="fixed views, noise on them, or K renders"
+        "--worlds",
+        nargs="+",
+        default=["fixed"],
+        choices=[*WORLDS, "severity sweep"],
+        help="fixed views, noise on them, K renders, or 'severity sweep': the harder world with one of its renders, "
+        "hours, yaw and noise made easier or harder at a time",
     )
     parser.add_argument("--budget-seconds", type=float, help="training-time cap per run (default: the task's)")
     parser.add_argument("--max-steps", type=int, help="env-step cap per run (default: the task's)")
@@ -270,6 +347,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--runs-file", type=Path, default=RESULTS_DIR / "learning_speed_runs.jsonl")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "learning_speed.md")
     args = parser.parse_args(argv)
+    args.worlds = [name for world in args.worlds for name in (SEVERITY_SWEEP if world == "severity sweep" else [world])]
     th.set_num_threads(1)
 
     # Beside its runs file: learning_speed_runs.jsonl -> learning_speed_profile.json (another runs file, its own)
@@ -318,6 +396,7 @@ def main(argv: list[str] | None = None) -> None:
         "",
         *summary_table(runs, all_tasks, all_variants),
         "",
+        *_twins_section(memory_against_critics_table(runs, all_tasks)),
         f"![success vs training time]({picture.name})",
         *_profile_section(profile_file),
     ]

@@ -5,7 +5,8 @@ on and off: only ``route_memory`` differs), then plays 100 greedy episodes from 
 and the model's state (as SB3's ``evaluate_policy``). Worlds: FrozenLake 8x8 deterministic and slippery (a stochastic
 world: the memory plans on outcome counts), CliffWalking, Taxi (deterministic grid worlds the memory remembers
 exactly), CartPole (continuous observations that never repeat: the memory steps aside) with the RL Zoo's DQN settings
-(``hyperparams/dcqn.yml``). Besides the return, each memory run records whether the memory stepped aside for good,
+(``hyperparams/dcqn.yml``), and MiniGrid's Empty 8x8 and DoorKey 5x5 seen whole (``FullyObsWrapper``; the ``bench``
+extra installs ``minigrid``). Besides the return, each memory run records whether the memory stepped aside for good,
 stood aside at the end, its prediction accuracy and its stochastic moves. Runs go to worker processes (one torch
 thread each) and to a JSON-lines file, so an interrupted benchmark keeps its results and a rerun skips what is done.
 The table (median and worst over seeds, per seed) is printed and written to ``benchmarks/results/peer_envs.md``.
@@ -60,13 +61,27 @@ class PeerEnv:
     # reached the goal (None: no goal, as CartPole's falls)
     success_reward: float | None = None
     zoo_entry: bool = False  # the settings are the env's entry of hyperparams/dcqn.yml (else GRID_SETTINGS)
+    package: str | None = None  # the package that registers the env (imported first), where Gymnasium does not
+    wrappers: tuple[str, ...] = ()  # class paths of the wrappers applied, in order
 
     def make(self) -> Any:
+        import importlib
+
         import gymnasium as gym
 
-        return gym.make(self.gym_id, **self.make_kwargs)
+        if self.package is not None:
+            try:
+                importlib.import_module(self.package)
+            except ImportError as error:
+                raise SystemExit(f"{self.gym_id} needs {self.package}: pip install -e '.[bench]' ({error})") from None
+        env = gym.make(self.gym_id, **self.make_kwargs)
+        for path in self.wrappers:
+            module, _, name = path.rpartition(".")
+            env = getattr(importlib.import_module(module), name)(env)
+        return env
 
 
+MINIGRID_WHOLE = ("minigrid.wrappers.FullyObsWrapper", "minigrid.wrappers.ImgObsWrapper")
 ICE, SLIPPERY = {"map_name": "8x8", "is_slippery": False}, {"map_name": "8x8", "is_slippery": True}
 ENVS = {
     "FrozenLake-deterministic": PeerEnv("FrozenLake-v1", 50_000, "deterministic", ICE, 0.0),
@@ -77,6 +92,12 @@ ENVS = {
     # Taxi pays +20 for the passenger dropped where asked, the one end of an episode short of the time limit
     "Taxi": PeerEnv("Taxi-v4", 50_000, "deterministic", {}, 0.0),
     "CartPole": PeerEnv("CartPole-v1", 50_000, "continuous", {}, None, zoo_entry=True),
+    # MiniGrid seen whole (the grid, the agent's cell and heading, the key and the door: every state one picture),
+    # paying 1 - 0.9 * steps / max_steps at the goal, nothing elsewhere; seven actions, three of them moves
+    "MiniGrid-Empty": PeerEnv("MiniGrid-Empty-8x8-v0", 30_000, "deterministic", {}, 0.0, package="minigrid",
+                              wrappers=MINIGRID_WHOLE),
+    "MiniGrid-DoorKey": PeerEnv("MiniGrid-DoorKey-5x5-v0", 50_000, "deterministic", {}, 0.0, package="minigrid",
+                                wrappers=MINIGRID_WHOLE),
 }  # fmt: skip
 
 

@@ -586,3 +586,38 @@ def test_the_benchmarks_memory_rows_are_each_algorithm_wearing_the_same_memory()
         model = variant.make_model(task.make_env(entry), entry, seed=0)
         assert algorithm_name(model) == ran and (model.memory is not None) == ran.endswith("memory")
     assert VARIANTS["DCQN, route memory"] is VARIANTS["DCQN + memory"]  # earlier results' name of the row
+
+
+class PictureCorridor(gym.Env):
+    """Seven cells in a row seen as a channel-last image (SB3 trains on it channel first: ``VecTransposeImage``); the
+    goal in the middle (+1, the episode ends), left and right the two actions, every start but the goal's."""
+
+    observation_space = gym.spaces.Box(0, 255, (7, 7, 3), np.uint8)
+    action_space = gym.spaces.Discrete(2)
+
+    def _picture(self) -> np.ndarray:
+        picture = np.zeros((7, 7, 3), dtype=np.uint8)
+        picture[:, self.cell] = 255
+        return picture
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        self.cell, self.steps = int(self.np_random.choice([0, 1, 2, 4, 5, 6])), 0
+        return self._picture(), {}
+
+    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self.cell, self.steps = int(np.clip(self.cell + (1 if action else -1), 0, 6)), self.steps + 1
+        return self._picture(), float(self.cell == 3), self.cell == 3, self.steps >= 30, {"is_success": self.cell == 3}
+
+
+def test_a_raw_envs_channel_last_picture_is_recognised_as_training_saw_it_channel_first() -> None:
+    model = RouteMemoryDQN("MlpPolicy", PictureCorridor(), learning_starts=10_000, seed=0, **NET)
+    model.learn(600)  # no gradient step: the critics are as initialised, the routes the memory's alone
+    env = PictureCorridor()
+    actions = []
+    for cell in (0, 1, 2, 4, 5, 6):
+        env.reset()
+        env.cell = cell
+        action, _ = model.predict(env._picture(), episode_start=np.array([True]), deterministic=True)
+        actions.append(int(action))
+    assert actions == [1, 1, 1, 0, 0, 0]  # towards the goal from either side: the memory knew every picture

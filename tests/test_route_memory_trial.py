@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import pickle
+from collections import deque
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -39,6 +42,16 @@ def test_the_side_whose_episodes_are_shorter_leads_and_the_other_still_drives_it
     assert 0.5 * TRIAL_SHARE < share < 2 * TRIAL_SHARE  # the memory drives its share: its case can still be made
     drive(trial, {False: 6, True: 9}, episodes=400, seed=1)  # the memory's routes got better (its window refills)
     assert not trial.critics_lead and trial.changes == 2
+
+
+def test_both_sides_are_judged_on_the_latest_episodes_not_on_critics_long_gone() -> None:
+    trial = EpisodeTrial(n_envs=1)
+    drive(trial, {False: 40, True: 60}, episodes=400)  # early training: the memory's routes arrive sooner
+    assert not trial.critics_lead
+    # The critics learn: now their episodes are shorter. The quarter they drive is judged among the latest episodes,
+    # not on a window of their own reaching back four times as far, to their long early ones
+    drive(trial, {False: 10, True: 8}, episodes=250)
+    assert trial.critics_lead and trial.mean_steps(True) == 8 and trial.mean_steps(False) == 10
 
 
 def test_a_gap_within_the_noise_changes_no_lead() -> None:
@@ -106,6 +119,21 @@ def test_where_the_critics_lead_the_model_acts_as_its_critics_and_says_so_once(
     assert len(said) == 1 and "the critics drive" in said[0] and "6.0 against 20.0 steps" in said[0]
 
 
+def test_a_trial_the_critics_lead_goes_on_where_the_memorys_predictions_come_true_again(
+    model_on_trial: RouteMemoryDQN,
+) -> None:
+    model, batch = model_on_trial, np.arange(16)
+    critics = model.policy.predict(batch, deterministic=True)[0]
+    drive(model._trial, {False: 20, True: 6}, episodes=200)  # the critics' episodes are shorter: they lead
+    model.memory.predictions.score(np.ones(256, dtype=bool))  # every prediction comes true again
+    assert not model.memory.predictions.on_trial and model._trial.critics_lead
+    # Predictions that come true do not make routes short: the critics drive until the memory's episodes win
+    np.testing.assert_array_equal(model.predict(batch, deterministic=True)[0], critics)
+    drive(model._trial, {False: 4, True: 6}, episodes=400, seed=1)
+    assert not model._trial.critics_lead
+    assert not np.array_equal(model.predict(batch, deterministic=True)[0], critics)
+
+
 def test_training_episodes_are_driven_by_the_trials_draw(model_on_trial: RouteMemoryDQN) -> None:
     model = model_on_trial
     model._trial._critics_drive[:] = True  # this env's episode is the critics'
@@ -118,3 +146,13 @@ def test_training_episodes_are_driven_by_the_trials_draw(model_on_trial: RouteMe
     model.learn(300, reset_num_timesteps=False)
     assert model._trial.episodes(True) + model._trial.episodes(False) > 0  # on trial, the episodes were counted
     assert model.logger.name_to_value["memory/routes_on_trial"] in (0.0, 1.0)
+
+
+def test_a_trial_saved_with_a_window_per_side_loads_with_its_episodes() -> None:
+    trial = EpisodeTrial(n_envs=1)
+    state = {**trial.__dict__, "_lengths": {False: deque([12] * 30), True: deque([9] * 25)}}
+    del state["_episodes"]  # the state of a model saved before the window was shared
+    loaded = pickle.loads(pickle.dumps(trial))
+    loaded.__setstate__(state)
+    assert (loaded.episodes(False), loaded.episodes(True)) == (30, 25)
+    assert (loaded.mean_steps(False), loaded.mean_steps(True)) == (12, 9)

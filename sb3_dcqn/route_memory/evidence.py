@@ -25,7 +25,15 @@ driven by whichever side does not lead, and the side whose latest episodes were 
 training episodes and every greedy (evaluation) step. Episodes are the outcome a user measures (a failed episode
 counts the steps it took before the time limit), and both sides' episodes start where the env starts them, so their
 mean lengths compare the two ways of driving on the same tasks: a harder varied world whose places split is driven
-by the critics once they have learned it, while a world the memory predicts well never puts it on trial.
+by the critics once they have learned it, while a world the memory predicts well never puts it on trial. Two rules
+keep the trial to its evidence:
+
+- both sides are judged over the same, latest stretch of training (the latest :data:`TRIAL_WINDOW` episodes, whoever
+  drove them): the critics learn as they go, and their episodes from thousands of steps ago would speak for critics
+  that are gone (a window per side would reach four times further back for the side that drives a quarter);
+- a trial the critics lead goes on whatever the memory's predictions do: only the memory's own shorter episodes win
+  the lead back (predictions that come true do not make routes short: a place split in two predicts well and plans
+  detours). Standing aside ends it.
 """
 
 from __future__ import annotations
@@ -50,7 +58,7 @@ STAND_ASIDE_BELOW = 0.8  # the share of hits below which the memory stands aside
 SPEAK_AGAIN_ABOVE = 0.9  # the share of hits above which it speaks again
 TRIAL_BELOW = 0.95  # the share of hits below which its routes are on trial against the critics'
 TRIAL_SHARE = 0.25  # the share of a trial's training episodes the side not leading drives
-TRIAL_WINDOW = 100  # the latest episodes of each side a trial judges
+TRIAL_WINDOW = 200  # the latest episodes a trial judges, both sides' together
 TRIAL_MIN_EPISODES = 20  # fewer episodes of either side: the memory leads
 
 
@@ -110,9 +118,10 @@ class PredictionRecord:
 class EpisodeTrial:
     """
     Who drives while the memory's routes are on trial: the memory or the critics, judged by the lengths of the latest
-    training episodes each drove (see the module docstring). The lead changes only where the leader's mean is longer
-    than the other's by more than their standard error: a gap within the noise changes nothing (where the two sides
-    are close, the lead still changes now and then, judged again at every episode's end).
+    :data:`TRIAL_WINDOW` training episodes, each side on those it drove (see the module docstring). The lead changes
+    only where the leader's mean is longer than the other's by more than their standard error: a gap within the noise
+    changes nothing (where the two sides are close, the lead still changes now and then, judged again at every
+    episode's end).
 
     :param n_envs: The training envs (each episode's driver is drawn when it starts)
     """
@@ -122,10 +131,19 @@ class EpisodeTrial:
     def __init__(self, n_envs: int) -> None:
         self.critics_lead = False
         self.changes = 0  # times the lead changed
-        self._lengths: dict[bool, deque[int]] = {side: deque(maxlen=TRIAL_WINDOW) for side in (False, True)}
+        self._episodes: deque[tuple[bool, int]] = deque(maxlen=TRIAL_WINDOW)  # (the critics drove it, its length)
         self._critics_drive = np.zeros(n_envs, dtype=bool)  # per env: the critics drive its episode
         self._steps = np.zeros(n_envs, dtype=np.int64)  # per env: steps of its episode so far
         self._judged_since = False  # on trial since the last judgement (no episode ended since: nothing new to judge)
+
+    def __setstate__(self, state: dict) -> None:
+        # A trial pickled with a window per side: its episodes, the memory's then the critics', the latest kept
+        if "_lengths" in state:
+            kept = state.pop("_lengths")
+            state["_episodes"] = deque(
+                ((side, int(length)) for side in (False, True) for length in kept[side]), maxlen=TRIAL_WINDOW
+            )
+        self.__dict__.update(state)
 
     @property
     def n_envs(self) -> int:
@@ -136,13 +154,16 @@ class EpisodeTrial:
         return self._critics_drive.copy()
 
     def mean_steps(self, critics: bool) -> float:
-        """The mean length of the side's latest episodes (NaN before any)."""
-        lengths = self._lengths[critics]
-        return float(np.mean(lengths)) if lengths else float("nan")
+        """The mean length of the side's episodes among the latest (NaN before any)."""
+        lengths = self._lengths(critics)
+        return float(lengths.mean()) if lengths.size else float("nan")
 
     def episodes(self, critics: bool) -> int:
-        """The side's episodes kept."""
-        return len(self._lengths[critics])
+        """The side's episodes among the latest."""
+        return int(self._lengths(critics).size)
+
+    def _lengths(self, critics: bool) -> np.ndarray:
+        return np.array([length for side, length in self._episodes if side == critics], dtype=np.float64)
 
     def step(self, dones: np.ndarray, on_trial: bool, draws: np.ndarray | None) -> bool:
         """
@@ -156,7 +177,7 @@ class EpisodeTrial:
         ended = np.flatnonzero(np.asarray(dones, dtype=bool).reshape(-1))
         for env in ended.tolist():
             if on_trial and draws is not None:
-                self._lengths[bool(self._critics_drive[env])].append(int(self._steps[env]))
+                self._episodes.append((bool(self._critics_drive[env]), int(self._steps[env])))
                 self._critics_drive[env] = (float(draws[env]) < TRIAL_SHARE) != self.critics_lead
             else:
                 self._critics_drive[env] = False
@@ -176,7 +197,7 @@ class EpisodeTrial:
 
     def _judged(self) -> bool:
         """Whether the critics lead now: their episodes shorter by more than the standard error (the lead kept else)."""
-        memory, critics = (np.asarray(self._lengths[side], dtype=np.float64) for side in (False, True))
+        memory, critics = self._lengths(False), self._lengths(True)
         if min(len(memory), len(critics)) < TRIAL_MIN_EPISODES:
             return self.critics_lead
         error = np.sqrt(memory.var(ddof=1) / len(memory) + critics.var(ddof=1) / len(critics))

@@ -36,6 +36,7 @@ from gymnasium import spaces
 from stable_baselines3 import DQN
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.preprocessing import is_image_space, maybe_transpose
 from stable_baselines3.common.type_aliases import MaybeCallback, RolloutReturn
 
 from sb3_dcqn.dcqn import DCQN
@@ -199,8 +200,11 @@ class RouteMemoryLayer:
 
     @property
     def _routes_on_trial(self) -> bool:
-        """Whether the memory speaks and its routes are on trial against the critics' (:class:`EpisodeTrial`)."""
-        return self._memory_speaks and self._trial is not None and self.memory.predictions.on_trial  # type: ignore[union-attr]
+        """Whether the memory speaks and its routes are on trial against the critics' (:class:`EpisodeTrial`): its
+        predictions below the bar, or the critics leading (only the memory's shorter episodes win the lead back)."""
+        if not self._memory_speaks or self._trial is None:
+            return False
+        return self._trial.critics_lead or self.memory.predictions.on_trial  # type: ignore[union-attr]
 
     # ------------------------------------------------------------------------------------------------ setting up
     def _setup_model(self) -> None:
@@ -343,6 +347,7 @@ class RouteMemoryLayer:
         """
         if not self._memory_speaks:
             return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
+        observation = _channel_first(observation, self.observation_space)  # type: ignore[attr-defined]
         critics = self._critics_drive(observation, deterministic)
         if critics.all():  # the memory's routes are on trial and the critics drive (see EpisodeTrial)
             return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
@@ -731,6 +736,21 @@ def _as_batch(policy: Any, observation: Any) -> tuple[bool, Any]:
     """Whether ``observation`` is a batch, and it as one."""
     batched = policy.is_vectorized_observation(observation)
     return batched, observation if batched else batch_of_one(observation)
+
+
+def _channel_first(observation: Any, space: spaces.Space) -> Any:
+    """
+    An observation as the memory met it in training: an image channel first, as SB3's ``VecTransposeImage`` gave it
+    (a raw env's channel-last image, the one users pass to ``predict``, transposed as SB3's policy transposes it).
+    """
+    if isinstance(space, spaces.Dict) and isinstance(observation, Mapping):
+        return {
+            key: maybe_transpose(np.asarray(value), space[key])
+            if key in space.spaces and is_image_space(space[key])
+            else value
+            for key, value in observation.items()
+        }
+    return maybe_transpose(np.asarray(observation), space) if is_image_space(space) else observation
 
 
 def _rows(batch: Any) -> int:
