@@ -163,9 +163,13 @@ def _median(value: float) -> str:
     return f"{value:.0f}" if np.isfinite(value) else "not solved"
 
 
+def _cost(run: dict[str, Any], key: str) -> float:
+    # A miss counts as infinitely slow, so that neither a median nor a ratio hides it
+    return float(run[key]) if run["solved"] else np.inf
+
+
 def _median_of(group: list[dict[str, Any]], key: str) -> float:
-    # A miss counts as infinitely slow, so that the median never hides it
-    return float(np.median([r[key] if r["solved"] else np.inf for r in group]))
+    return float(np.median([_cost(r, key) for r in group]))
 
 
 def _world(run: dict[str, Any]) -> str:
@@ -222,9 +226,6 @@ def memory_against_critics_table(runs: list[dict[str, Any]], tasks: list[str]) -
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
 
-    def steps(run: dict[str, Any]) -> float:
-        return float(run["steps"]) if run["solved"] else np.inf
-
     def shown(value: float) -> str:
         return f"{value:,.0f}" if np.isfinite(value) else "miss"
 
@@ -237,17 +238,13 @@ def memory_against_critics_table(runs: list[dict[str, Any]], tasks: list[str]) -
         for world in WORLDS:
             mine = [r for r in runs if r["task"] == task_name and _world(r) == world]
             for memory, critics in MEMORY_TWINS:
-                pairs = {
-                    seed: (m, c)
-                    for m in mine
-                    for c in mine
-                    if m["variant"] == memory and c["variant"] == critics and (seed := m["seed"]) == c["seed"]
-                }
-                if not pairs:
+                with_memory = {r["seed"]: r for r in mine if r["variant"] == memory}
+                without = {r["seed"]: r for r in mine if r["variant"] == critics}
+                seeds = sorted(with_memory.keys() & without.keys())
+                if not seeds:
                     continue
-                seeds = sorted(pairs)
-                ours = np.array([steps(pairs[seed][0]) for seed in seeds])
-                theirs = np.array([steps(pairs[seed][1]) for seed in seeds])
+                ours = np.array([_cost(with_memory[seed], "steps") for seed in seeds])
+                theirs = np.array([_cost(without[seed], "steps") for seed in seeds])
                 with np.errstate(invalid="ignore"):  # both missed: no ratio (nan), left out of the worst
                     ratios, median_ratio = ours / theirs, np.median(ours) / np.median(theirs)
                 worst = np.nanmax(ratios) if not np.isnan(ratios).all() else np.nan
