@@ -1,4 +1,5 @@
-"""Goals found by their pictures: which remembered place a goal photo in a new condition shows, on the real campus.
+"""Goals found by their pictures: which remembered place a goal photo in a new condition shows, on the campus (or a
+generated city: ``--city``).
 
 A route memory (``sb3_dcqn.route_memory``) keeps the ``achieved_goal`` vectors it has seen, each labelled by the
 place it was seen at; a goal photo that matches none exactly goes to a place matcher
@@ -8,7 +9,7 @@ embedding**, :func:`~sb3_dcqn.place_recognition.fit_place_matcher`). The vectors
 ``CampusNavGoal-v0`` with the shipped entry's ``env_kwargs`` (``view_dim``; ``hyperparams/dcqn.yml``), goal tables
 (``env._goal_tables``) of EfficientNet-Lite0 features (cached on disk after the first build).
 
-References (what the memory holds), per seed (``held_out_split(101, 0.2, seed)``):
+References (what the memory holds), per seed (``held_out_split(n_intersections, 0.2, seed)``):
 
 - **driven through**: every intersection pictured in the goal-photo training conditions of
   ``benchmarks/unseen_goals.py`` (``TRAINING_PHOTOS``: noon, 7:00, 16:00, 20:30): episode goals are drawn from the
@@ -25,6 +26,8 @@ of seeds 0, 1, 2. Usage::
 
     python benchmarks/goal_pictures.py            # EfficientNet-Lite0 features (a cold build: about a minute each)
     python benchmarks/goal_pictures.py --quick    # smoke run: pixel features of 64x48 views, seed 0
+    python benchmarks/goal_pictures.py --city 200 5 --out benchmarks/results/goal_pictures_city.md  # a world not
+                                                  # tuned on: a generated city of 200 intersections, map seed 5
 """
 
 from __future__ import annotations
@@ -44,6 +47,8 @@ from benchmarks.campusnav_runs import APPEARANCES, HELD_OUT_FRACTION, TRAINING_P
 from benchmarks.report import RESULTS_DIR, machine_line, markdown_table, publish, write_results
 from campusnav_env.features.view_build import with_view_build
 from campusnav_env.goal_env import CampusNavGoalEnv, held_out_split
+from campusnav_env.maps.campus import generate_city
+from campusnav_env.maps.road_graph import RoadGraph
 from sb3_dcqn.place_recognition import NOT_IN_MEMORY, AlignedNearestPlace, NearestPlace, fit_place_matcher
 from sb3_dcqn.zoo_entry import load_zoo_entry
 from sb3_dcqn.zoo_files import default_hyperparams_path
@@ -55,16 +60,17 @@ MATCHERS = {"raw cosine": False, "learned embedding": True}
 REFERENCE_CASES = ("driven through", "noon only")
 
 
-def goal_tables(quick: bool) -> np.ndarray:
+def goal_tables(quick: bool, world: str | RoadGraph = "campus") -> np.ndarray:
     """
-    The goal vectors of every intersection in each condition: ``(conditions, nodes, 4 * D)``, the training photo
-    conditions first, then the appearances, in the shipped entry's ``env_kwargs`` (pixel features with ``quick``).
+    The goal vectors of every intersection of ``world`` in each condition: ``(conditions, nodes, 4 * D)``, the
+    training photo conditions first, then the appearances, in the shipped entry's ``env_kwargs`` (pixel features with
+    ``quick``).
     """
     env_kwargs = dict(load_zoo_entry(default_hyperparams_path(), ENTRY).env_kwargs)
     if quick:
         env_kwargs.update(quick_env_kwargs())
     conditions = [*TRAINING_PHOTOS, *APPEARANCES.values()]
-    env = CampusNavGoalEnv(goal_render_settings=conditions, **with_view_build(env_kwargs, progress=False))
+    env = CampusNavGoalEnv(world, goal_render_settings=conditions, **with_view_build(env_kwargs, progress=False))
     return env._goal_tables
 
 
@@ -94,7 +100,7 @@ def measure(tables: np.ndarray, seed: int) -> dict[str, Any]:
         "noon only": references(every, range(1)),
         "absent places": references(training, range(n_photo)),
     }
-    record: dict[str, Any] = {"seed": seed, "held_out": held_out.tolist(), "cases": {}}
+    record: dict[str, Any] = {"seed": seed, "n_nodes": n_nodes, "held_out": held_out.tolist(), "cases": {}}
     for case, (refs, labels) in cases.items():
         for matcher_name, learned in MATCHERS.items():
             if learned and case == "noon only":
@@ -125,11 +131,12 @@ def measure(tables: np.ndarray, seed: int) -> dict[str, Any]:
 def asked_in_turn(
     matcher: AlignedNearestPlace, photos: np.ndarray, refs: np.ndarray, labels: np.ndarray, seed: int
 ) -> np.ndarray:
-    """Each photo matched in a seeded order, shown the photos asked before it (as the memory asks its matcher)."""
-    answers = np.full(len(photos), NOT_IN_MEMORY, dtype=np.int64)
+    """Each photo's candidates (``(m, k)`` rows, the match alone where there is one), matched in a seeded order and
+    shown the photos asked before it (as the memory asks its matcher)."""
+    answers = np.full((len(photos), matcher.max_candidates), NOT_IN_MEMORY, dtype=np.int64)
     order = np.random.default_rng(seed).permutation(len(photos))
     for position, row in enumerate(order):
-        answers[row] = matcher.match(photos[[row]], refs, labels, photos[order[:position]])[0]
+        answers[row] = matcher.candidates(photos[[row]], refs, labels, photos[order[:position]])[0]
     return answers
 
 
@@ -143,9 +150,16 @@ def measure_memory_matcher(
     matcher = AlignedNearestPlace(views=VIEWS)
     results: dict[str, dict[str, float]] = {}
     for name, photos in conditions.items():
-        visited = scores(asked_in_turn(matcher, photos, tables[0], every, seed), every, every)
+        candidates = asked_in_turn(matcher, photos, tables[0], every, seed)
+        sure = np.where(candidates[:, 1] < 0, candidates[:, 0], NOT_IN_MEMORY)  # the one answer of `match`
+        several = candidates[:, 1] >= 0
         absent = asked_in_turn(matcher, photos[held_out], tables[0][training], training, seed)
-        results[name] = {**visited, "absent_answered": float((absent != NOT_IN_MEMORY).mean())}
+        results[name] = {
+            **scores(sure, every, every),
+            "shortlisted": float(several.mean()),
+            "among_candidates": float((candidates == every[:, None]).any(axis=1).mean()),
+            "absent_answered": float((absent[:, 0] >= 0).mean()),
+        }
     return results
 
 
@@ -160,15 +174,16 @@ def spread_text(values: list[float], worst: Callable) -> str:
     return f"{median:.3f}" if abs(bad - median) < 5e-4 else f"{median:.3f} ({bad:.3f})"
 
 
-def report(records: list[dict[str, Any]], quick: bool, d: int, seconds: float) -> list[str]:
-    """The results file's lines."""
+def report(records: list[dict[str, Any]], quick: bool, d: int, seconds: float, world: str) -> list[str]:
+    """The results file's lines (``world``: the campus or a city, as the file names it)."""
     features = "64x48 pixel features (--quick)" if quick else "EfficientNet-Lite0 features"
+    n_nodes = records[0]["n_nodes"]
     seeds = ", ".join(str(r["seed"]) for r in records)
     lines = [
         "# Goals found by their pictures",
         "",
-        f"`{ENTRY}` goal vectors (d = {d}: four views, the shipped entry's `view_dim`), {features}, "
-        f"{tables_line()}; seeds {seeds} (split `held_out_split(101, {HELD_OUT_FRACTION}, seed)` and the learned "
+        f"`{ENTRY}` goal vectors of {world} (d = {d}: four views, the shipped entry's `view_dim`), {features}, "
+        f"{tables_line()}; seeds {seeds} (split `held_out_split({n_nodes}, {HELD_OUT_FRACTION}, seed)` and the learned "
         "embedding's seed). Cells: median over the seeds, the worst in brackets where they differ. Raw cosine "
         "depends on the seed only through the split (absent places).",
         "",
@@ -236,39 +251,42 @@ def report(records: list[dict[str, Any]], quick: bool, d: int, seconds: float) -
         "",
         "`AlignedNearestPlace(views=4)`, attached by default where an env declares goal pictures: references are the "
         "agent's own views at noon (no other condition, no label), each query matched in a seeded order and shown "
-        "the queries asked before it (as the memory asks it). visited: every intersection is a reference; absent "
-        "answered: the share of the held-out intersections' queries given a place (a wrong one: they are not among "
-        "the references, the training 80% only).",
+        "the queries asked before it (as the memory asks it). visited: every intersection is a reference; accuracy, "
+        "not in memory and wrong: its one answer (`match`); shortlisted: no place clearly the nearest, several "
+        "candidates named instead (`candidates`: the memory visits them, nearest first, and rules out each where "
+        "the goal's episode goes on; at most 4); found on a tour: the query's intersection is its answer or among its "
+        "candidates; absent answered: the share of the held-out intersections' queries given a place or candidates "
+        "(wrong ones: they are not among the references, the training 80% only).",
         "",
     ]
-    header = ["condition", "accuracy", "not in memory", "wrong", "absent answered"]
+    header = [
+        "condition",
+        "accuracy",
+        "not in memory",
+        "wrong",
+        "shortlisted",
+        "found on a tour",
+        "absent answered",
+    ]
+    metrics = (
+        ("accuracy", min),
+        ("not_in_memory", max),
+        ("wrong", max),
+        ("shortlisted", max),
+        ("among_candidates", min),
+        ("absent_answered", max),
+    )
     rows = []
     for name in records[0]["memory_matcher"]:
-        values = {
-            metric: [r["memory_matcher"][name][metric] for r in records]
-            for metric in ("accuracy", "not_in_memory", "wrong", "absent_answered")
-        }
-        rows.append(
-            [
-                name,
-                *(
-                    spread_text(values[metric], worst)
-                    for metric, worst in (
-                        ("accuracy", min),
-                        ("not_in_memory", max),
-                        ("wrong", max),
-                        ("absent_answered", max),
-                    )
-                ),
-            ]
-        )
+        cells = [spread_text([r["memory_matcher"][name][metric] for r in records], worst) for metric, worst in metrics]
+        rows.append([name, *cells])
     lines += markdown_table(header, rows)
     fits = [r["cases"]["driven through/learned embedding"]["fit_seconds"] for r in records]
     lines += [
         "",
         f"Fitting the learned matcher (two embeddings: the cross-fit probe and the final one, "
-        f"{len(TRAINING_PHOTOS) * 101} rows): median {statistics.median(fits):.1f} s on one torch thread; the whole "
-        f"benchmark {seconds:.0f} s after the features were built or read from the cache.",
+        f"{len(TRAINING_PHOTOS) * n_nodes} rows): median {statistics.median(fits):.1f} s on one torch thread; "
+        f"the whole benchmark {seconds:.0f} s after the features were built or read from the cache.",
     ]
     return lines
 
@@ -283,14 +301,29 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", nargs="+", type=int, help="seeds (default 0 1 2; 0 with --quick)")
     parser.add_argument("--quick", action="store_true", help="smoke run: pixel features of 64x48 views, seed 0")
+    parser.add_argument(
+        "--city",
+        nargs=2,
+        type=int,
+        metavar=("N", "MAP_SEED"),
+        help="a generated city of N intersections (map seed MAP_SEED) instead of the campus",
+    )
     parser.add_argument("--out", type=Path, default=RESULTS_DIR / "goal_pictures.md")
     args = parser.parse_args(argv)
     th.set_num_threads(1)
     seeds = args.seeds or ([0] if args.quick else list(SEEDS))
-    tables = goal_tables(args.quick)
+    world, world_text = (
+        ("campus", "the campus")
+        if args.city is None
+        else (
+            generate_city(args.city[0], seed=args.city[1]),
+            f"a generated city of {args.city[0]} intersections (map seed {args.city[1]})",
+        )
+    )
+    tables = goal_tables(args.quick, world)
     start = time.perf_counter()
     records = [measure(tables, seed) for seed in seeds]
-    lines = report(records, args.quick, tables.shape[2], time.perf_counter() - start)
+    lines = report(records, args.quick, tables.shape[2], time.perf_counter() - start, world_text)
     publish(args.out, lines, "goal_pictures.py", argv)
     write_results(args.out.with_suffix(".json"), json.dumps(records, indent=1))
 

@@ -537,8 +537,20 @@ MUTATIONS = (
     Mutation(
         "layer",
         "an evaluation episode that went on where the memory placed its goal keeps its route there",
-        "            records[env].wrong_goal = True",
+        "            self._bumps.envs[env].not_goal |= {int(states[env])}",
         "            pass",
+    ),
+    Mutation(
+        "memory",
+        "routes lead to a goal's place where an evaluation's episode went on",
+        "goal_states = goal_states[~np.isin(goal_states, list(elsewhere))]",
+        "pass",
+    ),
+    Mutation(
+        "goals",
+        "a goal picture the matcher names candidates for gets its one answer only (none)",
+        "if isinstance(self.place_matcher, CandidateMatcher):",
+        "if False:",
     ),
     Mutation(
         "explorer",

@@ -15,8 +15,9 @@ a :class:`PlaceMatcher` then names the remembered row it shows, or ``-1``: "not 
   raw vectors.
 - :class:`AlignedNearestPlace`: for references of one condition only (the agent's own views): a photo of another
   condition is moved into theirs feature by feature (per-feature moments, from the photo's own views and the other
-  goal photos asked about), then answered only where one place is clearly the nearest (Lowe's ratio test). The route
-  memory's default matcher where an env declares goal pictures.
+  goal photos asked about), then answered only where one place is clearly the nearest (Lowe's ratio test); where
+  none is, a photo of another condition names the few places nearly as near (:meth:`AlignedNearestPlace.candidates`).
+  The route memory's default matcher where an env declares goal pictures.
 
 Only numpy and torch are used: the module serves any goal-conditioned env whose goals are vectors.
 """
@@ -32,6 +33,7 @@ import torch as th
 __all__ = [
     "NOT_IN_MEMORY",
     "AlignedNearestPlace",
+    "CandidateMatcher",
     "NearestPlace",
     "PlaceEmbedding",
     "PlaceMatcher",
@@ -58,6 +60,22 @@ class PlaceMatcher(Protocol):
             conditions, for a matcher that aligns them with the references'); a matcher may ignore it
         :return: ``(m,)`` int64: the matched reference ROW for each query, or -1: "not in memory" (no remembered place
             is close enough)
+        """
+        ...
+
+
+@runtime_checkable
+class CandidateMatcher(PlaceMatcher, Protocol):
+    """A :class:`PlaceMatcher` that can also name the few places a photo may show where it cannot name one: a route
+    memory then visits them, and each where the goal's episode goes on is ruled out."""
+
+    def candidates(
+        self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, goal_pictures: np.ndarray | None = None
+    ) -> np.ndarray:
+        """
+        As :meth:`PlaceMatcher.match`, but ``(m, k)`` int64 reference rows per query, the likeliest first (-1 padded):
+        the match alone where there is one, several places where the photo may show any of them, none (all -1) where
+        it is not in memory.
         """
         ...
 
@@ -411,6 +429,13 @@ class AlignedNearestPlace:
     there and the margins narrow: 0.975 answered 95% of the campus's goals pictured at 22:30 with cars, none
     wrongly, and 30% of those of places never visited, wrongly); else ``-1``.
 
+    **Candidates** (:meth:`candidates`). Where no place is clearly the nearest of a photo of another condition, the
+    places whose nearest reference is within ``1 / candidate_ratio`` of the nearest one's distance, at most
+    ``max_candidates`` of them, nearest first: a photo at night may show any of them (on the campus, every goal
+    pictured at 19:30 or at 22:30 with cars that no place was clearly the nearest of was among its 4 candidates at
+    0.95, one at the third rank). A route memory visits them and rules out each where the goal's episode goes on.
+    A photo of the references' own condition has none (a near tie there is a place not visited).
+
     Unlike :class:`NearestPlace` with a learned :class:`PlaceEmbedding`, it needs no place seen in two conditions:
     the agent's own views (one condition) and the photos themselves suffice, which is all a fair memory has.
 
@@ -419,22 +444,40 @@ class AlignedNearestPlace:
         (Lowe's 0.8)
     :param other_ratio: The same for a photo of another condition
     :param max_goal_pictures: The most recent other-condition goal photos that estimate the condition's moments
+    :param candidate_ratio: The least the nearest place's distance may be of a candidate's (no more than
+        ``other_ratio``: one candidate alone is a clear answer)
+    :param max_candidates: The most places :meth:`candidates` names for one photo
     """
 
     def __init__(
-        self, views: int = 1, own_ratio: float = 0.8, other_ratio: float = 0.975, max_goal_pictures: int = 32
+        self,
+        views: int = 1,
+        own_ratio: float = 0.8,
+        other_ratio: float = 0.975,
+        max_goal_pictures: int = 32,
+        candidate_ratio: float = 0.95,
+        max_candidates: int = 4,
     ) -> None:
         if int(views) < 1:
             raise ValueError(f"AlignedNearestPlace: views must be at least 1, got {views}")
         for name, ratio in (("own_ratio", own_ratio), ("other_ratio", other_ratio)):
             if not 0.0 < float(ratio) <= 1.0:
                 raise ValueError(f"AlignedNearestPlace: {name} is a ratio of distances in (0, 1], got {ratio}")
+        if not 0.0 < float(candidate_ratio) <= float(other_ratio):
+            raise ValueError(
+                f"AlignedNearestPlace: candidate_ratio is a ratio of distances in (0, other_ratio={other_ratio}], got "
+                f"{candidate_ratio}"
+            )
         if int(max_goal_pictures) < 0:
             raise ValueError(f"AlignedNearestPlace: max_goal_pictures must be >= 0, got {max_goal_pictures}")
+        if int(max_candidates) < 1:
+            raise ValueError(f"AlignedNearestPlace: max_candidates must be >= 1, got {max_candidates}")
         self.views = int(views)
         self.own_ratio = float(own_ratio)
         self.other_ratio = float(other_ratio)
         self.max_goal_pictures = int(max_goal_pictures)
+        self.candidate_ratio = float(candidate_ratio)
+        self.max_candidates = int(max_candidates)
 
     def other_condition(self, pictures: np.ndarray, references: np.ndarray) -> np.ndarray:
         """``(m,)`` whether each picture is of another condition than the references (see the class docstring)."""
@@ -491,40 +534,79 @@ class AlignedNearestPlace:
         self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, goal_pictures: np.ndarray | None = None
     ) -> np.ndarray:
         """See :class:`PlaceMatcher`; ``goal_pictures`` are the goal photos asked about, oldest first."""
+        return self._answers(queries, references, labels, goal_pictures, shortlist=False)[:, 0]
+
+    def candidates(
+        self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, goal_pictures: np.ndarray | None = None
+    ) -> np.ndarray:
+        """See :class:`CandidateMatcher` (and the class docstring): ``(m, max_candidates)`` rows, -1 padded."""
+        return self._answers(queries, references, labels, goal_pictures, shortlist=True)
+
+    def _answers(
+        self,
+        queries: np.ndarray,
+        references: np.ndarray,
+        labels: np.ndarray,
+        goal_pictures: np.ndarray | None,
+        shortlist: bool,
+    ) -> np.ndarray:
+        """``(m, k)`` rows (``k`` 1 without the ``shortlist`` of photos no place is clearly the nearest of)."""
         references = _check_matrix("references", references)
         queries = _check_matrix("queries", queries, references.shape[1])
         labels = _check_labels(labels, references)
         if references.shape[1] % self.views:
             raise ValueError(f"AlignedNearestPlace: {references.shape[1]} columns do not split into {self.views} views")
+        width = self.max_candidates if shortlist else 1
         if len(references) == 0 or len(queries) == 0:
-            return np.full(len(queries), NOT_IN_MEMORY, dtype=np.int64)
+            return np.full((len(queries), width), NOT_IN_MEMORY, dtype=np.int64)
         if goal_pictures is not None:
             goal_pictures = _check_matrix("goal_pictures", goal_pictures, references.shape[1])
         condition = self._condition(references)
         aligned, other = self._aligned(queries, goal_pictures, condition)
-        rows = self._nearest(aligned, references, labels, np.where(other, self.other_ratio, self.own_ratio))
+        ratio = np.where(other, self.other_ratio, self.own_ratio)
+        rows = self._nearest(aligned, references, labels, ratio, width, shortlisted=other)
         # A photo within the references' light overall (a place in shadow at noon, lit at night) that no place
         # matches clearly may be of the other asked photos' light: moved into the references' condition with their
         # moments, it is judged as they are (on the campus at night: 14 of 30 held-out splits below 0.95 of their
         # goals found, 3 with it; photos at noon of places never visited given a place: 1.8% -> 8%)
-        retry = (rows == NOT_IN_MEMORY) & ~other
+        retry = (rows[:, 0] == NOT_IN_MEMORY) & ~other
         if retry.any() and len(self._other_condition_sample(goal_pictures, condition)):
             moved, _ = self._aligned(queries[retry], goal_pictures, condition, other=np.ones(int(retry.sum()), bool))
-            rows[retry] = self._nearest(moved, references, labels, np.full(len(moved), self.other_ratio))
+            # A clear answer only: a near tie for a photo of the references' light is a place not visited
+            ratio, none = np.full(len(moved), self.other_ratio), np.zeros(len(moved), dtype=bool)
+            rows[retry] = self._nearest(moved, references, labels, ratio, width, shortlisted=none)
         return rows
 
     def _nearest(
-        self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, ratio: np.ndarray
+        self,
+        queries: np.ndarray,
+        references: np.ndarray,
+        labels: np.ndarray,
+        ratio: np.ndarray,
+        width: int,
+        shortlisted: np.ndarray,
     ) -> np.ndarray:
-        """Each query's nearest reference row where it is nearer than the next place by ``ratio`` (else -1)."""
+        """
+        ``(m, width)`` reference rows per query: its nearest row alone where that is nearer than the next place's by
+        ``ratio``; else, for a ``shortlisted`` query, the nearest row of each place within ``1 / candidate_ratio`` of
+        the nearest distance (at most ``width``, nearest first); -1 elsewhere.
+        """
         # The distance of the pictures' unit view blocks (Lowe's ratio is of distances, not of 1 - similarities)
-        similarity = self.similarities(queries, references)
-        distance = np.sqrt(np.maximum(1.0 - similarity, 0.0))
-        rows = distance.argmin(axis=1).astype(np.int64)
-        nearest = distance[np.arange(len(rows)), rows]
-        # The next place's distance: the nearest reference of another label (rows of one place are no rival)
-        rival = np.where(labels[None, :] == labels[rows][:, None], np.inf, distance).min(axis=1)
-        rows[~(np.isfinite(rival) & (nearest <= ratio * rival))] = NOT_IN_MEMORY  # no rival place: no margin to judge
+        distance = np.sqrt(np.maximum(1.0 - self.similarities(queries, references), 0.0))
+        rows = np.full((len(queries), width), NOT_IN_MEMORY, dtype=np.int64)
+        for query, row_distance in enumerate(distance):
+            order = np.argsort(row_distance, kind="stable")
+            _, first = np.unique(labels[order], return_index=True)
+            # Each place's nearest row, the nearest place first (the rows of one place are no rival of each other)
+            places = order[np.sort(first)]
+            near = row_distance[places]
+            if len(places) < 2:  # no rival place: no margin to judge
+                continue
+            if near[0] <= ratio[query] * near[1]:
+                rows[query, 0] = places[0]
+            elif shortlisted[query] and width > 1:
+                close = places[near * self.candidate_ratio <= near[0]][:width]
+                rows[query, : len(close)] = close
         return rows
 
 

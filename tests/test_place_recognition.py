@@ -305,9 +305,32 @@ def test_a_near_tie_or_a_single_place_is_no_answer():
     assert matcher.match(between, references[:1], np.arange(1))[0] == -1
 
 
+def test_a_photo_in_other_light_between_two_places_names_both_as_candidates_and_a_clear_one_names_one():
+    blocks = np.random.default_rng(0).normal(size=(N_PLACES, 4, D // 4))
+    places = (blocks / np.linalg.norm(blocks, axis=2, keepdims=True)).reshape(N_PLACES, D).astype(np.float32)
+    labels = np.arange(N_PLACES)
+    shown = places + 10.0  # every place pictured in another light: the goal photos asked about
+    between = 0.5 * (places[[0, 2]] + places[[1, 3]]) + 10.0  # in that light, halfway between two places
+    matcher = AlignedNearestPlace(views=4)
+    np.testing.assert_array_equal(matcher.match(between, places, labels, shown), -1)  # no place clearly the nearest
+    candidates = matcher.candidates(between, places, labels, shown)
+    assert candidates.shape == (2, 4) and [set(row[row >= 0]) for row in candidates] == [{0, 1}, {2, 3}]
+    np.testing.assert_array_equal(matcher.candidates(shown[[7]], places, labels, shown), [[7, -1, -1, -1]])
+    # In the references' own light a near tie is a place not visited: no candidates
+    np.testing.assert_array_equal(matcher.candidates(between - 10.0, places, labels, shown), -1)
+    one = AlignedNearestPlace(views=4, max_candidates=1).candidates(between, places, labels, shown)
+    np.testing.assert_array_equal(one, [[-1], [-1]])
+
+
 @pytest.mark.parametrize(
     "settings, message",
-    [({"views": 0}, "views"), ({"own_ratio": 1.5}, "own_ratio"), ({"other_ratio": 0.0}, "other_ratio")],
+    [
+        ({"views": 0}, "views"),
+        ({"own_ratio": 1.5}, "own_ratio"),
+        ({"other_ratio": 0.0}, "other_ratio"),
+        ({"candidate_ratio": 0.99}, "candidate_ratio"),
+        ({"max_candidates": 0}, "max_candidates"),
+    ],
 )
 def test_aligned_matching_names_a_bad_setting(settings: dict, message: str):
     with pytest.raises(ValueError, match=message):

@@ -630,6 +630,21 @@ def test_routes_say_which_observations_are_at_a_place_the_memory_takes_for_their
     np.testing.assert_array_equal(actions, memory.route_actions(observations))
 
 
+def test_routes_lead_nowhere_for_observations_whose_goal_is_known_not_to_be_at_any_of_its_places(plain_env) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    memory = RouteMemory.for_env(plain_env)
+    explore_fully(plain_env, memory, goal, through_goal=True)
+    nodes, headings = plain_env.graph.map.state_nodes, plain_env.graph.map.state_headings
+    observations = plain_env.observations_at(nodes, headings, goal)
+    goal_states = frozenset(memory.goal_states(_first(observations)).tolist())
+    elsewhere = [goal_states if index % 2 else frozenset() for index in range(nodes.size)]  # every other one
+    actions, arrived = memory.routes(observations, not_goal=elsewhere)
+    told = np.arange(nodes.size) % 2 == 1
+    assert (actions[told] == -1).all() and not arrived[told].any()  # an evaluation's episode went on there
+    np.testing.assert_array_equal(actions[~told], memory.route_actions(observations)[~told])
+    np.testing.assert_array_equal(arrived[~told], (nodes == goal)[~told])
+
+
 class SecondPictureMatcher:
     """Places no goal picture until it has been shown two, then every one at the sixth state it may be at."""
 
@@ -853,6 +868,24 @@ def test_pose_states_of_a_world_that_never_repeats_make_the_memory_step_aside() 
             memory.add_batch(observations[:-1], rng.integers(2, size=99), observations[1:], np.zeros(99), np.zeros(99))
     # Early: in the first batch past NEVER_AGAIN_WINDOW transitions that all met new states (CartPole's warm-up)
     assert memory.stepped_aside and memory.n_states <= 2 * 100
+
+
+def test_states_that_stop_repeating_after_a_start_that_repeats_make_the_memory_step_aside() -> None:
+    space = spaces.Box(-5.0, 5.0, (4,))
+    memory = RouteMemory(2, space)
+    rng = np.random.default_rng(0)
+    loop = rng.normal(0, 1, (5, 4))
+    for _ in range(3):  # a start that repeats: a ring of 5 poses driven again and again, so states do repeat
+        here = np.tile(loop, (20, 1))
+        memory.add_batch(here, np.zeros(100, int), np.roll(here, -1, axis=0), np.zeros(100), np.zeros(100, bool))
+    assert not memory.stepped_aside
+    with pytest.warns(UserWarning, match="places are not recognised"):
+        for _ in range(12):
+            observations = rng.normal(0, 1, (101, 4))
+            memory.add_batch(
+                observations[:-1], rng.integers(2, size=100), observations[1:], np.zeros(100), np.zeros(100, bool)
+            )
+    assert memory.stepped_aside and "new states in the last" in memory.aside_reason
 
 
 # --------------------------------------------------------------------------------------------- FrozenLake, saving

@@ -140,7 +140,7 @@ def test_a_matched_place_where_the_goals_episode_went_on_is_ruled_out_and_the_ma
     goals = index(recogniser, FirstRowMatcher())
     night = {"goal": -pictures[[3]]}
     key = goals.digests(night, 1)[0]
-    assert goals.states(key, night, 0, 1).tolist() == [0] and goals.matched == {key: 0}
+    assert goals.states(key, night, 0, 1).tolist() == [0] and goals.matched == {key: (0,)}
     goals.rule_out([key, b"another goal"], np.array([5, 0]))  # its episode went on elsewhere; another goal's here
     assert goals.states(key, night, 0, 1).tolist() == [0]
     goals.rule_out([key], np.array([0]))  # it went on where the matcher placed the goal: the goal is not there
@@ -149,6 +149,45 @@ def test_a_matched_place_where_the_goals_episode_went_on_is_ruled_out_and_the_ma
     goals.merge(2, 1)
     goals.rule_out([key], np.array([2]))  # ...ruled out there: at neither
     assert goals.states(key, night, 0, 1).tolist() == [3]
+
+
+class TwoCandidatesMatcher:
+    """A candidate matcher that names the two lowest states not ruled out (its one answer: none)."""
+
+    def match(self, queries, references, labels, goal_pictures=None) -> np.ndarray:
+        return np.full(len(queries), -1, dtype=np.int64)
+
+    def candidates(self, queries, references, labels, goal_pictures=None) -> np.ndarray:
+        return np.tile(np.array([1, 0]), (len(queries), 1))
+
+
+def test_a_goal_a_matcher_names_candidates_for_is_at_each_until_its_episode_goes_on_there() -> None:
+    pictures = places(30)
+    goals = index(calibrated_recogniser(pictures[:20]), TwoCandidatesMatcher())
+    night = {"goal": -pictures[[3]]}
+    key = goals.digests(night, 1)[0]
+    assert goals.states(key, night, 0, 1).tolist() == [0, 1] and goals.matched == {key: (1, 0)}  # likeliest first
+    goals.rule_out([key], np.array([1]))  # its episode went on at one of them: asked again without it
+    assert goals.states(key, night, 0, 1).tolist() == [0, 2]
+    goals.rule_out([key], np.array([2]))
+    # Toured: as many places ruled out as the matcher names, its candidates are no answer (its one clear one would be)
+    assert goals.states(key, night, 0, 1).tolist() == []
+
+
+def test_a_memory_saved_when_the_matcher_named_one_place_per_goal_loads_its_answers_as_places() -> None:
+    pictures = places(30)
+    goals = index(calibrated_recogniser(pictures[:20]), FirstRowMatcher())
+    night = {"goal": -pictures[[3]]}
+    key = goals.digests(night, 1)[0]
+    goals.states(key, night, 0, 1)
+    state = goals.__dict__.copy()
+    state["_matched"] = {key: 0}  # as saved then: one place, -1 where the matcher named none
+    state["_matcher_answers"] = {key: (*state["_matcher_answers"][key][:3], 0), b"nowhere": (20, 1, 0, -1)}
+    loaded = GoalIndex.__new__(GoalIndex)
+    loaded.__setstate__(state)
+    assert loaded.matched == {key: (0,)} and loaded._matcher_answers[b"nowhere"][3] == ()
+    loaded.rule_out([key], np.array([0]))
+    assert loaded.states(key, night, 0, 1).tolist() == [1]
 
 
 def test_the_matcher_is_asked_again_once_the_places_grew_by_a_share_not_at_every_new_place() -> None:

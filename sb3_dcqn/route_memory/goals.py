@@ -9,9 +9,11 @@ one goal for every observation). It is *at* a set of states:
   names for the goal's picture (``KNOWN``); a picture it does not know (new or unsure: pictured in other light, say)
   is handed to a :class:`PlaceMatcher` where there is one (the memory's default: an
   :class:`~sb3_dcqn.place_recognition.AlignedNearestPlace`), with the places' prototypes as references and the most
-  recent such pictures as its sample of their light; no answer: no place, and the critics act. A place the matcher
-  named where an episode for that goal then went on is ruled out for it (the env ends an episode at its goal), and
-  the matcher is asked again without it;
+  recent such pictures as its sample of their light; no answer: no place, and the critics act. A matcher that names
+  candidates where it cannot name one place (a :class:`~sb3_dcqn.place_recognition.CandidateMatcher`, as the default
+  is) places the goal at each of them: routes lead to the nearest. A place the matcher named where an episode for
+  that goal then went on is ruled out for it (the env ends an episode at its goal), and the matcher is asked again
+  without it;
 - for pose states of an SB3 goal env without a declared frame, the states whose ``achieved_goal`` equals the goal's
   ``desired_goal`` (SB3's goal-env convention).
 """
@@ -19,10 +21,11 @@ one goal for every observation). It is *at* a set of states:
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
+from sb3_dcqn.place_recognition import CandidateMatcher, PlaceMatcher
 from sb3_dcqn.route_memory.places import Answer, PlaceRecogniser, digest
 from sb3_dcqn.route_memory.planner import BoundedCache
 
@@ -32,22 +35,6 @@ ACHIEVED_GOAL_KEY = "achieved_goal"
 MAX_GOALS_ASKED = 64  # the most recent distinct goal pictures kept for a place matcher (a sample of their conditions)
 REASK_GROWTH = 1.02  # a goal's matcher answer stands until the places grew by this factor (or its inputs changed)
 MAX_GOALS_PLACED = 4_096  # goals whose matched and ruled-out places are kept (the oldest forgotten: one more trip)
-
-
-class PlaceMatcher(Protocol):
-    """Finds the remembered place of goal pictures the recogniser does not know (e.g. pictured at night)."""
-
-    def match(
-        self, queries: np.ndarray, references: np.ndarray, labels: np.ndarray, goal_pictures: np.ndarray | None = None
-    ) -> np.ndarray:
-        """
-        :param queries: ``(m, d)`` goal pictures
-        :param references: ``(n, d)`` the memory's place pictures (prototypes)
-        :param labels: ``(n,)`` each reference's state
-        :param goal_pictures: ``(k, d)`` the goal pictures the memory was asked about (no place named)
-        :return: ``(m,)`` the matched reference row of each query, -1: not in memory
-        """
-        ...
 
 
 class GoalIndex:
@@ -89,14 +76,20 @@ class GoalIndex:
         self._achieved: dict[bytes, tuple[np.ndarray, set[int]]] = {}  # achieved_goal picture -> states at it
         self._asked: dict[bytes, np.ndarray] = {}  # goal pictures asked about, oldest first (the matcher's sample)
         self._asked_count = 0  # pictures ever added to it: a matcher's answers may change with each
-        self._matched: dict[bytes, int] = {}  # goal -> the place the matcher answered for its picture
+        self._matched: dict[bytes, tuple[int, ...]] = {}  # goal -> the places the matcher answered for its picture
         self._ruled_out: dict[bytes, set[int]] = {}  # goal -> places where an episode for it went on
         # goal -> (places, sample count, places ruled out, answer) when the matcher was last asked
-        self._matcher_answers: dict[bytes, tuple[int, int, int, int]] = {}
+        self._matcher_answers: dict[bytes, tuple[int, int, int, tuple[int, ...]]] = {}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        # Memories saved before the matcher's sample was counted and its answers could be ruled out load without them
-        self.__dict__.update({"_asked_count": 0, "_matched": {}, "_ruled_out": {}, "_matcher_answers": {}, **state})
+        # Memories saved before the matcher's sample was counted and its answers could be ruled out load without them;
+        # those saved while the matcher named one place per goal (an int, -1: none) load it as a tuple of places
+        state = {"_asked_count": 0, "_matched": {}, "_ruled_out": {}, "_matcher_answers": {}, **state}
+        state["_matched"] = {goal: _places(answer) for goal, answer in state["_matched"].items()}
+        state["_matcher_answers"] = {
+            goal: (*asked[:3], _places(asked[3])) for goal, asked in state["_matcher_answers"].items()
+        }
+        self.__dict__.update(state)
 
     @property
     def conditioned(self) -> bool:
@@ -170,9 +163,9 @@ class GoalIndex:
                 states.discard(drop)
                 states.add(keep)
                 self.version += 1
-        for goal, state in list(self._matched.items()):
-            if state == drop:
-                self._matched[goal] = keep
+        for goal, places in list(self._matched.items()):
+            if drop in places:
+                self._matched[goal] = tuple(dict.fromkeys(keep if place == drop else place for place in places))
 
     # ------------------------------------------------------------------ where a goal is
     def states(self, goal: bytes, observations: Any, index: int, batch: int) -> np.ndarray:
@@ -194,8 +187,8 @@ class GoalIndex:
         return states
 
     def _pictured(self, goal: bytes, picture: np.ndarray) -> set[int]:
-        """The state a goal picture shows: the recogniser's known place, else the matcher's answer among the places
-        the goal was not ruled out at."""
+        """The states a goal picture shows: the recogniser's known place, else the matcher's answer (or candidates)
+        among the places the goal was not ruled out at."""
         rows = np.asarray(picture, dtype=np.float32).reshape(1, -1)
         if self.picture_rows is not None:
             rows = self.picture_rows(np.asarray(picture)[None])
@@ -212,22 +205,37 @@ class GoalIndex:
         last = self._matcher_answers.get(goal)
         n_states = self.recogniser.n_states
         standing = last is not None and last[1:3] == (self._asked_count, len(ruled_out))
-        if standing and n_states < last[0] * REASK_GROWTH and (last[3] < 0 or self.recogniser.live(last[3])):
-            place = last[3]
+        if standing and n_states < last[0] * REASK_GROWTH and all(self.recogniser.live(place) for place in last[3]):
+            places = last[3]
         else:
             references, labels = self.recogniser.prototypes()
             allowed = ~np.isin(labels, list(ruled_out))
             references, labels = references[allowed], labels[allowed]
-            asked = np.stack(list(self._asked.values()))
-            row = int(self.place_matcher.match(rows, references, labels, asked)[0]) if labels.size else -1
-            place = int(labels[row]) if row >= 0 else -1
-            self._matcher_answers[goal] = (n_states, self._asked_count, len(ruled_out), place)
+            places = self._matcher_places(rows, references, labels, len(ruled_out)) if labels.size else ()
+            self._matcher_answers[goal] = (n_states, self._asked_count, len(ruled_out), places)
             _keep_newest(self._matcher_answers, MAX_GOALS_ASKED)
-        if place < 0:
+        if not places:
             return set()
-        self._matched[goal] = place
+        self._matched[goal] = places
         _keep_newest(self._matched, MAX_GOALS_PLACED)
-        return {place}
+        return set(places)
+
+    def _matcher_places(
+        self, rows: np.ndarray, references: np.ndarray, labels: np.ndarray, n_ruled_out: int
+    ) -> tuple[int, ...]:
+        """The places the matcher names for one goal picture (``rows``: ``(1, d)``), the likeliest first: its
+        candidates where it names them, until as many places were ruled out for the goal as it names at most (one
+        tour: a picture of a place never visited has candidates everywhere, and a search of every place would keep
+        the agent from the untried), else its one clear answer."""
+        assert self.place_matcher is not None
+        asked = np.stack(list(self._asked.values()))
+        if isinstance(self.place_matcher, CandidateMatcher):
+            answer = np.asarray(self.place_matcher.candidates(rows, references, labels, asked))[0]
+            if n_ruled_out >= answer.size and answer.size > 1 and answer[1] >= 0:
+                answer = answer[:0]  # toured: candidates are no answer any more
+        else:
+            answer = np.asarray(self.place_matcher.match(rows, references, labels, asked))[:1]
+        return tuple(dict.fromkeys(int(labels[row]) for row in answer.tolist() if row >= 0))
 
     def rule_out(self, goals: Sequence[bytes], states: np.ndarray) -> None:
         """
@@ -235,15 +243,15 @@ class GoalIndex:
         there (the env ends an episode at its goal), and the matcher is asked again without it.
         """
         for goal, state in zip(goals, states.tolist(), strict=True):
-            if state >= 0 and self._matched.get(goal) == state:
-                del self._matched[goal]
+            if state >= 0 and state in self._matched.get(goal, ()):
+                del self._matched[goal]  # asked again without it (and placed at the candidates left, if still named)
                 self._ruled_out.setdefault(goal, set()).add(int(state))
                 _keep_newest(self._ruled_out, MAX_GOALS_PLACED)
                 self.version += 1
 
     @property
-    def matched(self) -> dict[bytes, int]:
-        """The place of each goal the matcher placed (and no place was ruled out since)."""
+    def matched(self) -> dict[bytes, tuple[int, ...]]:
+        """The places of each goal the matcher placed (and no place was ruled out since), the likeliest first."""
         return self._matched
 
     def _ask(self, picture: np.ndarray) -> None:
@@ -263,6 +271,13 @@ class GoalIndex:
             if vector.shape == row.shape and np.abs(vector - row).max() <= self.goal_tolerance:
                 return set(states)
         return set()
+
+
+def _places(answer: int | tuple[int, ...]) -> tuple[int, ...]:
+    """A matcher's answer as saved before candidates (one place, -1: none) or after (a tuple of places)."""
+    if isinstance(answer, tuple):
+        return answer
+    return () if answer < 0 else (int(answer),)
 
 
 def _keep_newest(entries: dict[Any, Any], limit: int) -> None:

@@ -448,9 +448,10 @@ class RouteMemoryLayer:
             actions = self.memory.route_actions(batch, staleness, retry=rollout, states=states)
             actions = np.where(untried >= 0, untried, actions)
         else:
-            actions, arrived = self.memory.routes(batch, staleness, retry=rollout, states=states)
-            if evaluation:
-                actions = self._beyond_a_wrong_goal(arrived, actions)
+            not_goal = self._bumps.not_goal() if evaluation and self._bumps is not None else None
+            actions, arrived = self.memory.routes(batch, staleness, retry=rollout, states=states, not_goal=not_goal)
+            if evaluation and arrived.any():
+                actions = self._beyond_a_wrong_goal(batch, states, arrived)
         if rollout and states is not None:
             assert self._explorer is not None
             # A trip to the untried, once begun (epsilon's draw), is driven to its end: one step of it between route
@@ -466,16 +467,16 @@ class RouteMemoryLayer:
             state = self._bumps.state() if state is None else state
         return (actions if batched else actions[0]), state
 
-    def _beyond_a_wrong_goal(self, arrived: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """``actions`` with -1 (the algorithm acts) for the rest of an episode that went on at the place the memory
-        took for its goal (``arrived``: a goal picture matched to a wrong place, say): evaluation does not learn, so
-        the memory's route would lead there again (training rules the place out instead)."""
-        assert self._bumps is not None
-        records = self._bumps.envs
+    def _beyond_a_wrong_goal(self, batch: Any, states: np.ndarray, arrived: np.ndarray) -> np.ndarray:
+        """The routes again where an episode went on at a place the memory took for its goal (``arrived``: a goal
+        picture matched to a wrong place, or one of a matcher's candidates): the goal is not there for the rest of
+        the episode, and its route leads to the goal's other places (the next candidate), or the algorithm acts where
+        none is left. Evaluation does not learn (training rules the place out for good instead)."""
+        assert self._bumps is not None and self.memory is not None
         for env in np.flatnonzero(arrived):
-            records[env].wrong_goal = True
-        lost = np.array([record.wrong_goal for record in records], dtype=bool)
-        return np.where(lost, -1, actions)
+            self._bumps.envs[env].not_goal |= {int(states[env])}
+        actions, _ = self.memory.routes(batch, states=states, not_goal=self._bumps.not_goal())
+        return actions
 
     def _without_repeated_bumps(self, batch: Any, actions: np.ndarray, states: np.ndarray) -> np.ndarray:
         """``actions`` with a move that just left its env where it was replaced by the best other action (``states``:
@@ -648,6 +649,10 @@ class _BumpGuard:
         for record, place, slot in zip(self.envs, places, slots.tolist(), strict=True):
             record.last = (place, int(slot))
 
+    def not_goal(self) -> list[frozenset[int]]:
+        """Per env, the states where its episode went on though the memory placed its goal there."""
+        return [record.not_goal for record in self.envs]
+
     def expected_states(self, memory: RouteMemory) -> np.ndarray:
         """Per env, the state its last move should have led to by the memory (-1: none, or a new episode)."""
         lasts = [record.last for record in self.envs]
@@ -657,15 +662,15 @@ class _BumpGuard:
 
 
 class _EnvMoves:
-    """One env's episode for the bump guard: its last (place, slot), the moves that bumped, and whether it went on at
-    the place the memory took for its goal."""
+    """One env's episode for the bump guard: its last (place, slot), the moves that bumped, and the states where it
+    went on though the memory placed its goal there."""
 
-    __slots__ = ("banned", "last", "wrong_goal")
+    __slots__ = ("banned", "last", "not_goal")
 
     def __init__(self) -> None:
         self.last: tuple[Hashable, int] | None = None
         self.banned: set[tuple[Hashable, int]] = set()
-        self.wrong_goal = False
+        self.not_goal: frozenset[int] = frozenset()
 
 
 def _records(n_envs: int) -> np.ndarray:

@@ -707,22 +707,34 @@ class RouteMemory:
         return self.routes(observations, staleness, retry, states)[0]
 
     def routes(
-        self, observations: Any, staleness: int = 0, retry: bool = False, states: np.ndarray | None = None
+        self,
+        observations: Any,
+        staleness: int = 0,
+        retry: bool = False,
+        states: np.ndarray | None = None,
+        not_goal: Sequence[frozenset[int]] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`route_actions`, and whether each observation's state is one where the memory places its goal (an
-        episode that goes on there says the goal is elsewhere)."""
+        """
+        :meth:`route_actions`, and whether each observation's state is one where the memory places its goal (an
+        episode that goes on there says the goal is elsewhere).
+
+        :param not_goal: Per observation, states its goal is known not to be at (an evaluation's episode went on
+            there): routes lead to the goal's other states (none left: no route)
+        """
         states = self.states_of(observations) if states is None else np.asarray(states, dtype=np.int64)
         slots = np.full(states.size, -1, dtype=np.int64)
         arrived = np.zeros(states.size, dtype=bool)
         if not self.speaks or self.n_states == 0:
             return slots, arrived
         self.edges.ensure(self.n_states)
-        by_goal: dict[bytes, list[int]] = {}
+        by_goal: dict[tuple[bytes, frozenset[int]], list[int]] = {}
         for index, goal in enumerate(self.goal_digests(observations)):
-            by_goal.setdefault(goal, []).append(index)
-        for goal, indices in by_goal.items():
+            by_goal.setdefault((goal, frozenset() if not_goal is None else not_goal[index]), []).append(index)
+        for (goal, elsewhere), indices in by_goal.items():
             rows = np.array(indices)
             goal_states = self._goal_states(goal, observations, indices[0])
+            if elsewhere:
+                goal_states = goal_states[~np.isin(goal_states, list(elsewhere))]
             key, is_target = self._search_to(goal, goal_states, retry)
             if self.edges.n_stochastic:  # a slippery world: the surest route, not the fewest hops
                 values = self.planner.cached_values(key, goal_states, staleness, retry)
