@@ -465,7 +465,7 @@ MUTATIONS = (
     Mutation(
         "layer",
         "evaluation recognises each picture without the graph's prior",
-        "states = self.memory.states_of(batch, expected=self._bumps.expected_states(self.memory))",
+        "states = self.memory.states_of(batch, expected=self._episode_guard.expected_states(self.memory))",
         "states = self.memory.states_of(batch)",
     ),
     Mutation(
@@ -537,8 +537,14 @@ MUTATIONS = (
     Mutation(
         "layer",
         "an evaluation episode that went on where the memory placed its goal keeps its route there",
-        "            self._bumps.envs[env].not_goal |= {int(states[env])}",
+        "            self._episode_guard.envs[env].not_goal |= {int(states[env])}",
         "            pass",
+    ),
+    Mutation(
+        "layer",
+        "evaluation gives a move made twice at one place again (only a bump is never repeated)",
+        "banned = made >= LOOP_REPEATS",
+        "banned = made == np.iinfo(made.dtype).max",
     ),
     Mutation(
         "memory",

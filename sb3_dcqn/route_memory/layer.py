@@ -64,6 +64,9 @@ __all__ = [
 # one core), so its cost per step stays flat as the map grows; a route a stale search misses is explored instead
 ROLLOUT_STALENESS = 32
 ROLLOUT_STALENESS_PLACES = 100
+# Evaluation: a move made this often at one place in an episode is a loop (look-alike places remembered as one, or
+# a route back to where the algorithm drives the way it came): not given there again; twice may be a dead end's way out
+LOOP_REPEATS = 2
 # route_memory's explore="first": explore the untried whenever it is within reach, and route once the map is known
 EXPLORE_FIRST = "first"
 # The layer's own settings; the others are the memory's (RouteMemory.for_env's keyword arguments)
@@ -139,8 +142,10 @@ class RouteMemoryLayer:
           ``explore="first"`` (the city entry's): every rollout step drives to the nearest untried pair while one is
           within reach, and routes only once none is (the floor's order: the map is known first, so that every start
           is routed; a 2,626 city solved at 10,000 env steps instead of 45,000, as its floor);
-        - evaluation never learns, so a move that just left an env where it was (a bump) is not given again at that
-          place for the rest of its episode: the algorithm's best other action instead. It needs to know the envs
+        - evaluation never learns, so a move that bumped is not given again at that place in its episode, nor one
+          made there :data:`LOOP_REPEATS` times (a loop: look-alike places remembered as one, say, or a route back
+          to where the algorithm drives the way it came): the algorithm's best other action instead (the least made
+          where every move there was made that often); a stochastic move may repeat. It needs to know the envs
           and their episodes: SB3's convention for per-env state, ``episode_start`` (``evaluate_policy`` passes it);
           without it, each call stands alone;
         - **the replay buffer revises too**: where ``replay_buffer_class`` is ``None``, SB3's ``ReplayBuffer``,
@@ -169,7 +174,7 @@ class RouteMemoryLayer:
         self.route_memory = route_memory
         self.memory = None
         self._explorer: UntriedExplorer | None = None
-        self._bumps: _BumpGuard | None = None
+        self._episode_guard: _EpisodeGuard | None = None
         self._success_reward: float | None = None
         self._explores = self._explores_first = False
         self._acted = np.zeros(2, dtype=np.int64)  # rollout actions since the last log: the memory's, all
@@ -421,8 +426,8 @@ class RouteMemoryLayer:
 
         :param rollout: A rollout's greedy step: routes up to :data:`ROLLOUT_STALENESS` changes of the memory old (and
             one more per :data:`ROLLOUT_STALENESS_PLACES` states), and roads blocked long enough ago are tried again
-            (:meth:`RouteMemory.route_actions`); else evaluation's exact routes, with no bump twice in an episode
-            where ``episode_start`` says which rows are envs
+            (:meth:`RouteMemory.route_actions`); else evaluation's exact routes, with no bump twice nor a loop in an
+            episode where ``episode_start`` says which rows are envs
         """
         assert self.memory is not None
         batched, batch = _as_batch(self.policy, observation)  # type: ignore[attr-defined]
@@ -431,13 +436,13 @@ class RouteMemoryLayer:
         evaluation = not rollout and episode_start is not None
         if evaluation:  # each env's last place and move say where it should be now (the graph's prior)
             starts = np.asarray(episode_start, dtype=bool).reshape(-1)
-            guard = _BumpGuard.of(state)
+            guard = _EpisodeGuard.of(state)
             if guard is not None and guard.n_envs == starts.size:
-                self._bumps, state = guard, None  # the caller's (one record per env), not the algorithm's state
-            elif self._bumps is None or self._bumps.n_envs != starts.size:
-                self._bumps = _BumpGuard(starts.size)
-            self._bumps.start(starts)
-            states = self.memory.states_of(batch, expected=self._bumps.expected_states(self.memory))
+                self._episode_guard, state = guard, None  # the caller's (one record per env), not the algorithm's state
+            elif self._episode_guard is None or self._episode_guard.n_envs != starts.size:
+                self._episode_guard = _EpisodeGuard(starts.size)
+            self._episode_guard.start(starts)
+            states = self.memory.states_of(batch, expected=self._episode_guard.expected_states(self.memory))
         else:
             states = self.memory.states_of(batch) if rollout and self.explores_untried else None
         if rollout and states is not None and self._explores_first:
@@ -448,7 +453,7 @@ class RouteMemoryLayer:
             actions = self.memory.route_actions(batch, staleness, retry=rollout, states=states)
             actions = np.where(untried >= 0, untried, actions)
         else:
-            not_goal = self._bumps.not_goal() if evaluation and self._bumps is not None else None
+            not_goal = self._episode_guard.not_goal() if evaluation and self._episode_guard is not None else None
             actions, arrived = self.memory.routes(batch, staleness, retry=rollout, states=states, not_goal=not_goal)
             if evaluation and arrived.any():
                 actions = self._beyond_a_wrong_goal(batch, states, arrived)
@@ -462,9 +467,9 @@ class RouteMemoryLayer:
             self._acted[0] += int((actions >= 0).sum())
         actions, state = self._greedy_where(actions < 0, actions, batch, state, episode_start)
         if evaluation:
-            actions = self._without_repeated_bumps(batch, actions, states)
-            assert self._bumps is not None
-            state = self._bumps.state() if state is None else state
+            actions = self._without_repeated_moves(batch, actions, states)
+            assert self._episode_guard is not None
+            state = self._episode_guard.state() if state is None else state
         return (actions if batched else actions[0]), state
 
     def _beyond_a_wrong_goal(self, batch: Any, states: np.ndarray, arrived: np.ndarray) -> np.ndarray:
@@ -472,32 +477,38 @@ class RouteMemoryLayer:
         picture matched to a wrong place, or one of a matcher's candidates): the goal is not there for the rest of
         the episode, and its route leads to the goal's other places (the next candidate), or the algorithm acts where
         none is left. Evaluation does not learn (training rules the place out for good instead)."""
-        assert self._bumps is not None and self.memory is not None
+        assert self._episode_guard is not None and self.memory is not None
         for env in np.flatnonzero(arrived):
-            self._bumps.envs[env].not_goal |= {int(states[env])}
-        actions, _ = self.memory.routes(batch, states=states, not_goal=self._bumps.not_goal())
+            self._episode_guard.envs[env].not_goal |= {int(states[env])}
+        actions, _ = self.memory.routes(batch, states=states, not_goal=self._episode_guard.not_goal())
         return actions
 
-    def _without_repeated_bumps(self, batch: Any, actions: np.ndarray, states: np.ndarray) -> np.ndarray:
-        """``actions`` with a move that just left its env where it was replaced by the best other action (``states``:
-        the batch's memory states; the guard has been told which envs start an episode)."""
-        assert self.memory is not None and self._bumps is not None
+    def _without_repeated_moves(self, batch: Any, actions: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """``actions`` with a move that bumped at that place in this episode, or that its env made there
+        ``LOOP_REPEATS`` times, replaced by the best other action; where every move was made that often, the best of
+        the least made that did not bump (``states``: the batch's memory states; the guard has been told which envs
+        start an episode)."""
+        assert self.memory is not None and self._episode_guard is not None
         frame = self.memory.place_frame
         places = _guard_places(batch, states, None if frame is None else frame.frame_key)
-        self._bumps.observe(places)
+        self._episode_guard.observe(places)
         n_slots = int(self.action_space.n)  # type: ignore[attr-defined]
         frames = self._slots(batch, np.zeros_like(actions))  # the slot of action 0: the frame (0 where none)
         slot_of_action = (frames[:, None] + np.arange(n_slots)[None, :]) % n_slots
-        banned = self._bumps.banned_slots(places, n_slots)
-        known = states >= 0
-        banned[known] &= ~self.memory.edges.stochastic[states[known]]  # a stay there is chance, not a closure
+        made, bumped = self._episode_guard.made_slots(places, n_slots)
+        made[bumped] = np.iinfo(made.dtype).max
+        chance = np.zeros(made.shape, dtype=bool)  # a repeat of a stochastic move is chance, not a loop
+        chance[states >= 0] = self.memory.edges.stochastic[states[states >= 0]]
+        banned = made >= LOOP_REPEATS
+        fewest = made.min(axis=1, keepdims=True)  # where every move was made that often: the least made
+        banned = np.where(banned.all(axis=1, keepdims=True), made > fewest, banned) & ~chance
         banned = np.take_along_axis(banned, slot_of_action, axis=1)
         hit = banned[np.arange(actions.size), actions] & ~banned.all(axis=1)
         if hit.any():
             values = self._action_values(select_rows(batch, hit))
             values[banned[hit]] = -np.inf
             actions[hit] = values.argmax(axis=1)
-        self._bumps.remember(places, self._slots(batch, actions))
+        self._episode_guard.remember(places, self._slots(batch, actions))
         return actions
 
     def _action_values(self, observations: Any) -> np.ndarray:
@@ -575,10 +586,10 @@ class RouteMemoryLayer:
         )
 
     def _excluded_save_params(self) -> list[str]:
-        # The memory is saved (pickled in the model's data); its explorer's paths and the bump guard are rebuilt
+        # The memory is saved (pickled in the model's data); its explorer's paths and the episode guard are rebuilt
         excluded = [
             "_explorer",
-            "_bumps",
+            "_episode_guard",
             "_success_reward",
             "_explores",
             "_explores_first",
@@ -588,14 +599,16 @@ class RouteMemoryLayer:
         return [*super()._excluded_save_params(), *excluded]  # type: ignore[misc]
 
 
-class _BumpGuard:
+class _EpisodeGuard:
     """
     Per env of an evaluation (the rows of ``predict``'s batch; episodes marked by ``episode_start``): the (place,
     slot) each env last moved by (where the memory expects it now: the prior that recognises its next picture), and
-    the moves that left an env where it was, not to be given again at that place in the same episode (evaluation does
-    not teach the memory the bump). A place is the memory's state, or the observation itself where the memory does
-    not know it (a deterministic world shows the same one after a bump), less its heading where the frame is declared
-    (the place's views are in compass order, its slots compass slots).
+    the moves that bumped and those it made ``LOOP_REPEATS`` times, not to be given again at that place in the same
+    episode (evaluation does not teach the memory a bump, nor that a route of it leads round in circles: two
+    look-alike places remembered as one, say; a place left by one road twice may be a dead end visited twice). A
+    place is the memory's state, or the observation itself where the memory does not know it (a deterministic world
+    shows the same one after a bump), less its heading where the frame is declared (the place's views are in compass
+    order, its slots compass slots).
 
     The guard is the evaluation's ``state`` of ``predict`` (one object per env, a row each: a caller that drops the
     rows of finished episodes, as route evaluation does, drops theirs); a caller that passes no state back has the
@@ -613,12 +626,12 @@ class _BumpGuard:
         return len(self.envs)
 
     @staticmethod
-    def of(state: Any) -> _BumpGuard | None:
+    def of(state: Any) -> _EpisodeGuard | None:
         """The guard a ``predict`` state holds (``None``: it holds none)."""
         if isinstance(state, tuple) and len(state) == 1 and isinstance(state[0], np.ndarray):
             records = state[0]
             if records.dtype == object and records.size and isinstance(records.flat[0], _EnvMoves):
-                return _BumpGuard(envs=records.reshape(-1))
+                return _EpisodeGuard(envs=records.reshape(-1))
         return None
 
     def state(self) -> tuple[np.ndarray]:
@@ -631,23 +644,28 @@ class _BumpGuard:
             self.envs[env] = _EnvMoves()
 
     def observe(self, places: list[Hashable]) -> None:
-        """An env still at the place of its last move bumped: that move is banned at that place."""
+        """An env still at the place of its last move bumped."""
         for record, place in zip(self.envs, places, strict=True):
             if record.last is not None and record.last[0] == place:
-                record.banned.add(record.last)
+                record.bumped.add(record.last)
 
-    def banned_slots(self, places: list[Hashable], n_slots: int) -> np.ndarray:
-        """``(envs, slots)``: the banned slots at each env's place."""
-        banned = np.zeros((self.n_envs, n_slots), dtype=bool)
+    def made_slots(self, places: list[Hashable], n_slots: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(envs, slots)`` twice: how often each env took each slot at its place in this episode, and which of those
+        bumped."""
+        made = np.zeros((self.n_envs, n_slots), dtype=np.int64)
+        bumped = np.zeros((self.n_envs, n_slots), dtype=bool)
         for env, record in enumerate(self.envs):
-            for place, slot in record.banned:
-                banned[env, slot] |= place == places[env]
-        return banned
+            for (place, slot), times in record.taken.items():
+                made[env, slot] += times if place == places[env] else 0
+            for place, slot in record.bumped:
+                bumped[env, slot] |= place == places[env]
+        return made, bumped
 
     def remember(self, places: list[Hashable], slots: np.ndarray) -> None:
         """Each env's move now."""
         for record, place, slot in zip(self.envs, places, slots.tolist(), strict=True):
             record.last = (place, int(slot))
+            record.taken[record.last] = record.taken.get(record.last, 0) + 1
 
     def not_goal(self) -> list[frozenset[int]]:
         """Per env, the states where its episode went on though the memory placed its goal there."""
@@ -662,14 +680,15 @@ class _BumpGuard:
 
 
 class _EnvMoves:
-    """One env's episode for the bump guard: its last (place, slot), the moves that bumped, and the states where it
-    went on though the memory placed its goal there."""
+    """One env's episode for the guard: its last (place, slot), the moves it made and those that bumped, and the
+    states where it went on though the memory placed its goal there."""
 
-    __slots__ = ("banned", "last", "not_goal")
+    __slots__ = ("bumped", "last", "not_goal", "taken")
 
     def __init__(self) -> None:
         self.last: tuple[Hashable, int] | None = None
-        self.banned: set[tuple[Hashable, int]] = set()
+        self.taken: dict[tuple[Hashable, int], int] = {}  # how often each move was made
+        self.bumped: set[tuple[Hashable, int]] = set()
         self.not_goal: frozenset[int] = frozenset()
 
 
@@ -681,7 +700,7 @@ def _records(n_envs: int) -> np.ndarray:
 
 
 def _guard_places(batch: Any, states: np.ndarray, frame_key: str | None = None) -> list[Hashable]:
-    """Each observation's place for the bump guard: its memory state, else its bytes (every key, sorted; but the
+    """Each observation's place for the episode guard: its memory state, else its bytes (every key, sorted; but the
     frame's key, where the frame is declared: the slots are compass slots then, the same at every heading)."""
     if isinstance(batch, Mapping):
         arrays = [np.asarray(batch[key]) for key in sorted(batch) if key != frame_key]
