@@ -86,7 +86,7 @@ def test_episodes(model: BaseAlgorithm, env: CampusNavEnv, goal: str, n_episodes
             obs, info = env.reset(options={"goal": goal})
         start, shortest, steps = info["node"], info["shortest_distance"], 0
         terminated = truncated = False
-        state = None  # what the model remembers within the episode (a route memory's prior and bump guard)
+        state = None  # what the model remembers within the episode (a route memory's prior and episode guard)
         while not (terminated or truncated):
             action, state = model.predict(obs, state=state, episode_start=np.array([steps == 0]), deterministic=True)
             obs, _, terminated, truncated, info = env.step(int(np.asarray(action).reshape(-1)[0]))

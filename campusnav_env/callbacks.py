@@ -286,7 +286,7 @@ class RouteEvaluationCallback(_TrainingProgress):
         train_seconds = self.train_seconds
         model = self.model
 
-        # The model itself: asked with episode starts and its state per route (the memory's prior, its bump guard)
+        # The model itself: asked with episode starts and its state per route (the memory's prior, its episode guard)
         policy: Policy = model if self.policy is None else self.policy(model)
         observed = self.observed_env
         if self.sample is None:
