@@ -496,7 +496,7 @@ class RouteMemoryLayer:
         frames = self._slots(batch, np.zeros_like(actions))  # the slot of action 0: the frame (0 where none)
         slot_of_action = (frames[:, None] + np.arange(n_slots)[None, :]) % n_slots
         made, bumped = self._episode_guard.made_slots(places, n_slots)
-        made[bumped] = np.iinfo(made.dtype).max
+        made[bumped] = np.iinfo(made.dtype).max  # a move that bumped counts as made for good
         chance = np.zeros(made.shape, dtype=bool)  # a repeat of a stochastic move is chance, not a loop
         chance[states >= 0] = self.memory.edges.stochastic[states[states >= 0]]
         banned = made >= LOOP_REPEATS
@@ -654,11 +654,10 @@ class _EpisodeGuard:
         bumped."""
         made = np.zeros((self.n_envs, n_slots), dtype=np.int64)
         bumped = np.zeros((self.n_envs, n_slots), dtype=bool)
-        for env, record in enumerate(self.envs):
-            for (place, slot), times in record.taken.items():
-                made[env, slot] += times if place == places[env] else 0
-            for place, slot in record.bumped:
-                bumped[env, slot] |= place == places[env]
+        for env, (record, place) in enumerate(zip(self.envs, places, strict=True)):
+            for slot in range(n_slots):  # looked up at this place: the episode's other moves are not read
+                made[env, slot] = record.taken.get((place, slot), 0)
+                bumped[env, slot] = (place, slot) in record.bumped
         return made, bumped
 
     def remember(self, places: list[Hashable], slots: np.ndarray) -> None:
