@@ -314,12 +314,21 @@ def look_alike(env: CampusNavEnv, observations: dict[str, np.ndarray], nodes: np
     return observations
 
 
-def look_alike_transitions(env: CampusNavEnv, goal: int, pair: tuple[int, int], seed: int) -> tuple[Any, ...]:
-    """:func:`noisy_transitions` of every (state, action) but the goal's, in the world of :func:`look_alike`."""
+def look_alike_transitions(
+    env: CampusNavEnv, goal: int, pair: tuple[int, int], seed: int, but: tuple[int, ...] = ()
+) -> tuple[Any, ...]:
+    """:func:`noisy_transitions` of every (state, action) but the goal's (and those at the nodes ``but``), in the
+    world of :func:`look_alike`."""
     n_states, n_actions = env.graph.transition_table.shape
     states, actions = np.repeat(np.arange(n_states), n_actions), np.tile(np.arange(n_actions), n_states)
-    keep = env.graph.map.state_nodes[states] != goal
-    states, actions = states[keep], actions[keep]
+    keep = ~np.isin(env.graph.map.state_nodes[states], (goal, *but))
+    return look_alike_moves(env, goal, pair, states[keep], actions[keep], seed)
+
+
+def look_alike_moves(
+    env: CampusNavEnv, goal: int, pair: tuple[int, int], states: np.ndarray, actions: np.ndarray, seed: int
+) -> tuple[Any, ...]:
+    """:func:`noisy_transitions` of ``(states[i], actions[i])`` in the world of :func:`look_alike`."""
     obs, actions, following, rewards, arrived, _ = transitions(env, goal, states, actions)
     nodes, (next_states, _) = env.graph.map.state_nodes, env.graph.move(states, actions)
     look_alike(env, obs, nodes[states], pair)
@@ -358,6 +367,24 @@ def test_look_alike_places_remembered_as_one_state_split_in_two_once_a_road_lead
         for start in zip(nodes, headings, strict=True)
     ]
     np.testing.assert_array_equal(lengths, plain_env.node_distances(goal)[nodes])  # every route shortest, both places
+
+
+def test_a_place_whose_single_road_led_to_two_places_once_each_stays_one_place(plain_env: CampusNavEnv) -> None:
+    _, goal = plain_env.resolve_goal("Dreese Lab")
+    pair = look_alike_pair(plain_env, goal)
+    memory = RouteMemory.for_env(plain_env)
+    memory.add_batch(*look_alike_transitions(plain_env, goal, pair, seed=0, but=pair))
+    first, second = pair
+    slots = plain_env.graph.map.slots
+    road = int(np.flatnonzero((slots[first] >= 0) & (slots[second] >= 0) & (slots[first] != slots[second]))[0])
+    # The road from the first place, then from the second (the far end's way back, inferred, led to the second's
+    # end before): two places, once each at one road only: a glitch of one move is no two places
+    for turn, node in enumerate((first, second)):
+        heading = plain_env.headings_at(node)[0]
+        state = int(plain_env.graph.map.state_of[node, heading])
+        action = (road - heading) % 4
+        memory.add_batch(*look_alike_moves(plain_env, goal, pair, np.array([state]), np.array([action]), seed=turn))
+    assert memory.split == 0
 
 
 def test_one_try_per_road_and_per_empty_slot_routes_every_start_at_every_heading(plain_env: CampusNavEnv) -> None:
