@@ -214,3 +214,37 @@ def test_the_store_grows_and_pickles_its_used_rows() -> None:
 def test_bad_settings_are_named() -> None:
     with pytest.raises(ValueError, match="retry_after"):
         EdgeStore(4, retry_after=0)
+
+
+@pytest.mark.parametrize("count_outcomes", [False, True])
+def test_a_reloaded_store_settles_its_disputes_as_the_store_that_saved_it_did(count_outcomes: bool) -> None:
+    # A small world whose moves lead to their ends but from two states that picture two places each, and to a random
+    # end now and then (disputes, aliases and twins; counted, moves that turn out to be chance), with merges, splits
+    # and a forgetting among them: at every step the store and its copy loaded from a pickle of the step before (which
+    # reads its disputes anew) decide the same aliases and twins
+    rng = np.random.default_rng(0)
+    edges = EdgeStore(4, reverse_action=BACK, retry_after=10, count_outcomes=count_outcomes)
+    edges.ensure(16)
+    sibling, aliased_ever = 10, False
+    ends = rng.integers(0, 10, (10, 4))
+    other_ends = rng.integers(0, 10, (10, 4))  # states 0 and 1 picture two places each
+    for step in range(900):
+        state, slot = (int(value) for value in rng.integers(0, (10, 4)))
+        following = int((other_ends if state < 2 and step % 2 else ends)[state, slot])
+        if rng.random() < 0.05:  # a glitch of recognition
+            following = int(rng.integers(0, 10))
+        keep, drop = sorted(rng.choice(10, 2, replace=False).tolist())
+        copy = pickle.loads(pickle.dumps(edges))
+        for store in (edges, copy):
+            store.record(state, slot, following=following, arrival=slot, dead=False)
+            if step % 150 == 149:
+                store.merge(keep, drop)
+            alias = store.alias_of(min(store.aliased), lambda first, second: False) if store.aliased else None
+            if step % 40 == 39 and alias is not None and sibling < 16:
+                store.split(min(store.aliased), alias[0], sibling, alias[2])
+            if step == 300:
+                store.forget_disputes()
+        sibling += step % 40 == 39 and alias is not None
+        assert (edges.aliased, edges.twins) == (copy.aliased, copy.twins), step
+        aliased_ever |= bool(edges.aliased)
+    assert edges.twins and aliased_ever  # the world exercised both

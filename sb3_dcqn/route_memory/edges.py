@@ -121,6 +121,9 @@ class EdgeStore:
         self.aliased: set[int] = set()
         self.twins: set[tuple[int, int]] = set()  # pairs of states shown to be one place, for the caller to merge
         self._disputes: dict[tuple[int, int], dict[int, int]] = {}
+        # The disputed moves that led to each state (:meth:`_led_to`), kept as disputes grow; None: read anew when
+        # asked (after a dispute was dropped)
+        self._led_to_index: dict[int, set[tuple[int, int]]] | None = None
         # Disputed outcomes since the caller last took them: (state, slot, the state it led to)
         self.disputed: list[tuple[int, int, int]] = []
         # Exact states only: per (state, slot), how often it ended where (a state, or DEAD), its last end, and how many
@@ -203,6 +206,7 @@ class EdgeStore:
             self.stochastic[state, slot] = True
             self.n_stochastic += 1
             if self._disputes.pop(key, None) is not None:  # its two ends were chance, not two places
+                self._led_to_index = None
                 self._settle(_never_alike)
             self.version += 1
         elsewhere = {target: count for target, count in ends.items() if target not in (state, DEAD, -1)}
@@ -306,6 +310,9 @@ class EdgeStore:
         the state is aliased; a state aliased before is cleared where its states have since shown to be one place."""
         counts = self._disputes.setdefault((state, slot), {known: 1} if known >= 0 else {})
         counts[following] = counts.get(following, 0) + 1
+        if self._led_to_index is not None:
+            for target in counts:
+                self._led_to_index.setdefault(target, set()).add((state, slot))
         self.disputed.append((state, slot, following))
         # The moves that led to each state and each pair's look, read once for every aliased state: scanning every
         # dispute for each aliased state and pair made a dispute cost the square of them (the hours 0-24 world, 62
@@ -336,12 +343,13 @@ class EdgeStore:
                 self.version += 1
 
     def _led_to(self) -> dict[int, set[tuple[int, int]]]:
-        """For each state, the disputed moves that led to it."""
-        led_to: dict[int, set[tuple[int, int]]] = {}
-        for key, counts in self._disputes.items():
-            for target in counts:
-                led_to.setdefault(target, set()).add(key)
-        return led_to
+        """For each state, the disputed moves that led to it (the caller only reads it)."""
+        if self._led_to_index is None:
+            self._led_to_index = {}
+            for key, counts in self._disputes.items():
+                for target in counts:
+                    self._led_to_index.setdefault(target, set()).add(key)
+        return self._led_to_index
 
     def _splits(
         self,
@@ -392,6 +400,7 @@ class EdgeStore:
         """
         self.ensure(max(state, sibling, moved) + 1)
         counts = self._disputes.pop((state, slot), {})
+        self._led_to_index = None
         kept = max((target for target in counts if target != moved), key=lambda t: counts[t], default=-1)
         latest, arrival = int(self.target[state, slot]), int(self.arrival[state, slot])  # the frame at the latest end
         for name, fill in _FILL.items():
@@ -418,6 +427,7 @@ class EdgeStore:
         if self._disputes or self.aliased or self.twins:
             self.version += 1
         self._disputes.clear()
+        self._led_to_index = None
         self.aliased.clear()
         self.twins.clear()
         self.disputed.clear()
@@ -454,6 +464,7 @@ class EdgeStore:
         self.outcome[drop] = Outcome.OUTSIDE
         rows = slice(0, self.n_rows)
         self.target[rows][self.target[rows] == drop] = keep
+        self._led_to_index = None
         for key in [key for key in self._disputes if key[0] == drop]:
             del self._disputes[key]
         for counts in self._disputes.values():
@@ -530,6 +541,7 @@ class EdgeStore:
         state = self.__dict__.copy()
         for name in _FILL:
             state[name] = getattr(self, name)[: self.n_rows].copy()
+        state["_led_to_index"] = None  # read anew from the disputes when asked
         return state
 
     def __setstate__(self, state: dict) -> None:
@@ -539,6 +551,7 @@ class EdgeStore:
         for name in ("counts", "_last_end", "_changes"):  # saved before outcomes were counted
             state.setdefault(name, {})
         state.setdefault("n_stochastic", 0)
+        state.setdefault("_led_to_index", None)  # saved before it was kept
         state.setdefault("count_outcomes", False)
         if "stochastic" not in state:
             state["stochastic"] = np.zeros_like(state["outcome"], dtype=np.bool_)
