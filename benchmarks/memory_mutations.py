@@ -201,7 +201,7 @@ MUTATIONS = (
     Mutation(
         "edges",
         "two states that several moves lead to by turns are two aliased places",
-        "not alike(first, second) and not self._one_place(first, second, source, led_to)",
+        "not alike(first, second) and not self._one_place(first, second, source)",
         "not alike(first, second)",
     ),
     Mutation(

@@ -314,31 +314,25 @@ class EdgeStore:
             for target in counts:
                 self._led_to_index.setdefault(target, set()).add((state, slot))
         self.disputed.append((state, slot, following))
-        # The moves that led to each state and each pair's look, read once for every aliased state: scanning every
-        # dispute for each aliased state and pair made a dispute cost the square of them (the hours 0-24 world, 62
-        # aliased states: 30 ms a transition); the prototypes do not move meanwhile
-        led_to, alike = self._led_to(), functools.cache(alike)
-        self._settle(alike, but=state, led_to=led_to)
-        if state not in self.aliased and self._splits((state, slot), alike, led_to):
+        # Each pair's look read once for every aliased state (the prototypes do not move meanwhile), and the moves that
+        # led to each state kept (_led_to): scanning every dispute for each aliased state and pair made a dispute cost
+        # the square of them (the hours 0-24 world, 62 aliased states: 30 ms a transition)
+        alike = functools.cache(alike)
+        self._settle(alike, but=state)
+        if state not in self.aliased and self._splits((state, slot), alike):
             self.aliased.add(state)
             self.version += 1
 
-    def _settle(
-        self,
-        alike: Callable[[int, int], bool],
-        but: int = -1,
-        led_to: dict[int, set[tuple[int, int]]] | None = None,
-    ) -> None:
+    def _settle(self, alike: Callable[[int, int], bool], but: int = -1) -> None:
         """Aliased states (but ``but``) whose disputed moves have since shown their states to be one place (merged, or
-        alike) are aliased no more. ``led_to``: :meth:`_led_to`, where the caller has it."""
+        alike) are aliased no more."""
         if not self.aliased.difference((but,)):
             return
-        keys_of: dict[int, list[tuple[int, int]]] = {}
+        keys_of: dict[int, list[tuple[int, int]]] = {}  # each state's disputed moves, read once
         for key in self._disputes:
             keys_of.setdefault(key[0], []).append(key)
-        led_to = self._led_to() if led_to is None else led_to
         for aliased in [other for other in self.aliased if other != but]:
-            if not any(self._splits(key, alike, led_to) for key in keys_of.get(aliased, ())):
+            if not any(self._splits(key, alike) for key in keys_of.get(aliased, ())):
                 self.aliased.discard(aliased)
                 self.version += 1
 
@@ -351,31 +345,18 @@ class EdgeStore:
                     self._led_to_index.setdefault(target, set()).add(key)
         return self._led_to_index
 
-    def _splits(
-        self,
-        source: tuple[int, int],
-        alike: Callable[[int, int], bool],
-        led_to: dict[int, set[tuple[int, int]]] | None = None,
-    ) -> bool:
+    def _splits(self, source: tuple[int, int], alike: Callable[[int, int], bool]) -> bool:
         """Whether a disputed move led to two states, twice each, that are not one place remembered twice."""
-        return self._two_places(source, alike, led_to) is not None
+        return self._two_places(source, alike) is not None
 
-    def _two_places(
-        self,
-        source: tuple[int, int],
-        alike: Callable[[int, int], bool],
-        led_to: dict[int, set[tuple[int, int]]] | None = None,
-    ) -> tuple[int, int] | None:
+    def _two_places(self, source: tuple[int, int], alike: Callable[[int, int], bool]) -> tuple[int, int] | None:
         """Two states a disputed move led to, twice each, that are not one place remembered twice (the most frequent
-        first), else ``None``. ``led_to``: :meth:`_led_to`, where the caller has it."""
+        first), else ``None``."""
         counts = self._disputes[source]
         frequent = sorted((target for target, count in counts.items() if count >= 2), key=lambda t: -counts[t])
-        if len(frequent) < 2:
-            return None
-        led_to = self._led_to() if led_to is None else led_to
         for index, first in enumerate(frequent):
             for second in frequent[index + 1 :]:
-                if not alike(first, second) and not self._one_place(first, second, source, led_to):
+                if not alike(first, second) and not self._one_place(first, second, source):
                     return first, second
         return None
 
@@ -432,14 +413,13 @@ class EdgeStore:
         self.twins.clear()
         self.disputed.clear()
 
-    def _one_place(
-        self, first: int, second: int, source: tuple[int, int], led_to: dict[int, set[tuple[int, int]]]
-    ) -> bool:
-        """Whether another move has led to both states too (``led_to``: :meth:`_led_to`): one place remembered as two
-        (its pictures vary more than the recogniser's thresholds), not two places that ``source``'s state pictures
-        alike. Such pairs are kept in :attr:`twins` for the caller to merge (:meth:`merge`)."""
+    def _one_place(self, first: int, second: int, source: tuple[int, int]) -> bool:
+        """Whether another move has led to both states too: one place remembered as two (its pictures vary more than
+        the recogniser's thresholds), not two places that ``source``'s state pictures alike. Such pairs are kept in
+        :attr:`twins` for the caller to merge (:meth:`merge`)."""
         if not self.one_place_twice:
             return False
+        led_to = self._led_to()
         twins = bool(led_to.get(first, set()) & led_to.get(second, set()) - {source})
         if twins:
             self.twins.add((min(first, second), max(first, second)))
