@@ -484,8 +484,7 @@ class PlaceRecogniser:
         if int(self._owner[first]) == int(self._owner[second]):
             return True
         if first not in self._members and second not in self._members:  # one prototype each (most places): one reading
-            apart = self._prototypes[:, second].astype(np.float64) - self._prototypes[:, first].astype(np.float64)
-            return bool(np.partition(np.sqrt((apart**2).sum(axis=1)), self.kth - 1)[self.kth - 1] < self.new)
+            return bool(self._exact_distances(self._prototypes[:, first].reshape(-1), np.array([second]))[0] < self.new)
         return any(
             self._exact_distances(self._prototypes[:, member].reshape(-1), self.members(second)).min() < self.new
             for member in self.members(first).tolist()
