@@ -31,9 +31,10 @@ that carries a heading or a position is compared bit for bit), and slots are the
 **Until its first calibration** (the first ``min_calibration`` distinct pictures of places) the memory holds the
 transitions it is given, then remembers them in order: it never guesses a place before it knows what "the same place"
 looks like in this world. **A guard**: where states grow like transitions (more than ``GROWTH_GUARD`` new states per
-transition over ``GUARD_WINDOW`` transitions) or most pictures stay unsure, recognition is failing: the memory warns
-once and steps aside for good (every answer -1): the critics act alone from then on; so does a memory none of whose
-first ``NEVER_AGAIN_WINDOW`` transitions met a state seen before (observations that never repeat). **Its evidence**
+transition over ``GUARD_WINDOW`` transitions), recognition is failing: the memory warns once and steps aside for good
+(every answer -1): the critics act alone from then on; so does a memory none of whose first ``NEVER_AGAIN_WINDOW``
+transitions met a state seen before (observations that never repeat). Unsure pictures alone are no failure (its
+predictions judge what it recognises). **Its evidence**
 (:mod:`~sb3_dcqn.route_memory.evidence`): each move it knows predicts a state, scored against the state recognised
 after it; where those predictions fail it stands aside (:attr:`RouteMemory.speaks` false: no routes, no exploration,
 no place merged or split) until they hold again. **Stochastic moves** (poses: see
@@ -100,7 +101,6 @@ GROWTH_GUARD = 0.75  # new states per transition past which recognition is faili
 # Transitions after which a memory none of whose pictures came twice steps aside (CartPole: every observation new):
 # a memory of places the agent never sees again only biases its exploration
 NEVER_AGAIN_WINDOW = 100
-UNSURE_GUARD = 0.5  # share of unsure pictures past which recognition is failing
 
 
 def default_goal_keys(observation_space: spaces.Space | None) -> tuple[str, ...]:
@@ -629,7 +629,7 @@ class RouteMemory:
 
     def _check_recognition(self) -> None:
         """Step aside where recognition is failing (see the module docstring)."""
-        transitions, new, unsure = self._guard_totals.tolist()
+        transitions, new, _ = self._guard_totals.tolist()
         recogniser = self.recogniser
         if recogniser.calibrated and not recogniser.separable and recogniser.window_full:
             self._step_aside(
@@ -642,8 +642,9 @@ class RouteMemory:
             )
         elif transitions >= GUARD_WINDOW and new > GROWTH_GUARD * transitions:
             self._step_aside(f"{new} new states in the last {transitions} transitions: places are not recognised")
-        elif transitions >= GUARD_WINDOW and unsure > UNSURE_GUARD * transitions:
-            self._step_aside(f"{unsure} of the last {transitions} transitions met a picture it was unsure of")
+        # Pictures it is unsure of are no reason: a varied world's first thresholds leave most of them unsure for a
+        # while, and the predictions judge what it does recognise (hours 9-17, seeds 31 33 35: stepped aside for good
+        # at 0.90-0.95 of its predictions true, the critics then took 19,250 env steps or more than 30,000)
 
     def _step_aside(self, reason: str) -> None:
         if self.stepped_aside:
