@@ -36,7 +36,7 @@ from sb3_dcqn.route_memory import (
 )
 from sb3_dcqn.route_memory.evidence import PREDICTION_WINDOW
 from sb3_dcqn.route_memory.memory import GUARD_WINDOW, select_rows
-from sb3_dcqn.route_memory.places import digest
+from sb3_dcqn.route_memory.places import PlaceRecogniser, digest
 
 pytestmark = pytest.mark.usefixtures("shared_feature_cache")
 
@@ -840,18 +840,30 @@ def test_pictures_that_never_separate_places_make_the_memory_step_aside_once() -
     assert memory.statistics()["stepped_aside"] == 1.0
 
 
-def test_a_transition_to_a_picture_the_memory_is_unsure_of_records_nothing(plain_env: CampusNavEnv) -> None:
-    _, goal = plain_env.resolve_goal("Dreese Lab")
-    memory = RouteMemory.for_env(plain_env)
-    explore_fully(plain_env, memory, goal, sigma=NOISE)
-    recogniser = memory.recogniser
-    heading = plain_env.headings_at(0)[0]
-    here = plain_env.observation_at(0, heading, goal)
+def _explored_with_a_known_road(
+    env: CampusNavEnv,
+) -> tuple[RouteMemory, int, dict[str, np.ndarray], int, int]:
+    """A memory that explored every road (goal Dreese Lab), the goal, node 0's picture at its first heading, that
+    picture's state and the slot of a road from it that the memory knows leads elsewhere."""
+    _, goal = env.resolve_goal("Dreese Lab")
+    memory = RouteMemory.for_env(env)
+    explore_fully(env, memory, goal, sigma=NOISE)
+    here = env.observation_at(0, env.headings_at(0)[0], goal)
     state = memory.state_of(here)
-    slot = int(np.flatnonzero(memory.outcome[state] == DRIVEN)[0])  # a road the memory knows leads elsewhere
-    views = here["views"].reshape(4, -1)
-    blurred = views + np.sqrt(recogniser.known * recogniser.new) / np.sqrt(views.shape[1])  # in the unsure band
-    unsure = {**here, "views": blurred.reshape(-1).astype(np.float32)}  # nearest this place, not clearly it
+    return memory, goal, here, state, int(np.flatnonzero(memory.outcome[state] == DRIVEN)[0])
+
+
+def _unsure_picture(recogniser: PlaceRecogniser, observation: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The observation with every view moved into the recogniser's unsure band (between ``known`` and ``new``)."""
+    views = observation["views"].reshape(4, -1)
+    blurred = views + np.sqrt(recogniser.known * recogniser.new) / np.sqrt(views.shape[1])
+    return {**observation, "views": blurred.reshape(-1).astype(np.float32)}
+
+
+def test_a_transition_to_a_picture_the_memory_is_unsure_of_records_nothing(plain_env: CampusNavEnv) -> None:
+    memory, _, here, state, slot = _explored_with_a_known_road(plain_env)
+    recogniser, heading = memory.recogniser, plain_env.headings_at(0)[0]
+    unsure = _unsure_picture(recogniser, here)  # nearest this place, not clearly it
     first = np.sort(recogniser.distances(memory._pictures(_batch(unsure))[0]))[0]
     assert recogniser.known < first < recogniser.new  # in the unsure band (a query would take the nearest place)
     clock, version, tried = memory.clock, memory.version, int(memory.last_tried[state, slot])
@@ -863,21 +875,14 @@ def test_a_transition_to_a_picture_the_memory_is_unsure_of_records_nothing(plain
 
 
 def test_a_picture_the_memory_is_unsure_of_is_the_place_a_remembered_move_leads_to(plain_env: CampusNavEnv) -> None:
-    _, goal = plain_env.resolve_goal("Dreese Lab")
-    memory = RouteMemory.for_env(plain_env)
-    explore_fully(plain_env, memory, goal, sigma=NOISE)
+    memory, goal, here, state, slot = _explored_with_a_known_road(plain_env)
     recogniser = memory.recogniser
-    here = plain_env.observation_at(0, plain_env.headings_at(0)[0], goal)
-    state = memory.state_of(here)
-    slot = int(np.flatnonzero(memory.outcome[state] == DRIVEN)[0])
     arrival = int(memory.arrival[state, slot])
     there = int(memory.target[state, slot])
     node = int(plain_env.graph.map.slots[0, slot])  # the intersection that slot's road leads to
     seen = plain_env.observation_at(node, arrival, goal)
     assert memory.state_of(seen) == there
-    views = seen["views"].reshape(4, -1)
-    blurred = views + np.sqrt(recogniser.known * recogniser.new) / np.sqrt(views.shape[1])  # in the unsure band
-    unsure = {**seen, "views": blurred.reshape(-1).astype(np.float32)}
+    unsure = _unsure_picture(recogniser, seen)
     first = np.sort(recogniser.distances(memory._pictures(_batch(unsure))[0]))[0]
     assert recogniser.known < first < recogniser.new  # alone, the picture is too far to remember as that place...
     unsure_before = memory.statistics()["unsure_share"]
@@ -897,23 +902,15 @@ def test_pictures_mostly_unsure_never_make_the_memory_step_aside_for_good_its_pr
     # A varied world's early thresholds leave most pictures unsure for a while, and the moves the memory does
     # recognise may still come true (the hours 9-17 world, seeds 31 33 35): unsure pictures alone are no failure.
     # Where its predictions fail as well, it stands aside for now, and speaks again once they hold
-    _, goal = plain_env.resolve_goal("Dreese Lab")
-    memory = RouteMemory.for_env(plain_env)
-    explore_fully(plain_env, memory, goal, sigma=NOISE)
-    recogniser = memory.recogniser
-    heading = plain_env.headings_at(0)[0]
-    here = plain_env.observation_at(0, heading, goal)
-    state = memory.state_of(here)
-    slot = int(np.flatnonzero(memory.outcome[state] == DRIVEN)[0])
+    memory, goal, here, state, slot = _explored_with_a_known_road(plain_env)
+    recogniser, heading = memory.recogniser, plain_env.headings_at(0)[0]
     action, n = (slot - heading) % 4, PREDICTION_WINDOW
     there = plain_env.observation_at(int(plain_env.graph.map.slots[0, slot]), int(memory.arrival[state, slot]), goal)
     if predictions_fail:  # the known move leads to two other intersections by turns: a miss each time
         ends = [plain_env.observation_at(node, plain_env.headings_at(node)[0], goal) for node in (goal, 50)]
         gone = {key: np.stack([ends[i % 2][key] for i in range(n)]) for key in here}
         memory.add_batch(_repeated(here, n), np.full(n, action), gone, np.zeros(n), np.zeros(n, bool))
-    views = here["views"].reshape(4, -1)
-    blurred = views + np.sqrt(recogniser.known * recogniser.new) / np.sqrt(views.shape[1])  # in the unsure band
-    unsure = {**here, "views": blurred.reshape(-1).astype(np.float32)}
+    unsure = _unsure_picture(recogniser, here)
     flood = GUARD_WINDOW + 1
     memory.add_batch(
         _repeated(unsure, flood), np.full(flood, action), _repeated(there, flood), np.zeros(flood), np.zeros(flood)
