@@ -176,8 +176,9 @@ def plain_env() -> CampusNavEnv:
     return CampusNavEnv(goals=["Dreese Lab", "Cinema"], **SMALL)
 
 
-def _batch(observation: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    return {key: np.asarray(value)[None] for key, value in observation.items()}
+def _batch(observation: dict[str, np.ndarray], n: int = 1) -> dict[str, np.ndarray]:
+    """A batch of ``n`` copies of one observation."""
+    return {key: np.repeat(np.asarray(value)[None], n, axis=0) for key, value in observation.items()}
 
 
 # ----------------------------------------------------------------------------------------------- the env's frame
@@ -891,10 +892,6 @@ def test_a_picture_the_memory_is_unsure_of_is_the_place_a_remembered_move_leads_
     assert memory.statistics()["unsure_share"] <= unsure_before
 
 
-def _repeated(observation: dict[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
-    return {key: np.repeat(np.asarray(value)[None], n, axis=0) for key, value in observation.items()}
-
-
 @pytest.mark.parametrize("predictions_fail", [False, True])
 def test_pictures_mostly_unsure_never_make_the_memory_step_aside_for_good_its_predictions_decide(
     plain_env: CampusNavEnv, predictions_fail: bool
@@ -909,15 +906,15 @@ def test_pictures_mostly_unsure_never_make_the_memory_step_aside_for_good_its_pr
     if predictions_fail:  # the known move leads to two other intersections by turns: a miss each time
         ends = [plain_env.observation_at(node, plain_env.headings_at(node)[0], goal) for node in (goal, 50)]
         gone = {key: np.stack([ends[i % 2][key] for i in range(n)]) for key in here}
-        memory.add_batch(_repeated(here, n), np.full(n, action), gone, np.zeros(n), np.zeros(n, bool))
+        memory.add_batch(_batch(here, n), np.full(n, action), gone, np.zeros(n), np.zeros(n, bool))
     unsure = _unsure_picture(recogniser, here)
     flood = GUARD_WINDOW + 1
     memory.add_batch(
-        _repeated(unsure, flood), np.full(flood, action), _repeated(there, flood), np.zeros(flood), np.zeros(flood)
+        _batch(unsure, flood), np.full(flood, action), _batch(there, flood), np.zeros(flood), np.zeros(flood)
     )
     assert memory.statistics()["unsure_share"] > 0.5 and not memory.stepped_aside
     assert memory.speaks != predictions_fail  # the evidence decides, not the unsure share
-    memory.add_batch(_repeated(here, n), np.full(n, action), _repeated(there, n), np.zeros(n), np.zeros(n, bool))
+    memory.add_batch(_batch(here, n), np.full(n, action), _batch(there, n), np.zeros(n), np.zeros(n, bool))
     assert memory.speaks and memory.statistics()["prediction_accuracy"] > 0.9  # its move comes true again
 
 
