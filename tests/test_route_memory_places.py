@@ -7,7 +7,7 @@ import pickle
 import numpy as np
 import pytest
 
-from sb3_dcqn.route_memory.places import Answer, PlaceRecogniser, widest_gap
+from sb3_dcqn.route_memory.places import Answer, PlaceRecogniser, linked_groups, widest_gap
 
 VIEWS, WIDTH = 4, 16  # four views of 16 features each
 SPREAD = 3.0  # features of a place: N(0, SPREAD): two places are about SPREAD * sqrt(2 * WIDTH) = 17 apart per view
@@ -316,6 +316,36 @@ def test_look_alike_places_are_new_places_not_unsure_at_every_visit() -> None:
     assert recogniser.n_states == 36
     states, answers = recogniser.recognise(visits(np.concatenate([places, twins]), np.arange(36), seed=12))
     assert (answers == Answer.KNOWN).all() and len(set(states.tolist())) == 36
+
+
+def test_a_place_whose_pictures_drift_visit_by_visit_stays_one_place() -> None:
+    # Every place is pictured at 8 hours in turn, each hour's light 1.5 per view further along a direction of its own:
+    # two visits of a place lie 1.5 to 10.5 apart, two places about 17. The widest gap falls inside the visits (1.5 ->
+    # 3); a place's visits 3 or more apart are then its own far visits, linked to it through the hours between, not
+    # its nearest other place: "new" is judged against the other places, and no hour's pictures become new places
+    places = world(30)
+    rng = np.random.default_rng(1)
+    drift = rng.normal(0.0, 1.0, places.shape).reshape(30, VIEWS, WIDTH)
+    drift = (drift / np.linalg.norm(drift, axis=2, keepdims=True)).reshape(places.shape)
+    hours = np.arange(8)
+    pictures = places[None] + 1.5 * hours[:, None, None] * drift[None] + rng.normal(0.0, 0.02, (8, *places.shape))
+    pictures = pictures.reshape(-1, VIEWS * WIDTH).astype(np.float32)  # hour by hour, every place each hour
+    recogniser = PlaceRecogniser(VIEWS * WIDTH, VIEWS, window=256, min_calibration=16)
+    recogniser.show(pictures)
+    recogniser.calibrate()
+    states, answers = recogniser.recognise(pictures, add=True)
+    assert recogniser.n_states == 30 and (answers != Answer.UNSURE).all()
+    assert all(len(set(states[place::30].tolist())) == 1 for place in range(30))  # each place one state, its own
+
+
+def test_linked_groups_are_the_connected_components() -> None:
+    linked = np.zeros((7, 7), dtype=bool)
+    for first, second in [(0, 3), (3, 5), (5, 6), (1, 4)]:  # a chain 0-3-5-6, a pair 1-4, 2 alone
+        linked[first, second] = linked[second, first] = True
+    assert linked_groups(linked).tolist() == [0, 1, 2, 0, 1, 0, 0]
+    path = np.eye(300, k=1, dtype=bool) | np.eye(300, k=-1, dtype=bool)  # one chain, 300 long
+    assert set(linked_groups(path).tolist()) == {0}
+    assert linked_groups(np.zeros((0, 0), dtype=bool)).size == 0
 
 
 def test_a_world_of_a_few_renders_per_view_calibrates_on_the_renders_differences() -> None:

@@ -50,7 +50,9 @@ sorted logarithms jump the most (exact repeats count as distance 0; views that t
 out of their distance, so a world of a few renders per view calibrates on the renders' differences). With ``g`` the 90th
 percentile of the repeat group and ``i`` the 10th of the other, ``known`` and ``new`` split ``[g, i]`` into thirds on a
 log scale, where ``i`` is the lower of that and the 10th percentile of each picture's nearest other place (look-alike
-places lie there). Where the pairs' ``i < 1.5 g`` the pictures do not separate places: until they first do,
+places lie there): the nearest picture not linked to it by a chain of repeat-group distances (a place pictured in
+drifting light has visits far apart, reached through the visits between; they are its own, not another place).
+Where the pairs' ``i < 1.5 g`` the pictures do not separate places: until they first do,
 :attr:`PlaceRecogniser.separable` is ``False`` and every picture that is not an exact repeat of a remembered one is
 ``UNSURE`` (so no state is made before the first calibration, at ``min_calibration`` distinct pictures). The thresholds
 are renewed each time the window's distinct pictures double until it is full (a first calibration on a few pictures
@@ -71,7 +73,7 @@ from enum import IntEnum
 
 import numpy as np
 
-__all__ = ["MAX_DIGESTS_PER_STATE", "Answer", "PlaceRecogniser", "digest", "widest_gap"]
+__all__ = ["MAX_DIGESTS_PER_STATE", "Answer", "PlaceRecogniser", "digest", "linked_groups", "widest_gap"]
 
 MAX_DIGESTS_PER_STATE = 8  # exact pictures remembered per place: repeats are found at once, varied ones by search
 SEARCH = -1  # _quick's word for "a search is needed"
@@ -122,6 +124,19 @@ def widest_gap(values: np.ndarray, min_group: int, above: float = -np.inf, below
     if not np.isfinite(gaps).any():
         return None
     return int(np.argmax(gaps)) + min_group
+
+
+def linked_groups(linked: np.ndarray) -> np.ndarray:
+    """The connected components of a symmetric boolean adjacency matrix: per node, the smallest node of its group."""
+    groups = np.arange(len(linked))
+    while groups.size:
+        # every node takes the smallest group among itself and its neighbours, until no group changes
+        reached = np.where(linked | np.eye(len(linked), dtype=bool), groups[None, :], len(linked)).min(axis=1)
+        reached = reached[reached]  # jump along the chain: halves the rounds
+        if np.array_equal(reached, groups):
+            break
+        groups = reached
+    return groups
 
 
 class PlaceRecogniser:
@@ -282,7 +297,10 @@ class PlaceRecogniser:
             # "New" means no remembered place is near, so the edge is the nearest other place of each picture (a low
             # quantile of those), not of a random pair: look-alike places lie there, and between known and new they
             # would stay unsure at every visit
-            other = np.where(matrix >= np.exp(logs[split]), matrix, np.nan)
+            # A picture's repeat visits beyond the split are still linked to it by a chain of visits within it (the
+            # place seen in between): the nearest other place is the nearest picture of another chain
+            chains = linked_groups(np.nan_to_num(matrix, nan=np.inf) < np.exp(logs[split]))
+            other = np.where(chains[:, None] != chains[None, :], matrix, np.nan)
             has_other = ~np.isnan(other).all(axis=1)
             if has_other.any():
                 nearest = np.nanmin(other[has_other], axis=1)
