@@ -129,9 +129,10 @@ def widest_gap(values: np.ndarray, min_group: int, above: float = -np.inf, below
 def linked_groups(linked: np.ndarray) -> np.ndarray:
     """The connected components of a symmetric boolean adjacency matrix: per node, the smallest node of its group."""
     groups = np.arange(len(linked))
+    itself_or_linked = linked | np.eye(len(linked), dtype=bool)
     while groups.size:
         # every node takes the smallest group among itself and its neighbours, until no group changes
-        reached = np.where(linked | np.eye(len(linked), dtype=bool), groups[None, :], len(linked)).min(axis=1)
+        reached = np.where(itself_or_linked, groups[None, :], len(linked)).min(axis=1)
         reached = reached[reached]  # jump along the chain: halves the rounds
         if np.array_equal(reached, groups):
             break
@@ -299,7 +300,7 @@ class PlaceRecogniser:
             # would stay unsure at every visit
             # A picture's repeat visits beyond the split are still linked to it by a chain of visits within it (the
             # place seen in between): the nearest other place is the nearest picture of another chain
-            chains = linked_groups(np.nan_to_num(matrix, nan=np.inf) < np.exp(logs[split]))
+            chains = linked_groups(matrix < np.exp(logs[split]))  # a pair left out (NaN) links nothing
             other = np.where(chains[:, None] != chains[None, :], matrix, np.nan)
             has_other = ~np.isnan(other).all(axis=1)
             if has_other.any():
