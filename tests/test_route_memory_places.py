@@ -320,9 +320,10 @@ def test_look_alike_places_are_new_places_not_unsure_at_every_visit() -> None:
 
 def test_a_place_whose_pictures_drift_visit_by_visit_stays_one_place() -> None:
     # Every place is pictured at 8 hours in turn, each hour's light 1.5 per view further along a direction of its own:
-    # two visits of a place lie 1.5 to 10.5 apart, two places about 17. The widest gap falls inside the visits (1.5 ->
-    # 3); a place's visits 3 or more apart are then its own far visits, linked to it through the hours between, not
-    # its nearest other place: "new" is judged against the other places, and no hour's pictures become new places
+    # two visits of a place lie 1.5 to 10.5 apart, two places about 17. The widest gap falls inside the visits (4.5 ->
+    # 6: three hours apart and four); a place's visits four or more hours apart are then its own far visits, linked to
+    # it through the hours between, not its nearest other place: "new" is judged against the other places, and no
+    # hour's pictures become new places
     places = world(30)
     rng = np.random.default_rng(1)
     drift = rng.normal(0.0, 1.0, places.shape).reshape(30, VIEWS, WIDTH)
